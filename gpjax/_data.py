@@ -1,0 +1,207 @@
+"""Measurements: a validated, uniformly sampled response with zero or more inputs.
+
+Sampling must be uniform: gpjax integrates with a fixed step between samples and computes
+spectra with the DFT, so a non-uniform time axis is refused (resample it first, e.g. with
+``numpy.interp``) rather than silently resampled.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ._errors import DataError
+
+MIN_SAMPLES = 20
+#: Largest allowed deviation of any sample interval from the mean one, as a fraction of it.
+SAMPLING_TOLERANCE = 1e-3
+#: Largest magnitude accepted in any column; beyond it squares overflow float64.
+MAX_MAGNITUDE = 1e100
+
+
+@dataclasses.dataclass(frozen=True)
+class Measurement:
+    """A measured response x(t) and its inputs u_k(t) on one uniform time grid.
+
+    Attributes:
+        time: sample times in seconds, shape (N,), strictly increasing and uniform.
+        response: measured response, shape (N,), in the user's units.
+        inputs: input name -> samples, shape (N,) each, in the user's units.
+        time_name, response_name: the column names (used in equations and model files).
+    """
+
+    time: np.ndarray
+    response: np.ndarray
+    inputs: dict[str, np.ndarray]
+    time_name: str = "t"
+    response_name: str = "x"
+
+    def __post_init__(self) -> None:
+        time = _as_vector(self.time, "time")
+        response = _as_vector(self.response, self.response_name)
+        inputs = {name: _as_vector(v, name) for name, v in self.inputs.items()}
+        n = time.size
+        for name, values in [(self.response_name, response), *inputs.items()]:
+            if values.size != n:
+                raise DataError(f"column {name!r} has {values.size} samples but time has {n}; "
+                                "give every column the same length")
+        names = [self.time_name, self.response_name, *inputs]
+        for name in names:
+            if not name.isidentifier() or name.startswith("_"):
+                raise DataError(f"column name {name!r} is not usable in equations; rename it to "
+                                "letters, digits and underscores, starting with a letter")
+        if len(set(names)) != len(names):
+            raise DataError(f"column names must differ, got {names}; name each column once")
+        if any(name.endswith("_dot") or name.endswith("_ddot") for name in names):
+            raise DataError("column names must not end in _dot or _ddot (reserved for derivatives); "
+                            "rename the column")
+        _check_time(time)
+        if n < MIN_SAMPLES:
+            raise DataError(f"only {n} samples; gpjax needs at least {MIN_SAMPLES}")
+        if np.ptp(response) == 0:
+            raise DataError(f"response {self.response_name!r} is constant; there is no dynamics "
+                            "to identify")
+        object.__setattr__(self, "time", time)
+        object.__setattr__(self, "response", response)
+        object.__setattr__(self, "inputs", inputs)
+
+    @property
+    def n_samples(self) -> int:
+        return self.time.size
+
+    @property
+    def dt(self) -> float:
+        """Sample interval in seconds."""
+        return float((self.time[-1] - self.time[0]) / (self.time.size - 1))
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return tuple(self.inputs)
+
+    def segment(self, start: int, stop: int) -> "Measurement":
+        """Samples ``start:stop`` (Python slice semantics) as a new measurement."""
+        return Measurement(
+            time=self.time[start:stop], response=self.response[start:stop],
+            inputs={k: v[start:stop] for k, v in self.inputs.items()},
+            time_name=self.time_name, response_name=self.response_name)
+
+    def to_csv(self, path: str | Path) -> None:
+        """Write the columns as CSV with a header (time, response, inputs)."""
+        columns = [self.time, self.response, *self.inputs.values()]
+        header = [self.time_name, self.response_name, *self.inputs]
+        with open(path, "w", newline="", encoding="utf-8") as handle:
+            writer = csv.writer(handle)
+            writer.writerow(header)
+            writer.writerows(zip(*(map(repr, map(float, c)) for c in columns)))
+
+
+def _as_vector(values, name: str) -> np.ndarray:
+    try:
+        array = np.asarray(values, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise DataError(f"column {name!r} is not numeric; remove text from it") from None
+    if array.ndim != 1:
+        raise DataError(f"column {name!r} must be one-dimensional, got shape {array.shape}")
+    bad = ~np.isfinite(array)
+    if bad.any():
+        i = int(np.argmax(bad))
+        raise DataError(f"column {name!r} holds {array[i]} at row {i + 1}; remove or fill "
+                        "NaN/inf values")
+    if array.size and np.max(np.abs(array)) > MAX_MAGNITUDE:
+        raise DataError(f"column {name!r} holds {np.max(np.abs(array)):.3g}, beyond "
+                        f"{MAX_MAGNITUDE:.0e}; rescale it to sensible units")
+    return array
+
+
+def _check_time(time: np.ndarray) -> None:
+    steps = np.diff(time)
+    if steps.size and np.any(steps <= 0):
+        i = int(np.argmax(steps <= 0))
+        raise DataError(f"time is not strictly increasing at row {i + 2} "
+                        f"({time[i]} then {time[i + 1]}); sort the rows and drop duplicate times")
+    if steps.size:
+        mean = (time[-1] - time[0]) / steps.size
+        worst = float(np.max(np.abs(steps - mean)) / mean)
+        if worst > SAMPLING_TOLERANCE:
+            raise DataError(f"time is not uniformly sampled (an interval differs by {worst:.1%} "
+                            "from the mean); resample to a uniform grid first")
+
+
+def load_csv(path: str | Path, *, time: str, response: str,
+             inputs: tuple[str, ...] | list[str] = ()) -> Measurement:
+    """Read a measurement from a CSV file with a header row.
+
+    Args:
+        path: the CSV file (comma-separated; a trailing comma on every row is accepted).
+        time: name of the time column, in seconds.
+        response: name of the measured response column.
+        inputs: names of the input (excitation) columns, in order; the first one is the
+            input whose coefficient is normalised to 1 in the model.
+
+    Raises:
+        DataError: missing file or column, non-numeric cell, NaN/inf, fewer than 20 rows,
+            time not strictly increasing or not uniform.
+    """
+    path = Path(path)
+    try:
+        with open(path, newline="", encoding="utf-8-sig") as handle:
+            rows = list(csv.reader(handle))
+    except FileNotFoundError:
+        raise DataError(f"data file {path} does not exist; check the path") from None
+    except IsADirectoryError:
+        raise DataError(f"data file {path} is a directory; give a CSV file") from None
+    except (OSError, UnicodeDecodeError, csv.Error) as err:
+        raise DataError(f"cannot read {path} as CSV text: {err}") from None
+    rows = [r for r in rows if any(cell.strip() for cell in r)]
+    if not rows:
+        raise DataError(f"data file {path} is empty; it needs a header row and data rows")
+    header = [cell.strip() for cell in rows[0]]
+    while header and header[-1] == "":
+        header.pop()
+    wanted = [time, response, *inputs]
+    if len(set(wanted)) != len(wanted):
+        raise DataError(f"the same column is named twice in {wanted}; name each column once")
+    if len(header) == 1 and any(sep in header[0] for sep in ";\t|"):
+        raise DataError(f"{path} does not look comma-separated (header {header[0]!r}); "
+                        "convert it to a comma-separated file")
+    for name in wanted:
+        if header.count(name) > 1:
+            raise DataError(f"column {name!r} appears {header.count(name)} times in the header of "
+                            f"{path}; rename the duplicates")
+        if name not in header:
+            hint = ("the file seems to have no header row; add one" if _is_number(header[0])
+                    else f"columns are: {', '.join(header)}")
+            raise DataError(f"column {name!r} not found in {path}; {hint}")
+    index = {name: header.index(name) for name in wanted}
+    data = {name: [] for name in wanted}
+    for line, row in enumerate(rows[1:], start=2):
+        for name in wanted:
+            j = index[name]
+            cell = row[j].strip() if j < len(row) else ""
+            try:
+                value = float(cell)
+            except ValueError:
+                raise DataError(f"{path} line {line}, column {name!r}: {cell!r} is not a number; "
+                                "fix or remove that row") from None
+            if not math.isfinite(value):
+                raise DataError(f"{path} line {line}, column {name!r} is {cell}; remove or fill "
+                                "NaN/inf values")
+            data[name].append(value)
+    if len(rows) - 1 < MIN_SAMPLES:
+        raise DataError(f"{path} has {len(rows) - 1} data rows; gpjax needs at least {MIN_SAMPLES}")
+    return Measurement(
+        time=np.array(data[time]), response=np.array(data[response]),
+        inputs={name: np.array(data[name]) for name in inputs},
+        time_name=time, response_name=response)
+
+
+def _is_number(text: str) -> bool:
+    try:
+        float(text)
+    except ValueError:
+        return False
+    return True

@@ -1,0 +1,270 @@
+"""The estimator users hold: ``Identifier(config).fit(measurement)``.
+
+Writes (when given a run folder): ``model.json``, ``history.csv``, ``equations.csv``,
+``fit.png``, ``config.json`` and ``checkpoint.json`` (rewritten atomically after every
+generation, so ``fit(..., resume=True)`` continues a killed run exactly).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from ._config import GPConfig
+from ._data import Measurement
+from ._errors import UserInputError
+from ._evolve import Evolution, RunState
+from ._fitness import Fitness, Record
+from ._model import Model, simulate_model
+from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
+from ._select import pareto_front, prune
+
+CHECKPOINT = "checkpoint.json"
+
+
+def data_fingerprint(measurement: Measurement) -> str:
+    """SHA-256 of the measurement's arrays and names (to refuse resuming on other data)."""
+    digest = hashlib.sha256()
+    for array in (measurement.time, measurement.response, *measurement.inputs.values()):
+        digest.update(np.ascontiguousarray(array, dtype=np.float64).tobytes())
+    digest.update(repr((measurement.time_name, measurement.response_name,
+                        measurement.input_names)).encode())
+    return digest.hexdigest()
+
+
+class Identifier:
+    """Derives a Newton–Euler ODE from a measured response by genetic programming.
+
+    Args:
+        config: run settings (:class:`GPConfig`); keyword overrides are applied on top.
+
+    After :meth:`fit`: ``model_`` (the reported :class:`Model`), ``equations_`` (the Pareto
+    table of complexity vs objective, one dict per row), ``history_`` (per generation),
+    ``stopped_by`` (``"epsilon"``, ``"generations"`` or ``"interrupted"``), timings in
+    ``timings_``.
+    """
+
+    def __init__(self, config: GPConfig | None = None, **overrides):
+        config = config or GPConfig()
+        self.config = config.replace(**overrides) if overrides else config
+        self.model_: Model | None = None
+        self.equations_: list[dict] = []
+        self.history_: list[dict] = []
+        self.stopped_by = ""
+        self.timings_: dict[str, float] = {}
+        self.measurement_: Measurement | None = None
+
+    # --- fitting ----------------------------------------------------------------------
+    def fit(self, measurement: Measurement, *, seed: int = 0, out: str | Path | None = None,
+            resume: bool = False, progress: bool | None = None) -> "Identifier":
+        """Run GP on ``measurement``.
+
+        Args:
+            measurement: the data.
+            seed: seed of the run's random generator (same seed and data: same model).
+            out: run folder for outputs and checkpoints (created if needed).
+            resume: continue from ``out/checkpoint.json`` instead of starting afresh.
+            progress: show a progress bar (default: only on a terminal).
+
+        Raises:
+            UserInputError: resuming without a checkpoint, or with other data or settings.
+        """
+        began = time.perf_counter()
+        out = Path(out) if out is not None else None
+        fitness = Fitness(measurement, self.config)
+        evolution = Evolution(fitness, self.config)
+        fingerprint = data_fingerprint(measurement)
+        if resume:
+            state, seed = self._load_checkpoint(out, fitness, fingerprint)
+        else:
+            state = evolution.start(seed)
+        self.measurement_ = measurement
+
+        def save(state: RunState) -> None:
+            if out is not None:
+                payload = {"config": self.config.to_dict(), "seed": seed, "data": fingerprint,
+                           "state": state.to_json(fitness)}
+                write_text_atomic(out / CHECKPOINT, json.dumps(payload))
+
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=self.config.generations, initial=state.generation, unit="gen",
+                   disable=None if progress is None else not progress, leave=False)
+        save(state)
+        interrupted = False
+        try:
+            while not state.done:
+                state = evolution.step(state)
+                save(state)
+                bar.update(1)
+                bar.set_postfix(best=f"{state.history[-1].best_objective:.4g}")
+        except KeyboardInterrupt:
+            interrupted = True
+        finally:
+            bar.close()
+        last = state.history[-1]
+        self.stopped_by = ("interrupted" if interrupted else
+                           "epsilon" if last.best_objective <= self.config.epsilon
+                           else "generations")
+        self._select(fitness, seed, state)
+        self.timings_ = {"total_s": time.perf_counter() - began,
+                         "compile_s": fitness.evaluator.compile_seconds,
+                         "generations": state.generation}
+        if out is not None:
+            self._write(out, fitness)
+        return self
+
+    def _load_checkpoint(self, out: Path | None, fitness: Fitness, fingerprint: str):
+        if out is None or not (out / CHECKPOINT).is_file():
+            raise UserInputError(f"no checkpoint to resume in {out}; run without --resume first")
+        try:
+            payload = json.loads((out / CHECKPOINT).read_text(encoding="utf-8"))
+            if payload["data"] != fingerprint:
+                raise UserInputError(f"{out / CHECKPOINT} was written for other data; resume "
+                                     "with the same CSV and columns")
+            if payload["config"] != self.config.to_dict():
+                raise UserInputError(f"{out / CHECKPOINT} was written with other settings; resume "
+                                     "with the same configuration")
+            return RunState.from_json(payload["state"], fitness), int(payload["seed"])
+        except (KeyError, TypeError, ValueError, json.JSONDecodeError) as err:
+            if isinstance(err, UserInputError):
+                raise
+            raise UserInputError(f"{out / CHECKPOINT} is damaged ({err}); start the run afresh "
+                                 "without --resume") from None
+
+    def _select(self, fitness: Fitness, seed: int, state: RunState) -> None:
+        valid = [r for r in fitness.records.values() if r.valid and r.status == 0]
+        if not valid:
+            raise UserInputError(
+                "no candidate model could be simulated (all invalid or diverged); check that "
+                "the response and input columns are right, or widen the function/terminal sets")
+        front = pareto_front(valid)
+        fitness.refine(front)
+        best = min(valid, key=lambda r: (r.objective, r.n_terms))
+        chosen, _ = prune(fitness, best, self.config.selection_tolerance)
+        front = pareto_front([r for r in fitness.records.values() if r.valid and r.status == 0])
+        if chosen.key not in {r.key for r in front}:
+            front = sorted(front + [chosen], key=lambda r: (r.n_terms, r.objective))
+        self.equations_ = [_row(r, fitness, chosen) for r in front]
+        self.history_ = [dict(vars(h)) for h in state.history]
+        self.model_ = self._to_model(chosen, fitness, seed, state)
+
+    def _to_model(self, record: Record, fitness: Fitness, seed: int, state: RunState) -> Model:
+        return Model(
+            symbols=fitness.symbols, mass=record.mass, state=dict(record.state),
+            forcing=dict(record.forcing), initial_conditions=record.y0,
+            metrics={"rms": record.rms, "f_time": record.f_time, "f_freq": record.f_freq,
+                     "objective": record.objective, "n_bins": fitness.evaluator.n_bins},
+            provenance={"seed": seed, "generations": state.generation,
+                        "stopped_by": self.stopped_by, "population": self.config.population,
+                        "coefficients": self.config.coefficients})
+
+    def _write(self, out: Path, fitness: Fitness) -> None:
+        self.model_.save(out / "model.json")
+        write_text_atomic(out / "history.csv", history_csv(self.history_))
+        write_text_atomic(out / "equations.csv", history_csv(self.equations_))
+        write_text_atomic(out / "config.json", json.dumps(self.config.to_dict(), indent=2) + "\n")
+        calculated = self.simulate()
+        m = self.model_.metrics
+        title = (f"{self.model_.sympy()}\nRMS = {m['rms']:.4g}, f = {m['objective']:.4g} "
+                 f"(f_time {m['f_time']:.4g} + f_freq {m['f_freq']:.4g})")
+        write_bytes_atomic(out / "fit.png", fit_figure(
+            self.measurement_.time, self.measurement_.response, calculated,
+            response_name=self.measurement_.response_name, n_bins=fitness.evaluator.n_bins,
+            title=title))
+
+    # --- using a fitted model -----------------------------------------------------------
+    def _need_model(self) -> Model:
+        if self.model_ is None:
+            raise UserInputError("this Identifier has no model yet; call fit() or load() first")
+        return self.model_
+
+    def simulate(self, measurement: Measurement | None = None) -> np.ndarray:
+        """The model's response on ``measurement`` (default: the fitting data).
+
+        On the fitting data the fitted initial conditions are used; on other data they
+        are estimated from its first samples (eq. 13).
+        """
+        model = self._need_model()
+        if measurement is None:
+            if self.measurement_ is None:
+                raise UserInputError("no data to simulate on; pass a Measurement")
+            return simulate_model(model, self.measurement_,
+                                  initial_conditions=model.initial_conditions)[0]
+        return simulate_model(model, measurement)[0]
+
+    def score(self, measurement: Measurement | None = None) -> float:
+        """Coefficient of determination R² of the simulated response (1 is perfect)."""
+        data = measurement or self.measurement_
+        simulated = self.simulate(measurement)
+        residual = np.sum((data.response - simulated) ** 2)
+        return float(1.0 - residual / np.sum((data.response - data.response.mean()) ** 2))
+
+    def sympy(self):
+        return self._need_model().sympy()
+
+    def latex(self) -> str:
+        return self._need_model().latex()
+
+    def __str__(self) -> str:
+        if self.model_ is None:
+            return f"Identifier(unfitted, population={self.config.population})"
+        m = self.model_.metrics
+        lines = [f"{self.model_}",
+                 f"  RMS {m.get('rms', float('nan')):.4g}   f = {m.get('objective', float('nan')):.4g}"
+                 f"   stopped by {self.stopped_by or 'n/a'}"]
+        if self.equations_:
+            lines.append("  complexity  objective     equation")
+            for row in self.equations_:
+                mark = "*" if row["selected"] else " "
+                lines.append(f"{mark} {row['complexity']:>9}  {row['objective']:<12.5g}  "
+                             f"{row['equation']}")
+        return "\n".join(lines)
+
+    @classmethod
+    def load(cls, run_dir: str | Path) -> "Identifier":
+        """Reload a finished run from its folder (model, config, history, equations)."""
+        run_dir = Path(run_dir)
+        config_path = run_dir / "config.json"
+        try:
+            config = GPConfig.from_dict(json.loads(config_path.read_text(encoding="utf-8")),
+                                        source=str(config_path))
+        except FileNotFoundError:
+            raise UserInputError(f"{config_path} does not exist; give a gpjax run folder") from None
+        except json.JSONDecodeError as err:
+            raise UserInputError(f"{config_path} is not valid JSON ({err})") from None
+        identifier = cls(config)
+        identifier.model_ = Model.load(run_dir / "model.json")
+        identifier.stopped_by = identifier.model_.provenance.get("stopped_by", "")
+        identifier.history_ = _read_csv(run_dir / "history.csv")
+        identifier.equations_ = _read_csv(run_dir / "equations.csv")
+        return identifier
+
+
+def _row(record: Record, fitness: Fitness, chosen: Record) -> dict:
+    model = Model(symbols=fitness.symbols, mass=record.mass, state=record.state,
+                  forcing=record.forcing)
+    return {"complexity": record.n_terms, "objective": record.objective, "rms": record.rms,
+            "f_time": record.f_time, "f_freq": record.f_freq,
+            "equation": str(model.sympy()), "selected": record.key == chosen.key}
+
+
+def _read_csv(path: Path) -> list[dict]:
+    import csv
+
+    if not path.is_file():
+        return []
+    with open(path, newline="", encoding="utf-8") as handle:
+        rows = list(csv.DictReader(handle))
+    for row in rows:
+        for key, value in row.items():
+            try:
+                row[key] = float(value) if key not in ("equation", "best_key", "selected") else (
+                    value == "True" if key == "selected" else value)
+            except ValueError:
+                pass
+    return rows

@@ -1,0 +1,191 @@
+"""The genetic-programming driver (paper §2, §5), run on the CPU.
+
+Each generation: offspring are made by crossover / mutation / perturbation / reproduction
+(probabilities from the config) from parents chosen by tournament; offspring are scored
+(new structures only, in one batch); the best distinct structures are refined; the next
+population is the best ``population`` of parents ∪ offspring (elitist replacement,
+duplicates of a structure ranked after all distinct ones). The run stops after
+``generations`` generations or when the best objective f <= epsilon (eq. 12).
+
+Selection is a tournament: it depends only on the ranking, so it is unaffected by the
+objective's scale (the paper's f spans the data's units, and invalid candidates carry a
+penalty of 1e12), and it needs no fitness normalisation.
+
+The whole state between generations (population, RNG state, caches, history) is a plain
+JSON-ready dict, so a run can be checkpointed after every generation and resumed exactly.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from typing import Callable
+
+import numpy as np
+
+from . import _trees
+from ._config import GPConfig
+from ._fitness import Fitness, Record
+from ._operators import Grammar, crossover, initial_population, mutation, perturbation
+
+
+@dataclasses.dataclass
+class GenerationStats:
+    """One row of ``history.csv``."""
+
+    generation: int
+    best_objective: float
+    median_objective: float
+    valid_fraction: float
+    unique_structures: int
+    seconds: float
+    best_key: str
+
+
+@dataclasses.dataclass
+class RunState:
+    """Everything needed to continue a run after a generation."""
+
+    generation: int
+    population: list[tuple]
+    rng_state: dict
+    history: list[GenerationStats]
+    done: bool = False
+
+    def to_json(self, fitness: Fitness) -> dict:
+        return {
+            "generation": self.generation,
+            "population": [_trees.to_json(t) for t in self.population],
+            "rng_state": self.rng_state,
+            "history": [dataclasses.asdict(h) for h in self.history],
+            "done": self.done,
+            "records": [r.to_json() for r in fitness.records.values() if r.valid],
+            "forcing_features": [str(f) for f in fitness.evaluator._forcing_features],
+        }
+
+    @classmethod
+    def from_json(cls, data: dict, fitness: Fitness) -> "RunState":
+        for text in data["forcing_features"]:
+            fitness.evaluator.forcing_index(fitness._feature(text))
+        for item in data["records"]:
+            record = Record.from_json(item)
+            fitness.records[record.key] = record
+        return cls(generation=data["generation"],
+                   population=[_trees.from_json(t) for t in data["population"]],
+                   rng_state=data["rng_state"],
+                   history=[GenerationStats(**h) for h in data["history"]],
+                   done=data["done"])
+
+
+def _rank_key(record: Record, tree: tuple) -> tuple:
+    return (record.objective, record.n_terms if record.valid else 10**6, _trees.size(tree))
+
+
+class Evolution:
+    """Runs GP on one measurement. ``fitness`` holds the caches; ``state`` the population."""
+
+    def __init__(self, fitness: Fitness, config: GPConfig):
+        self.fitness = fitness
+        self.config = config
+        self.grammar = Grammar.from_config(config, len(fitness.measurement.inputs))
+
+    def start(self, seed: int) -> RunState:
+        """Generation 0: a ramped half-and-half population, scored and refined."""
+        rng = np.random.default_rng(seed)
+        began = time.perf_counter()
+        population = initial_population(self.grammar, rng, self.config.population,
+                                        self.config.init_depth)
+        state = RunState(generation=0, population=population, rng_state=rng.bit_generator.state,
+                         history=[])
+        self._finish_generation(state, population, began)
+        return state
+
+    def step(self, state: RunState) -> RunState:
+        """One generation: offspring, scoring, refinement, elitist replacement."""
+        began = time.perf_counter()
+        rng = np.random.default_rng()
+        rng.bit_generator.state = state.rng_state
+        parents = state.population
+        records = self.fitness.records_for(parents)
+        ranks = _ranks(records, parents)
+        offspring = [self._offspring(parents, ranks, rng) for _ in range(self.config.population)]
+        union = parents + offspring
+        self.fitness.records_for(offspring)
+        next_population = self._replace(union)
+        state = RunState(generation=state.generation + 1, population=next_population,
+                         rng_state=rng.bit_generator.state, history=state.history)
+        self._finish_generation(state, next_population, began)
+        return state
+
+    def _finish_generation(self, state: RunState, population: list[tuple], began: float):
+        records = self.fitness.records_for(population)
+        self._refine_best(records)
+        population[:] = self._replace(population)
+        records = self.fitness.records_for(population)
+        objectives = np.array([r.objective for r in records])
+        valid = np.array([r.valid and r.status == 0 for r in records])
+        best = min(range(len(records)), key=lambda i: _rank_key(records[i], population[i]))
+        state.history.append(GenerationStats(
+            generation=state.generation, best_objective=float(objectives[best]),
+            median_objective=float(np.median(objectives[valid])) if valid.any() else float("nan"),
+            valid_fraction=float(valid.mean()),
+            unique_structures=len({r.key for r in records if r.valid}),
+            seconds=time.perf_counter() - began, best_key=records[best].key))
+        state.done = bool(state.generation >= self.config.generations
+                          or objectives[best] <= self.config.epsilon)
+
+    def _refine_best(self, records: list[Record]) -> None:
+        distinct: dict[str, Record] = {}
+        for record in sorted((r for r in records if r.valid and r.status == 0),
+                             key=lambda r: (r.objective, r.n_terms)):
+            distinct.setdefault(record.key, record)
+            if len(distinct) >= self.config.refine_top:
+                break
+        if self.config.refine_top:
+            self.fitness.refine(list(distinct.values()))
+
+    def _offspring(self, parents: list[tuple], ranks: np.ndarray, rng: np.random.Generator):
+        c = self.config
+        draw = rng.random()
+
+        def pick() -> tuple:
+            contestants = rng.integers(len(parents), size=c.tournament_size)
+            return parents[int(contestants[np.argmin(ranks[contestants])])]
+
+        if draw < c.p_crossover:
+            return crossover(pick(), pick(), self.grammar, rng)
+        if draw < c.p_crossover + c.p_mutation:
+            return mutation(pick(), self.grammar, rng)
+        if draw < c.p_crossover + c.p_mutation + c.p_perturbation:
+            return perturbation(pick(), self.grammar, rng)
+        return pick()
+
+    def _replace(self, candidates: list[tuple]) -> list[tuple]:
+        """The best ``population`` candidates; repeats of a structure go after distinct ones."""
+        records = self.fitness.records_for(candidates)
+        order = sorted(range(len(candidates)),
+                       key=lambda i: _rank_key(records[i], candidates[i]) + (i,))
+        seen: set[str] = set()
+        first, repeats = [], []
+        for i in order:
+            key = records[i].key if records[i].valid else repr(candidates[i])
+            (repeats if key in seen else first).append(i)
+            seen.add(key)
+        chosen = (first + repeats)[: self.config.population]
+        return [candidates[i] for i in chosen]
+
+    def run(self, state: RunState, on_generation: Callable[[RunState], None] | None = None
+            ) -> RunState:
+        """Step until a stop rule holds, calling ``on_generation`` after each generation."""
+        while not state.done:
+            state = self.step(state)
+            if on_generation is not None:
+                on_generation(state)
+        return state
+
+
+def _ranks(records: list[Record], trees: list[tuple]) -> np.ndarray:
+    order = sorted(range(len(trees)), key=lambda i: _rank_key(records[i], trees[i]) + (i,))
+    ranks = np.empty(len(trees), dtype=np.int64)
+    ranks[order] = np.arange(len(trees))
+    return ranks

@@ -1,0 +1,216 @@
+"""From trees to scores: structure check, coefficients, batched simulation, refinement.
+
+Two caches make repeated individuals free: tree → structure check, and structure key →
+scored record. With ``coefficients="least_squares"`` the key is the set of features (the
+numbers come from the data); with ``"tree"`` it also holds the tree's coefficients.
+Records are plain JSON-ready values so a checkpoint can carry the cache whole.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import sympy as sp
+
+from ._canonical import CanonicalForm, Symbols, check_structure, tree_to_sympy
+from ._config import GPConfig
+from ._data import Measurement
+from ._equation_error import EquationError, smoothed_derivatives
+from ._evaluator import (INVALID_STRUCTURE, OK, PENALTY, Population, PopulationEvaluator,
+                         Scores)
+from ._expressions import parse_expression
+from ._refine import Refiner
+from ._trees import Tree
+
+
+@dataclasses.dataclass
+class Record:
+    """A scored model structure (one cache entry). Coefficients map feature text -> value."""
+
+    key: str
+    valid: bool
+    reason: str = ""
+    mass: float = math.nan
+    state: dict[str, float] = dataclasses.field(default_factory=dict)
+    forcing: dict[str, float] = dataclasses.field(default_factory=dict)
+    y0: tuple[float, float] = (math.nan, math.nan)
+    objective: float = PENALTY
+    f_time: float = PENALTY
+    f_freq: float = PENALTY
+    rms: float = PENALTY
+    status: int = INVALID_STRUCTURE
+    refined: bool = False
+
+    @property
+    def n_terms(self) -> int:
+        """Complexity: inertia term + state terms + forcing terms."""
+        return 1 + len(self.state) + len(self.forcing)
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self)
+
+    @classmethod
+    def from_json(cls, data: dict) -> "Record":
+        data = dict(data)
+        data["y0"] = tuple(data["y0"])
+        return cls(**data)
+
+
+def structure_key(form: CanonicalForm, with_coefficients: bool) -> str:
+    """Text key of a canonical form: its features, and its coefficients if asked."""
+    def part(pairs):
+        if with_coefficients:
+            return ", ".join(f"{f}:{c!r}" for f, c in pairs)
+        return ", ".join(str(f) for f, _ in pairs)
+    mass = f"{form.mass!r}" if with_coefficients else "m"
+    return f"{mass} | {part(form.state)} | {part(form.forcing)}"
+
+
+class Fitness:
+    """Scores trees against one measurement (see the module docstring).
+
+    Args:
+        measurement: the data.
+        config: the run's settings.
+    """
+
+    def __init__(self, measurement: Measurement, config: GPConfig):
+        self.measurement = measurement
+        self.config = config
+        self.symbols = Symbols(measurement.response_name, measurement.time_name,
+                               measurement.input_names)
+        self.evaluator = PopulationEvaluator(
+            measurement, self.symbols, max_degree=config.max_degree, substeps=config.substeps,
+            n_bins=config.n_bins, w_time=config.w_time, w_freq=config.w_freq,
+            batch=min(config.population, 512))
+        cutoff_hz = self.evaluator.n_bins / (measurement.n_samples * measurement.dt)
+        self.derivatives = smoothed_derivatives(measurement, cutoff_hz)
+        self.equation_error = EquationError(measurement, self.symbols, self.derivatives)
+        self.refiner = Refiner(self.evaluator, iterations=config.refine_iterations)
+        if config.initial_conditions is not None:
+            self.y0 = tuple(map(float, config.initial_conditions))
+        else:  # eq. 13: response and a robust derivative estimate at the first sample
+            self.y0 = (float(self.derivatives.x[0]), float(self.derivatives.x_dot[0]))
+        for u in self.symbols.u[:1]:
+            self.evaluator.forcing_index(u)
+        self.checks: dict[Tree, tuple[str, CanonicalForm | None, str]] = {}
+        self.records: dict[str, Record] = {}
+
+    # --- trees to structures --------------------------------------------------------------
+    def classify(self, tree: Tree) -> tuple[str, CanonicalForm | None, str]:
+        """(key, canonical form or None, reason) of a tree, cached."""
+        if tree not in self.checks:
+            expression = tree_to_sympy(tree, self.symbols, self.config.named_constants)
+            check = check_structure(expression, self.symbols, max_degree=self.config.max_degree)
+            if check.valid:
+                form = check.canonical
+                unsupported = [f for f, _ in form.state if self.evaluator.state_index(f) is None]
+                if unsupported:
+                    check = dataclasses.replace(
+                        check, valid=False, canonical=None,
+                        reason=f"state feature {unsupported[0]} is outside the evaluator's basis "
+                               f"(powers of x and x' up to {self.config.max_degree})")
+            if check.valid:
+                key = structure_key(check.canonical, self.config.coefficients == "tree")
+                self.checks[tree] = (key, check.canonical, "")
+            else:
+                self.checks[tree] = ("invalid: " + check.reason, None, check.reason)
+        return self.checks[tree]
+
+    def records_for(self, trees: list[Tree]) -> list[Record]:
+        """Score every tree (new structures in one batch) and return their records."""
+        new: dict[str, CanonicalForm] = {}
+        for tree in trees:
+            key, form, reason = self.classify(tree)
+            if key in self.records or key in new:
+                continue
+            if form is None:
+                self.records[key] = Record(key=key, valid=False, reason=reason)
+            else:
+                new[key] = form
+        if new:
+            self.score_forms(new)
+        return [self.records[self.classify(tree)[0]] for tree in trees]
+
+    def score_forms(self, forms: dict[str, CanonicalForm]) -> None:
+        """Set coefficients of each (key, form), score them in one batch, cache them."""
+        rows = []
+        for key, form in forms.items():
+            state, forcing = form.structure
+            if self.config.coefficients == "least_squares":
+                mass, c, g = self.equation_error.solve(state, forcing)
+            else:
+                mass = form.mass
+                c = np.array([v for _, v in form.state])
+                g = np.array([v for _, v in form.forcing])
+            rows.append(Record(key=key, valid=True, mass=float(mass),
+                               state={str(f): float(v) for f, v in zip(state, c)},
+                               forcing={str(f): float(v) for f, v in zip(forcing, g)},
+                               y0=self.y0))
+        self._score_records(rows)
+        for record in rows:
+            self.records[record.key] = record
+
+    # --- records to arrays and back -------------------------------------------------------
+    def _feature(self, text: str) -> sp.Expr:
+        return parse_expression(text, self.symbols.names())
+
+    def population(self, records: list[Record]) -> Population:
+        ev = self.evaluator
+        for record in records:
+            for text in record.forcing:
+                ev.forcing_index(self._feature(text))
+        pop = ev.empty(len(records))
+        for i, record in enumerate(records):
+            pop.mass[i] = record.mass if math.isfinite(record.mass) else 1.0
+            for text, value in record.state.items():
+                pop.state[i, ev.state_index(self._feature(text))] = value
+            for text, value in record.forcing.items():
+                pop.forcing[i, ev.forcing_index(self._feature(text))] = value
+            pop.y0[i] = record.y0
+        return pop
+
+    def _score_records(self, records: list[Record]) -> None:
+        scores = self.evaluator.score(self.population(records))
+        _store(records, scores)
+
+    def refine(self, records: list[Record]) -> None:
+        """Refine the constants of ``records`` (in place) on the simulated response."""
+        records = [r for r in records if r.valid and not r.refined]
+        if not records:
+            return
+        population = self.population(records)
+        u0 = str(self.symbols.u[0]) if self.symbols.u else None
+        fixed = np.array([self.evaluator.forcing_index(self.symbols.u[0])
+                          if u0 is not None and u0 in r.forcing else -1 for r in records])
+        refined = self.refiner.refine(population, fixed)
+        scores = self.evaluator.score(refined.population)
+        ev = self.evaluator
+        for i, record in enumerate(records):
+            if scores.status[i] != OK or scores.objective[i] >= record.objective:
+                record.refined = True  # refinement did not help: keep the start values
+                continue
+            record.mass = float(refined.population.mass[i])
+            record.state = {t: float(refined.population.state[i, ev.state_index(self._feature(t))])
+                            for t in record.state}
+            record.forcing = {t: float(refined.population.forcing[i, ev.forcing_index(
+                self._feature(t))]) for t in record.forcing}
+            record.y0 = (float(refined.population.y0[i, 0]), float(refined.population.y0[i, 1]))
+            _store([record], _row(scores, i))
+            record.refined = True
+
+
+def _row(scores: Scores, i: int) -> Scores:
+    return Scores(*(np.asarray(getattr(scores, f.name))[i:i + 1]
+                    for f in dataclasses.fields(Scores)))
+
+
+def _store(records: list[Record], scores: Scores) -> None:
+    for i, record in enumerate(records):
+        record.objective = float(scores.objective[i])
+        record.f_time = float(scores.f_time[i])
+        record.f_freq = float(scores.f_freq[i])
+        record.rms = float(scores.rms[i])
+        record.status = int(scores.status[i])

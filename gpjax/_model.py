@@ -1,0 +1,292 @@
+"""The identified model and its JSON file (``model.json``).
+
+The file is plain JSON a person can write by hand. Only ``variables`` and ``canonical``
+are needed to load it; everything else (equation, LaTeX, named constants, metrics) is
+derived and written for reading. Feature strings are parsed by the whitelist parser in
+:mod:`gpjax._expressions`, never evaluated.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import sympy as sp
+
+from ._canonical import Symbols, check_structure
+from ._data import Measurement
+from ._errors import ModelFileError
+from ._evaluator import Population, PopulationEvaluator
+from ._expressions import parse_expression
+
+FORMAT = "gpjax-model"
+VERSION = 1
+
+
+@dataclasses.dataclass(frozen=True)
+class Model:
+    """``mass·x'' + Σ c·φ(x, x') = Σ g·ψ(t, u)`` with its names and initial conditions.
+
+    Attributes:
+        symbols: names of response, time and inputs.
+        mass: inertia coefficient m.
+        state: feature text -> coefficient c (features of x only or x' only).
+        forcing: feature text -> coefficient g (features of time/inputs; "1" is a constant).
+        initial_conditions: (x, x') at the first sample of the data the model was fitted to;
+            ``None`` means: estimate them from the data when simulating.
+        metrics: rms, f_time, f_freq, objective on the fitting data (may be empty).
+        provenance: free-form facts about the run (seed, generations, tree, …).
+    """
+
+    symbols: Symbols
+    mass: float
+    state: dict[str, float]
+    forcing: dict[str, float]
+    initial_conditions: tuple[float, float] | None = None
+    metrics: dict[str, float] = dataclasses.field(default_factory=dict)
+    provenance: dict = dataclasses.field(default_factory=dict)
+
+    # --- symbolic views -----------------------------------------------------------------
+    def _feature(self, text: str) -> sp.Expr:
+        return parse_expression(text, self.symbols.names())
+
+    def constant_names(self) -> dict[str, tuple[str, str]]:
+        """Constant name -> (part, feature): m; k1, k2 … for x terms; c1 … for x' terms;
+        g1 … for forcing terms other than the normalised first input."""
+        names: dict[str, tuple[str, str]] = {"m": ("mass", "")}
+        x_dot = self.symbols.x_dot
+        k = c = g = 0
+        for feature in self.state:
+            if x_dot in self._feature(feature).free_symbols:
+                c += 1
+                names[f"c{c}"] = ("state", feature)
+            else:
+                k += 1
+                names[f"k{k}"] = ("state", feature)
+        for feature in self.forcing:
+            if self._normaliser() == feature:
+                continue
+            g += 1
+            names[f"g{g}"] = ("forcing", feature)
+        return names
+
+    def _normaliser(self) -> str | None:
+        inputs = self.symbols.inputs
+        if inputs and self.forcing.get(inputs[0]) == 1.0:
+            return inputs[0]
+        return None
+
+    def constants(self) -> dict[str, float]:
+        values = {}
+        for name, (part, feature) in self.constant_names().items():
+            values[name] = self.mass if part == "mass" else getattr(self, part)[feature]
+        return values
+
+    def equation(self, *, numeric: bool = False) -> sp.Eq:
+        """``Eq(lhs, rhs)`` with named constants, or with their values if ``numeric``."""
+        values = self.constants()
+        def coefficient(name):
+            return sp.Float(values[name]) if numeric else sp.Symbol(name)
+        lhs = coefficient("m") * self.symbols.x_ddot
+        rhs = sp.Integer(0)
+        for name, (part, feature) in self.constant_names().items():
+            if part == "state":
+                lhs += coefficient(name) * self._feature(feature)
+            elif part == "forcing":
+                rhs += coefficient(name) * self._feature(feature)
+        normaliser = self._normaliser()
+        if normaliser is not None:
+            rhs += sp.Symbol(normaliser)
+        return sp.Eq(lhs, rhs, evaluate=False)
+
+    def sympy(self) -> sp.Eq:
+        """The equation with numeric constants."""
+        return self.equation(numeric=True)
+
+    def latex(self) -> str:
+        return sp.latex(self.equation())
+
+    def __str__(self) -> str:
+        constants = ", ".join(f"{k} = {v:.6g}" for k, v in self.constants().items())
+        return f"{self.equation()}   with {constants}"
+
+    # --- simulation ---------------------------------------------------------------------
+    def evaluator(self, measurement: Measurement, *, substeps: int = 1) -> PopulationEvaluator:
+        """An evaluator on ``measurement`` whose basis holds this model's features."""
+        polynomial, extra, degree = [], [], 1
+        for text in self.state:
+            feature = self._feature(text)
+            symbol = next(iter(feature.free_symbols))
+            if feature.is_polynomial(symbol) and sp.Poly(feature, symbol).is_monomial \
+                    and sp.Poly(feature, symbol).LC() == 1:
+                degree = max(degree, int(sp.degree(feature, symbol)))
+                polynomial.append(feature)
+            else:
+                extra.append(feature)
+        return PopulationEvaluator(measurement, self.symbols, max_degree=degree,
+                                   substeps=substeps, extra_state_features=tuple(extra), batch=1)
+
+    def population(self, evaluator: PopulationEvaluator, y0: tuple[float, float]) -> Population:
+        for text in self.forcing:
+            evaluator.forcing_index(self._feature(text))
+        pop = evaluator.empty(1)
+        pop.mass[0] = self.mass
+        for text, value in self.state.items():
+            pop.state[0, evaluator.state_index(self._feature(text))] = value
+        for text, value in self.forcing.items():
+            pop.forcing[0, evaluator.forcing_index(self._feature(text))] = value
+        pop.y0[0] = y0
+        return pop
+
+    # --- JSON ---------------------------------------------------------------------------
+    def to_json(self) -> dict:
+        ic = self.initial_conditions
+        return {
+            "format": FORMAT, "version": VERSION,
+            "equation": str(self.equation()),
+            "equation_numeric": str(self.equation(numeric=True)),
+            "latex": self.latex(),
+            "constants": self.constants(),
+            "variables": {"time": self.symbols.time, "response": self.symbols.response,
+                          "inputs": list(self.symbols.inputs)},
+            "initial_conditions": None if ic is None else {
+                "response": ic[0], "response_dot": ic[1]},
+            "metrics": dict(self.metrics),
+            "canonical": {
+                "mass": self.mass,
+                "terms": [{"feature": f, "coefficient": c} for f, c in self.state.items()],
+                "forcing": [{"feature": f, "coefficient": g} for f, g in self.forcing.items()],
+            },
+            "provenance": self.provenance,
+        }
+
+    def save(self, path: str | Path) -> None:
+        from ._report import write_text_atomic
+        write_text_atomic(Path(path), json.dumps(self.to_json(), indent=2) + "\n")
+
+    @classmethod
+    def from_json(cls, data: dict, *, source: str = "model") -> "Model":
+        """Build from parsed JSON; only ``variables`` and ``canonical`` are required.
+
+        Raises:
+            ModelFileError: a missing or malformed field, an expression outside the
+                whitelist, or a canonical form that breaks the structure rules.
+        """
+        def fail(message: str):
+            raise ModelFileError(f"{source}: {message}")
+
+        if not isinstance(data, dict):
+            fail("the top level must be a JSON object")
+        variables = data.get("variables")
+        if not isinstance(variables, dict):
+            fail('missing "variables" object {"time", "response", "inputs"}')
+        time, response = variables.get("time", "t"), variables.get("response")
+        inputs = variables.get("inputs", [])
+        if not isinstance(response, str) or not isinstance(time, str) or not isinstance(
+                inputs, list) or not all(isinstance(u, str) for u in inputs):
+            fail('"variables" needs "response" (a name), "time" (a name), "inputs" (a list of names)')
+        for name in [time, response, *inputs]:
+            if not name.isidentifier():
+                fail(f"variable name {name!r} is not an identifier")
+        symbols = Symbols(response, time, tuple(inputs))
+        canonical = data.get("canonical")
+        if not isinstance(canonical, dict):
+            fail('missing "canonical" object {"mass", "terms", "forcing"}')
+        mass = _number(canonical.get("mass", 1.0), "canonical.mass", fail)
+        state = _terms(canonical.get("terms", []), "canonical.terms", fail)
+        forcing = _terms(canonical.get("forcing", []), "canonical.forcing", fail)
+        names = symbols.names()
+        expression = mass * symbols.x_ddot
+        for text, value in state.items():
+            expression += value * _parse(text, names, source)
+        for text, value in forcing.items():
+            expression -= value * _parse(text, names, source)
+        check = check_structure(expression, symbols)
+        if not check.valid:
+            fail(f"the canonical form breaks the structure rules: {check.reason}")
+        ic = data.get("initial_conditions")
+        initial = None
+        if ic is not None:
+            if not isinstance(ic, dict):
+                fail('"initial_conditions" must be {"response": x0, "response_dot": v0} or null')
+            initial = (_number(ic.get("response"), "initial_conditions.response", fail),
+                       _number(ic.get("response_dot"), "initial_conditions.response_dot", fail))
+        metrics = data.get("metrics") or {}
+        if not isinstance(metrics, dict):
+            fail('"metrics" must be an object')
+        provenance = data.get("provenance") or {}
+        return cls(symbols=symbols, mass=mass, state=state, forcing=forcing,
+                   initial_conditions=initial,
+                   metrics={k: v for k, v in metrics.items() if isinstance(v, (int, float))},
+                   provenance=provenance if isinstance(provenance, dict) else {})
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Model":
+        """Read ``model.json``; any problem is a :class:`ModelFileError`."""
+        path = Path(path)
+        try:
+            text = path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            raise ModelFileError(f"model file {path} does not exist; check the path") from None
+        except (OSError, UnicodeDecodeError) as err:
+            raise ModelFileError(f"cannot read model file {path}: {err}") from None
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as err:
+            raise ModelFileError(f"model file {path} is not valid JSON ({err}); fix the syntax") from None
+        return cls.from_json(data, source=str(path))
+
+
+def _parse(text: str, names: set[str], source: str) -> sp.Expr:
+    try:
+        return parse_expression(text, names)
+    except ModelFileError as err:
+        raise ModelFileError(f"{source}: {err}") from None
+
+
+def _number(value, where: str, fail) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        fail(f"{where} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _terms(items, where: str, fail) -> dict[str, float]:
+    if not isinstance(items, list):
+        fail(f"{where} must be a list of {{\"feature\", \"coefficient\"}} objects")
+    out: dict[str, float] = {}
+    for item in items:
+        if not isinstance(item, dict) or not isinstance(item.get("feature"), str):
+            fail(f"{where} entries need a \"feature\" string and a \"coefficient\" number")
+        if item["feature"] in out:
+            fail(f"{where} lists feature {item['feature']!r} twice")
+        out[item["feature"]] = _number(item.get("coefficient"), f"{where}[{item['feature']}]", fail)
+    return out
+
+
+def estimate_initial_conditions(measurement: Measurement) -> tuple[float, float]:
+    """(x, x') at the first sample from a Savitzky–Golay fit (eq. 13's robust estimate)."""
+    from ._equation_error import smoothed_derivatives
+    from ._evaluator import default_n_bins
+
+    cutoff = default_n_bins(measurement.response) / (measurement.n_samples * measurement.dt)
+    d = smoothed_derivatives(measurement, cutoff)
+    return float(d.x[0]), float(d.x_dot[0])
+
+
+def simulate_model(model: Model, measurement: Measurement, *,
+                   initial_conditions: tuple[float, float] | None = None):
+    """Simulate ``model`` on ``measurement``'s time grid and inputs.
+
+    Returns (response (N,), scores). Initial conditions: the argument, else estimated from
+    the measurement (eq. 13).
+    """
+    if tuple(measurement.input_names) != tuple(model.symbols.inputs):
+        raise ModelFileError(f"the model's inputs {list(model.symbols.inputs)} differ from the "
+                             f"data's {list(measurement.input_names)}; pass the same --input columns")
+    y0 = initial_conditions or estimate_initial_conditions(measurement)
+    evaluator = model.evaluator(measurement)
+    responses, scores = evaluator.simulate(model.population(evaluator, y0))
+    return np.asarray(responses[0]), scores

@@ -1,0 +1,122 @@
+"""Command line: ``gpjax demo``, ``gpjax fit``.
+
+User errors (bad file, column, configuration, model file) print one line,
+``gpjax: error: <problem>; <fix>``, exit with status 2 and leave no output behind.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shutil
+import sys
+from pathlib import Path
+
+from ._config import GPConfig
+from ._errors import UserInputError
+
+EXIT_USER_ERROR = 2
+
+
+class _Parser(argparse.ArgumentParser):
+    def error(self, message: str):  # one line, no usage block
+        raise UserInputError(f"{message}; see 'gpjax {self.prog.split()[-1]} --help'"
+                             if " " in self.prog else f"{message}; see 'gpjax --help'")
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = _Parser(prog="gpjax", description=(
+        "Derive the Newton–Euler ODE of a dynamic system from its measured response by "
+        "genetic programming (Ciglarič & Kidrič)."))
+    commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
+    demo = commands.add_parser("demo", help="the paper's protocol on the bundled gear example")
+    demo.add_argument("--out", default="gpjax-demo", help="run folder (default: gpjax-demo)")
+    demo.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    demo.add_argument("--population", type=int, help="individuals per generation (default 500)")
+    demo.add_argument("--generations", type=int, help="maximum generations (default 10)")
+    fit = commands.add_parser("fit", help="identify a model from a CSV file")
+    fit.add_argument("data", help="CSV file with a header row")
+    fit.add_argument("--time", required=True, help="name of the time column (seconds)")
+    fit.add_argument("--response", required=True, help="name of the measured response column")
+    fit.add_argument("--input", action="append", default=[], dest="inputs",
+                     help="name of an input column (repeat for several)")
+    fit.add_argument("--config", help="TOML file of settings (see README)")
+    fit.add_argument("--population", type=int, help="individuals per generation")
+    fit.add_argument("--generations", type=int, help="maximum generations")
+    fit.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    fit.add_argument("--out", default="gpjax-run", help="run folder (default: gpjax-run)")
+    fit.add_argument("--resume", action="store_true", help="continue the run in --out")
+    return parser
+
+
+def _config(args, base: GPConfig) -> GPConfig:
+    overrides = {k: getattr(args, k) for k in ("population", "generations")
+                 if getattr(args, k, None) is not None}
+    return base.replace(**overrides) if overrides else base
+
+
+def _demo(args) -> int:
+    from .gear import load_bundled_example
+
+    measurement, truth = load_bundled_example()
+    config = _config(args, GPConfig.paper())
+    identifier = _run(config, measurement, args.seed, Path(args.out), resume=False)
+    constants = identifier.model_.constants()
+    structure = sorted(identifier.model_.state), sorted(identifier.model_.forcing)
+    print(identifier)
+    print(f"\nTruth (bundled generator): J = {truth['J']}, K1 = {truth['K1']}, K2 = {truth['K2']}")
+    if structure == (["phi", "phi**2"], ["T"]):
+        for name, key in (("J", "m"), ("K1", "k1"), ("K2", "k2")):
+            error = 100 * (constants[key] / truth[name] - 1)
+            print(f"  {name}: found {constants[key]:.6g}  ({error:+.2f} % from truth)")
+    else:
+        print("  found another structure than eq. 14: " + str(identifier.model_.equation()))
+    _timings(identifier, args.out)
+    return 0
+
+
+def _timings(identifier, out) -> None:
+    t = identifier.timings_
+    per = t["total_s"] / max(1, t["generations"] + 1)
+    print(f"\n{t['generations']} generations after generation 0, stopped by "
+          f"{identifier.stopped_by}; {t['total_s']:.1f} s total ({per:.2f} s per generation), "
+          f"{t['compile_s']:.1f} s compiling. Results in {out}/")
+
+
+def _fit(args) -> int:
+    from ._data import load_csv
+
+    config = GPConfig.from_toml(args.config) if args.config else GPConfig()
+    config = _config(args, config)
+    measurement = load_csv(args.data, time=args.time, response=args.response, inputs=args.inputs)
+    identifier = _run(config, measurement, args.seed, Path(args.out), resume=args.resume)
+    print(identifier)
+    _timings(identifier, args.out)
+    return 0
+
+
+def _run(config, measurement, seed, out: Path, *, resume: bool):
+    from ._estimator import Identifier
+
+    if out.exists() and not out.is_dir():
+        raise UserInputError(f"--out {out} is a file; give a folder")
+    created = not out.exists()
+    try:
+        return Identifier(config).fit(measurement, seed=seed, out=out, resume=resume)
+    except (UserInputError, KeyboardInterrupt):
+        if created and out.exists():
+            shutil.rmtree(out)
+        raise
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Entry point of the ``gpjax`` console script; returns the exit status."""
+    try:
+        args = _parser().parse_args(argv)
+        handler = {"demo": _demo, "fit": _fit}[args.command]
+        return handler(args)
+    except UserInputError as err:
+        print(f"gpjax: error: {err}", file=sys.stderr)
+        return EXIT_USER_ERROR
+    except KeyboardInterrupt:
+        print("gpjax: interrupted", file=sys.stderr)
+        return 130
