@@ -93,7 +93,8 @@ def initial_population(grammar: Grammar, rng: np.random.Generator, count: int,
                        depth_range: tuple[int, int]) -> list[Tree]:
     """Ramped half-and-half: depths spread over ``depth_range``, half full, half grown.
 
-    Duplicates are redrawn (up to 20 tries each) so the first generation is diverse.
+    Duplicates are redrawn so the first generation is diverse; every tree is within the
+    size and depth limits.
     """
     low, high = depth_range
     depths = list(range(low, high + 1))
@@ -101,10 +102,17 @@ def initial_population(grammar: Grammar, rng: np.random.Generator, count: int,
     seen: set[Tree] = set()
     for i in range(count):
         target = depths[i % len(depths)]
-        for _ in range(20):
-            tree = grammar.random_tree(rng, target, full=bool(i % 2))
-            if tree not in seen and grammar.within_limits(tree):
-                break
+        tree = None
+        for attempt in range(40):
+            # After 20 misses (duplicates or over the size limit) grow shallower trees.
+            candidate = grammar.random_tree(rng, max(1, target - attempt // 20),
+                                            full=bool(i % 2) and attempt < 20)
+            if grammar.within_limits(candidate):
+                tree = candidate
+                if candidate not in seen:
+                    break
+        if tree is None:  # size limit below even a depth-1 tree: a lone terminal
+            tree = grammar.random_terminal(rng)
         seen.add(tree)
         population.append(tree)
     return population

@@ -1,0 +1,118 @@
+import numpy as np
+import pytest
+from scipy.integrate import solve_ivp
+
+from gpjax import Measurement, PopulationEvaluator, Symbols, objective_parts
+from gpjax._evaluator import DIVERGED, NONPOSITIVE_MASS, OK, PENALTY, Population
+
+S = Symbols("x", "t", ("u",))
+
+
+def _measurement(n=401, duration=2.0):
+    t = np.linspace(0.0, duration, n)
+    u = np.sin(2 * np.pi * 1.3 * t) + 0.5 * np.cos(2 * np.pi * 3.1 * t)
+    response = 0.1 * np.sin(2 * np.pi * 0.7 * t) + 0.01 * t
+    return Measurement(time=t, response=response, inputs={"u": u}, response_name="x",
+                       time_name="t")
+
+
+def _random_models(evaluator, rng, count):
+    """Stable models: m > 0, stiffness k1 > 0, k3 >= 0, damping c1 >= 0, an input gain."""
+    columns = {str(f): i for i, f in enumerate(evaluator.state_features)}
+    u = evaluator.forcing_index(S.u[0])
+    one = evaluator.forcing_index(np.float64(1.0) * 0 + __import__("sympy").Integer(1))
+    pop = evaluator.empty(count)
+    for i in range(count):
+        pop.mass[i] = rng.uniform(0.5, 2.0)
+        pop.state[i, columns["x"]] = rng.uniform(5.0, 40.0)
+        pop.state[i, columns["x**3"]] = rng.uniform(0.0, 50.0)
+        pop.state[i, columns["x**2"]] = rng.uniform(-5.0, 5.0)
+        pop.state[i, columns["x_dot"]] = rng.uniform(0.0, 1.0)
+        pop.forcing[i, u] = 1.0
+        pop.forcing[i, one] = rng.uniform(-0.5, 0.5)
+        pop.y0[i] = rng.uniform(-0.1, 0.1, size=2)
+    return pop
+
+
+def test_batched_evaluator_matches_solve_ivp_on_20_random_models():
+    measurement = _measurement()
+    evaluator = PopulationEvaluator(measurement, S, max_degree=3, substeps=8, batch=20)
+    rng = np.random.default_rng(7)
+    pop = _random_models(evaluator, rng, 20)
+    simulated, scores = evaluator.simulate(pop)
+    assert np.all(scores.status == OK)
+    columns = {str(f): i for i, f in enumerate(evaluator.state_features)}
+    t, u = measurement.time, measurement.inputs["u"]
+    for i in range(20):
+        m, c = pop.mass[i], pop.state[i]
+        g_u = pop.forcing[i, evaluator.forcing_index(S.u[0])]
+        g_1 = pop.forcing[i, 1]
+
+        def field(time, y):
+            x, v = y
+            force = g_u * np.interp(time, t, u) + g_1
+            restoring = (c[columns["x"]] * x + c[columns["x**2"]] * x**2
+                         + c[columns["x**3"]] * x**3 + c[columns["x_dot"]] * v)
+            return [v, (force - restoring) / m]
+
+        reference = solve_ivp(field, (t[0], t[-1]), pop.y0[i], t_eval=t, method="DOP853",
+                              rtol=1e-12, atol=1e-14, max_step=t[1] - t[0]).y[0]
+        error = np.max(np.abs(simulated[i] - reference)) / np.max(np.abs(reference))
+        assert error < 1e-6, (i, error)
+
+
+def test_objective_equals_a_hand_computation():
+    rng = np.random.default_rng(3)
+    measured = rng.standard_normal(64)
+    calculated = measured + 0.1 * rng.standard_normal(64)
+    f_time, f_freq, rms = objective_parts(measured[:, None], calculated[:, None], 5)
+    assert float(f_time[0]) == pytest.approx(np.sqrt(np.sum((measured - calculated) ** 2)))
+    assert float(rms[0]) == pytest.approx(np.sqrt(np.mean((measured - calculated) ** 2)))
+    n = 64
+    def amplitudes(signal):
+        out = []
+        for j in range(5):
+            value = abs(sum(signal[k] * np.exp(-2j * np.pi * j * k / n) for k in range(n)))
+            out.append(value / n if j == 0 else 2 * value / n)
+        return np.array(out)
+    expected = np.sum(np.abs(amplitudes(measured) - amplitudes(calculated)))
+    assert float(f_freq[0]) == pytest.approx(expected, rel=1e-10)
+
+
+def test_weights_combine_the_two_parts():
+    measurement = _measurement()
+    evaluator = PopulationEvaluator(measurement, S, max_degree=3, w_time=2.0, w_freq=0.5)
+    pop = _random_models(evaluator, np.random.default_rng(0), 3)
+    scores = evaluator.score(pop)
+    np.testing.assert_allclose(scores.objective, 2.0 * scores.f_time + 0.5 * scores.f_freq)
+
+
+def test_one_bad_candidate_never_spoils_the_others():
+    measurement = _measurement()
+    evaluator = PopulationEvaluator(measurement, S, max_degree=3, batch=8)
+    pop = _random_models(evaluator, np.random.default_rng(1), 6)
+    alone = evaluator.score(Population(pop.mass[:2], pop.state[:2], pop.forcing[:2], pop.y0[:2]))
+    pop.state[2, 0] = -1e6        # x'' = +1e6 x: explodes
+    pop.mass[3] = 0.0             # zero mass
+    pop.mass[4] = -1.0            # negative mass
+    pop.state[5, 2] = -1e9        # strongly softening cubic: blows up
+    pop.y0[5] = [5.0, 0.0]
+    scores = evaluator.score(pop)
+    assert list(scores.status[2:]) == [DIVERGED, NONPOSITIVE_MASS, NONPOSITIVE_MASS, DIVERGED]
+    assert np.all(np.isfinite(scores.objective))
+    assert np.all(scores.objective[2:] == PENALTY)
+    np.testing.assert_array_equal(scores.objective[:2], alone.objective)
+
+
+def test_results_do_not_depend_on_position_in_the_batch_and_barely_on_its_shape():
+    measurement = _measurement()
+    small = PopulationEvaluator(measurement, S, max_degree=3, batch=4)
+    large = PopulationEvaluator(measurement, S, max_degree=3, batch=16)
+    pop = _random_models(small, np.random.default_rng(5), 10)
+    order = np.random.default_rng(6).permutation(10)
+    shuffled = Population(pop.mass[order], pop.state[order], pop.forcing[order], pop.y0[order])
+    # Same batch shape: bit for bit, wherever a model sits.
+    np.testing.assert_array_equal(small.score(shuffled).objective, small.score(pop).objective[order])
+    # Another batch shape: XLA may vectorise differently; the last bit may differ.
+    _random_models(large, np.random.default_rng(5), 10)
+    np.testing.assert_allclose(large.score(pop).objective, small.score(pop).objective, rtol=1e-13)

@@ -1,0 +1,74 @@
+import numpy as np
+from hypothesis import given, settings, strategies as st
+
+from gpjax import GPConfig, Symbols, check_structure, tree_to_sympy
+from gpjax._operators import (Grammar, crossover, initial_population, mutation, perturbation)
+from gpjax._trees import depth, from_json, is_function, nodes, size, to_json
+
+CONFIG = GPConfig.paper(max_depth=5, max_size=25)
+GRAMMAR = Grammar.from_config(CONFIG, n_inputs=1)
+S = Symbols("phi", "t", ("T",))
+
+
+def _well_formed(tree) -> bool:
+    for _, node in nodes(tree):
+        if is_function(node):
+            if node[0] not in CONFIG.functions or len(node) != 3:
+                return False
+        elif node[0] not in ("x", "x_dot", "x_ddot", "t", "u", "c", "k", "n"):
+            return False
+    return True
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_operators_keep_trees_valid_and_within_limits(seed):
+    rng = np.random.default_rng(seed)
+    population = initial_population(GRAMMAR, rng, 12, CONFIG.init_depth)
+    for _ in range(30):
+        a, b = population[rng.integers(12)], population[rng.integers(12)]
+        for child in (crossover(a, b, GRAMMAR, rng), mutation(a, GRAMMAR, rng),
+                      perturbation(a, GRAMMAR, rng)):
+            assert _well_formed(child)
+            assert depth(child) <= CONFIG.max_depth and size(child) <= CONFIG.max_size
+            assert from_json(to_json(child)) == child
+            population[rng.integers(12)] = child
+
+
+def test_initial_population_is_diverse_and_limited():
+    rng = np.random.default_rng(1)
+    population = initial_population(GRAMMAR, rng, 200, CONFIG.init_depth)
+    assert len(set(population)) >= 190
+    assert all(GRAMMAR.within_limits(t) for t in population)
+
+
+def test_interval_constants_are_drawn_from_their_intervals():
+    rng = np.random.default_rng(2)
+    values = [GRAMMAR.random_terminal(rng) for _ in range(3000)]
+    drawn = [v[2] for v in values if v[0] == "k"]
+    assert drawn and all(0.1 <= d <= 20 or 800 <= d <= 1000 for d in drawn)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_every_accepted_tree_can_be_solved_for_the_acceleration(seed):
+    rng = np.random.default_rng(seed)
+    for tree in initial_population(GRAMMAR, rng, 20, (2, 4)):
+        expression = tree_to_sympy(tree, S, CONFIG.named_constants)
+        check = check_structure(expression, S)
+        if check.valid:
+            import sympy as sp
+            solved = sp.solve(sp.expand(expression), S.x_ddot)
+            assert len(solved) == 1
+            assert S.x_ddot not in solved[0].free_symbols
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(-5, 5), st.integers(-5, 5), st.integers(1, 4))
+def test_equivalent_expressions_share_one_canonical_form(a, b, power):
+    import sympy as sp
+    x, T = S.x, S.u[0]
+    one = 2 * S.x_ddot + a * x**power + b * x - T
+    two = sp.expand((S.x_ddot + x) * 2) - 2 * x + (x**power) * a + b * x - T
+    c1, c2 = check_structure(one, S), check_structure(two, S)
+    assert c1.valid and c2.valid and c1.canonical == c2.canonical
