@@ -2,23 +2,40 @@
 
 Genetic programming (Ciglarič & Kidrič) over expression trees; candidates canonicalised
 with sympy, whole populations integrated in one compiled diffrax solve, constants refined
-with optimistix. Enables float64 in JAX on import.
+with optimistix. Importing the numerical parts enables float64 in JAX.
+
+Names are imported on first use, so the command line can reject bad input before JAX,
+diffrax and sympy load.
 """
 
-from ._canonical import CanonicalForm, StructureCheck, Symbols, check_structure, tree_to_sympy
-from ._config import GPConfig
-from ._data import Measurement, load_csv
-from ._errors import ConfigError, DataError, ModelFileError, UserInputError
-from ._estimator import Identifier
-from ._evaluator import Population, PopulationEvaluator, Scores, objective_parts
-from ._expressions import parse_expression
-from ._model import Model, simulate_model
+from importlib import import_module
 
 __version__ = "0.1.0"
 
-__all__ = [
-    "CanonicalForm", "ConfigError", "DataError", "GPConfig", "Identifier", "Measurement",
-    "Model", "ModelFileError", "Population", "PopulationEvaluator", "Scores", "StructureCheck",
-    "Symbols", "UserInputError", "check_structure", "load_csv", "objective_parts",
-    "parse_expression", "simulate_model", "tree_to_sympy",
-]
+_EXPORTS = {
+    "CanonicalForm": "_canonical", "StructureCheck": "_canonical", "Symbols": "_canonical",
+    "check_structure": "_canonical", "tree_to_sympy": "_canonical",
+    "GPConfig": "_config",
+    "Measurement": "_data", "load_csv": "_data",
+    "ConfigError": "_errors", "DataError": "_errors", "ModelFileError": "_errors",
+    "UserInputError": "_errors",
+    "Identifier": "_estimator",
+    "Population": "_evaluator", "PopulationEvaluator": "_evaluator", "Scores": "_evaluator",
+    "objective_parts": "_evaluator",
+    "parse_expression": "_expressions",
+    "Model": "_model", "simulate_model": "_model",
+}
+
+__all__ = sorted(_EXPORTS)
+
+
+def __getattr__(name: str):
+    if name in _EXPORTS:
+        value = getattr(import_module(f".{_EXPORTS[name]}", __name__), name)
+        globals()[name] = value
+        return value
+    raise AttributeError(f"module 'gpjax' has no attribute {name!r}")
+
+
+def __dir__():
+    return sorted(list(globals()) + __all__)

@@ -46,7 +46,8 @@ class GPConfig:
         init_depth: (min, max) depth of the ramped half-and-half initial population.
         max_degree: highest power of x or x_dot a canonical term may carry; a higher one makes
             the candidate invalid (a limit against bloat, not a physical rule).
-        tournament_size: individuals drawn per tournament when selecting parents.
+        tournament_size: individuals drawn per tournament when selecting parents;
+            ``None`` means min(7, population).
         w_time, w_freq: weights w1, w2 of the objective, eq. 7 (paper: 1, 1).
         n_bins: number m of spectral amplitudes in f_freq, eq. 9; ``None`` picks the
             smallest m whose bins hold 99.9 % of the measured response's spectral energy.
@@ -61,6 +62,9 @@ class GPConfig:
             them from the data (eq. 13).
         selection_tolerance: the reported model is the simplest one whose objective is within
             this fraction of the best one found (parsimony; see README).
+        local_search: best distinct structures per generation whose one-term extensions
+            (a power of x or x', a constant, an input) are built as trees and compete for
+            the next generation; 0 gives the paper's pure GP. Least-squares mode only.
     """
 
     population: int = 500
@@ -82,16 +86,17 @@ class GPConfig:
     max_size: int = 40
     init_depth: tuple[int, int] = (2, 4)
     max_degree: int = 4
-    tournament_size: int = 7
+    tournament_size: int | None = None
     w_time: float = 1.0
     w_freq: float = 1.0
     n_bins: int | None = None
     coefficients: str = "least_squares"
     refine_top: int = 5
-    refine_iterations: int = 20
+    refine_iterations: int = 10
     substeps: int = 1
     initial_conditions: tuple[float, float] | None = None
     selection_tolerance: float = 0.02
+    local_search: int = 3
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -140,6 +145,13 @@ class GPConfig:
         values.update(overrides)
         return cls(**values)
 
+    @property
+    def tournament(self) -> int:
+        """The tournament size in use."""
+        if self.tournament_size is not None:
+            return self.tournament_size
+        return min(7, self.population)
+
     def replace(self, **changes: Any) -> "GPConfig":
         """A copy with some fields changed (validated again)."""
         return dataclasses.replace(self, **changes)
@@ -164,7 +176,8 @@ def _plain(value: Any) -> Any:
 
 
 _INT_FIELDS = {"population", "generations", "max_depth", "max_size", "max_degree",
-               "tournament_size", "n_bins", "refine_top", "refine_iterations", "substeps"}
+               "tournament_size", "n_bins", "refine_top", "refine_iterations", "substeps",
+               "local_search"}
 _FLOAT_FIELDS = {"epsilon", "p_crossover", "p_mutation", "p_perturbation", "p_reproduction",
                  "w_time", "w_freq", "selection_tolerance"}
 
@@ -180,7 +193,7 @@ def _number(name: str, value: Any, source: str, *, integer: bool) -> float | int
 def _convert(name: str, value: Any, source: str) -> Any:
     """Check the type of one raw value and convert lists to the field's tuple form."""
     if name in _INT_FIELDS:
-        if name == "n_bins" and value is None:
+        if name in ("n_bins", "tournament_size") and value is None:
             return None
         return _number(name, value, source, integer=True)
     if name in _FLOAT_FIELDS:
@@ -267,7 +280,8 @@ def _validate(c: GPConfig) -> None:
             need(math.isfinite(lo) and math.isfinite(hi) and lo < hi,
                  f"interval of {name} must satisfy lo < hi, got [{lo}, {hi}]")
     lo, hi = c.real_interval
-    need(lo < hi, f"real_interval must satisfy lo < hi, got [{lo}, {hi}]")
+    need(math.isfinite(lo) and math.isfinite(hi) and lo < hi,
+         f"real_interval must be finite with lo < hi, got [{lo}, {hi}]")
     lo, hi = c.int_interval
     need(lo <= hi, f"int_interval must satisfy lo <= hi, got [{lo}, {hi}]")
     need(c.max_depth >= 1, f"max_depth must be at least 1, got {c.max_depth}")
@@ -276,8 +290,9 @@ def _validate(c: GPConfig) -> None:
     need(1 <= dmin <= dmax <= c.max_depth,
          f"init_depth must satisfy 1 <= min <= max <= max_depth, got {c.init_depth}")
     need(c.max_degree >= 1, f"max_degree must be at least 1, got {c.max_degree}")
-    need(2 <= c.tournament_size <= c.population,
-         f"tournament_size must be between 2 and population, got {c.tournament_size}")
+    need(c.tournament_size is None or 2 <= c.tournament_size <= c.population,
+         f"tournament_size must be between 2 and population ({c.population}), got "
+         f"{c.tournament_size}")
     need(c.w_time >= 0 and c.w_freq >= 0 and c.w_time + c.w_freq > 0,
          f"weights must be >= 0 and not both 0, got w_time={c.w_time}, w_freq={c.w_freq}")
     need(c.n_bins is None or c.n_bins >= 1, f"n_bins must be at least 1, got {c.n_bins}")
@@ -289,5 +304,6 @@ def _validate(c: GPConfig) -> None:
     if c.initial_conditions is not None:
         need(all(math.isfinite(v) for v in c.initial_conditions),
              f"initial_conditions must be finite, got {c.initial_conditions}")
+    need(c.local_search >= 0, f"local_search must be >= 0, got {c.local_search}")
     need(0 <= c.selection_tolerance < 1,
          f"selection_tolerance must be in [0, 1), got {c.selection_tolerance}")

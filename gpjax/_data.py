@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import keyword
 import math
 from pathlib import Path
 
@@ -51,7 +52,7 @@ class Measurement:
                                 "give every column the same length")
         names = [self.time_name, self.response_name, *inputs]
         for name in names:
-            if not name.isidentifier() or name.startswith("_"):
+            if not name.isidentifier() or name.startswith("_") or keyword.iskeyword(name):
                 raise DataError(f"column name {name!r} is not usable in equations; rename it to "
                                 "letters, digits and underscores, starting with a letter")
         if len(set(names)) != len(names):
@@ -174,7 +175,7 @@ def load_csv(path: str | Path, *, time: str, response: str,
                             f"{path}; rename the duplicates")
         if name not in header:
             hint = ("the file seems to have no header row; add one" if _is_number(header[0])
-                    else f"columns are: {', '.join(header)}")
+                    else f"columns are: {', '.join(map(repr, header))}")
             raise DataError(f"column {name!r} not found in {path}; {hint}")
     index = {name: header.index(name) for name in wanted}
     data = {name: [] for name in wanted}

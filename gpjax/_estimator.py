@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import hashlib
 import json
+import signal
+import threading
 import time
 from pathlib import Path
 
@@ -21,7 +23,7 @@ from ._evolve import Evolution, RunState
 from ._fitness import Fitness, Record
 from ._model import Model, simulate_model
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
-from ._select import pareto_front, prune
+from ._select import pareto_front, simplify
 
 CHECKPOINT = "checkpoint.json"
 
@@ -73,6 +75,8 @@ class Identifier:
         Raises:
             UserInputError: resuming without a checkpoint, or with other data or settings.
         """
+        if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
+            raise UserInputError(f"seed must be a non-negative integer, got {seed!r}")
         began = time.perf_counter()
         out = Path(out) if out is not None else None
         fitness = Fitness(measurement, self.config)
@@ -95,24 +99,24 @@ class Identifier:
         bar = tqdm(total=self.config.generations, initial=state.generation, unit="gen",
                    disable=None if progress is None else not progress, leave=False)
         save(state)
-        interrupted = False
-        try:
-            while not state.done:
-                state = evolution.step(state)
-                save(state)
-                bar.update(1)
-                bar.set_postfix(best=f"{state.history[-1].best_objective:.4g}")
-        except KeyboardInterrupt:
-            interrupted = True
-        finally:
-            bar.close()
+        with _StopOnInterrupt() as stop:
+            try:
+                while not state.done and not stop.requested:
+                    state = evolution.step(state)
+                    save(state)
+                    bar.update(1)
+                    bar.set_postfix(best=f"{state.history[-1].best_objective:.4g}")
+            finally:
+                bar.close()
+        interrupted = stop.requested
         last = state.history[-1]
         self.stopped_by = ("interrupted" if interrupted else
                            "epsilon" if last.best_objective <= self.config.epsilon
                            else "generations")
         self._select(fitness, seed, state)
         self.timings_ = {"total_s": time.perf_counter() - began,
-                         "compile_s": fitness.evaluator.compile_seconds,
+                         "compile_s": (fitness.evaluator.compile_seconds
+                                       + fitness.refiner.compile_seconds),
                          "generations": state.generation}
         if out is not None:
             self._write(out, fitness)
@@ -145,7 +149,7 @@ class Identifier:
         front = pareto_front(valid)
         fitness.refine(front)
         best = min(valid, key=lambda r: (r.objective, r.n_terms))
-        chosen, _ = prune(fitness, best, self.config.selection_tolerance)
+        chosen, _ = simplify(fitness, best, self.config.selection_tolerance)
         front = pareto_front([r for r in fitness.records.values() if r.valid and r.status == 0])
         if chosen.key not in {r.key for r in front}:
             front = sorted(front + [chosen], key=lambda r: (r.n_terms, r.objective))
@@ -243,6 +247,32 @@ class Identifier:
         identifier.history_ = _read_csv(run_dir / "history.csv")
         identifier.equations_ = _read_csv(run_dir / "equations.csv")
         return identifier
+
+
+class _StopOnInterrupt:
+    """Turns the first Ctrl-C into a request to stop after the current generation.
+
+    A second Ctrl-C raises KeyboardInterrupt as usual. Outside the main thread (where
+    signal handlers cannot be set) it does nothing.
+    """
+
+    def __init__(self):
+        self.requested = False
+        self._previous = None
+
+    def _handle(self, signum, frame):
+        self.requested = True
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+
+    def __enter__(self):
+        if threading.current_thread() is threading.main_thread():
+            self._previous = signal.signal(signal.SIGINT, self._handle)
+        return self
+
+    def __exit__(self, *exc):
+        if self._previous is not None:
+            signal.signal(signal.SIGINT, self._previous)
+        return False
 
 
 def _row(record: Record, fitness: Fitness, chosen: Record) -> dict:

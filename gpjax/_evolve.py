@@ -35,7 +35,7 @@ class GenerationStats:
 
     generation: int
     best_objective: float
-    median_objective: float
+    median_objective: float | None  # of the valid candidates; None when there are none
     valid_fraction: float
     unique_structures: int
     seconds: float
@@ -95,6 +95,7 @@ class Evolution:
         began = time.perf_counter()
         population = initial_population(self.grammar, rng, self.config.population,
                                         self.config.init_depth)
+        population = self._replace(population + self._extensions(population))
         state = RunState(generation=0, population=population, rng_state=rng.bit_generator.state,
                          history=[])
         self._finish_generation(state, population, began)
@@ -111,6 +112,7 @@ class Evolution:
         offspring = [self._offspring(parents, ranks, rng) for _ in range(self.config.population)]
         union = parents + offspring
         self.fitness.records_for(offspring)
+        union += self._extensions(union)
         next_population = self._replace(union)
         state = RunState(generation=state.generation + 1, population=next_population,
                          rng_state=rng.bit_generator.state, history=state.history)
@@ -127,7 +129,7 @@ class Evolution:
         best = min(range(len(records)), key=lambda i: _rank_key(records[i], population[i]))
         state.history.append(GenerationStats(
             generation=state.generation, best_objective=float(objectives[best]),
-            median_objective=float(np.median(objectives[valid])) if valid.any() else float("nan"),
+            median_objective=float(np.median(objectives[valid])) if valid.any() else None,
             valid_fraction=float(valid.mean()),
             unique_structures=len({r.key for r in records if r.valid}),
             seconds=time.perf_counter() - began, best_key=records[best].key))
@@ -144,12 +146,45 @@ class Evolution:
         if self.config.refine_top:
             self.fitness.refine(list(distinct.values()))
 
+    def _extensions(self, trees: list[tuple]) -> list[tuple]:
+        """Trees of the best distinct structures' one-term extensions (memetic step).
+
+        For each of the ``local_search`` best distinct valid structures, every feature the
+        configured variables can express and the structure lacks (x^k, x'^k for k up to
+        max_degree, a constant force, each input) is added; the extended structure is
+        written as a compact sum-of-terms tree, kept if within the tree limits.
+        """
+        if not self.config.local_search or self.config.coefficients != "least_squares":
+            return []
+        records = self.fitness.records_for(trees)
+        best: dict[str, Record] = {}
+        for record in sorted((r for r in records if r.valid and r.status == 0),
+                             key=lambda r: (r.objective, r.n_terms)):
+            best.setdefault(record.key, record)
+            if len(best) >= self.config.local_search:
+                break
+        candidates = [(part, self.fitness.feature_tree(text))
+                      for part, texts in self.fitness.basis_features().items() for text in texts]
+        out = []
+        for record in best.values():
+            terms = [(part, self.fitness.feature_tree(text), value)
+                     for part in ("state", "forcing")
+                     for text, value in getattr(record, part).items()]
+            present = {_trees.to_json(t).__repr__() for _, t, _ in terms}
+            for part, feature in candidates:
+                if repr(_trees.to_json(feature)) in present:
+                    continue
+                tree = _sum_tree(record.mass, terms + [(part, feature, 1.0)])
+                if self.grammar.within_limits(tree):
+                    out.append(tree)
+        return out
+
     def _offspring(self, parents: list[tuple], ranks: np.ndarray, rng: np.random.Generator):
         c = self.config
         draw = rng.random()
 
         def pick() -> tuple:
-            contestants = rng.integers(len(parents), size=c.tournament_size)
+            contestants = rng.integers(len(parents), size=c.tournament)
             return parents[int(contestants[np.argmin(ranks[contestants])])]
 
         if draw < c.p_crossover:
@@ -182,6 +217,17 @@ class Evolution:
             if on_generation is not None:
                 on_generation(state)
         return state
+
+
+def _sum_tree(mass: float, terms: list[tuple[str, tuple, float]]) -> tuple:
+    """``mass·x'' + Σ c·state − Σ g·forcing`` as a balanced tree (the form E = 0)."""
+    leaves = [("mul", ("n", float(mass)), ("x_ddot",))]
+    leaves += [("mul", ("n", float(value if part == "state" else -value)), feature)
+               for part, feature, value in terms]
+    while len(leaves) > 1:
+        leaves = [("add", leaves[i], leaves[i + 1]) if i + 1 < len(leaves) else leaves[i]
+                  for i in range(0, len(leaves), 2)]
+    return leaves[0]
 
 
 def _ranks(records: list[Record], trees: list[tuple]) -> np.ndarray:

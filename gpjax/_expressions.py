@@ -21,6 +21,8 @@ FUNCTIONS = {"sin": sp.sin, "cos": sp.cos, "exp": sp.exp, "tanh": sp.tanh, "sign
              "Abs": sp.Abs, "abs": sp.Abs, "sqrt": sp.sqrt, "log": sp.log}
 MAX_LENGTH = 10_000
 MAX_DEPTH = 100
+#: Largest allowed |exponent|: higher powers would make canonicalisation explode.
+MAX_EXPONENT = 32
 _BINARY = {ast.Add: sp.Add, ast.Sub: lambda a, b: a - b, ast.Mult: sp.Mul,
            ast.Div: lambda a, b: a / b, ast.Pow: sp.Pow}
 
@@ -45,7 +47,10 @@ def _parse(text: str, names: frozenset[str], allow_equation: bool):
     try:
         tree = ast.parse(text.strip(), mode="eval")
     except (SyntaxError, ValueError) as err:
-        raise ModelFileError(f"cannot parse expression {text!r}: {err.msg if hasattr(err, 'msg') else err}") from None
+        raise ModelFileError(f"cannot parse expression {text[:60]!r}: "
+                             f"{getattr(err, 'msg', err)}") from None
+    except (RecursionError, MemoryError):
+        raise ModelFileError(f"expression {text[:60]!r} is nested too deeply") from None
     return _build(tree.body, names, allow_equation, 0, text)
 
 
@@ -62,8 +67,9 @@ def _build(node: ast.AST, names: frozenset[str], allow_equation: bool, depth: in
                              f"allowed: {', '.join(sorted(names))}")
     if isinstance(node, ast.BinOp) and type(node.op) in _BINARY:
         left, right = recurse(node.left), recurse(node.right)
-        if isinstance(node.op, ast.Pow) and not right.is_number:
-            raise ModelFileError(f"exponent must be a number in {text[:60]!r}")
+        if isinstance(node.op, ast.Pow) and not (right.is_number and abs(right) <= MAX_EXPONENT):
+            raise ModelFileError(f"exponent must be a number of at most {MAX_EXPONENT} in "
+                                 f"{text[:60]!r}")
         return _BINARY[type(node.op)](left, right)
     if isinstance(node, ast.UnaryOp) and isinstance(node.op, (ast.USub, ast.UAdd)):
         operand = recurse(node.operand)

@@ -84,7 +84,8 @@ class Fitness:
         self.evaluator = PopulationEvaluator(
             measurement, self.symbols, max_degree=config.max_degree, substeps=config.substeps,
             n_bins=config.n_bins, w_time=config.w_time, w_freq=config.w_freq,
-            batch=min(config.population, 512))
+            batch=min(config.population, 512),
+            fit_initial_conditions=config.initial_conditions is None)
         cutoff_hz = self.evaluator.n_bins / (measurement.n_samples * measurement.dt)
         self.derivatives = smoothed_derivatives(measurement, cutoff_hz)
         self.equation_error = EquationError(measurement, self.symbols, self.derivatives)
@@ -157,6 +158,20 @@ class Fitness:
     def _feature(self, text: str) -> sp.Expr:
         return parse_expression(text, self.symbols.names())
 
+    def basis_features(self) -> dict[str, list[str]]:
+        """Features a one-term move may add: x^k and x'^k (k <= max_degree, where the
+        configured variables allow them), a constant force and each input."""
+        variables = self.config.variables
+        state = [str(symbol ** k) for symbol, role in ((self.symbols.x, "x"),
+                                                        (self.symbols.x_dot, "x_dot"))
+                 if role in variables for k in range(1, self.config.max_degree + 1)]
+        forcing = ["1"] + ([str(u) for u in self.symbols.u] if "u" in variables else [])
+        return {"state": state, "forcing": forcing}
+
+    def feature_tree(self, text: str) -> tuple:
+        """A tree for a feature text (powers of x, x', t and inputs, products, constant)."""
+        return _expression_tree(self._feature(text), self.symbols)
+
     def population(self, records: list[Record]) -> Population:
         ev = self.evaluator
         for record in records:
@@ -202,6 +217,29 @@ class Fitness:
             record.refined = True
 
 
+def _expression_tree(expression: sp.Expr, symbols: Symbols) -> tuple:
+    leaves = {symbols.x: ("x",), symbols.x_dot: ("x_dot",), symbols.t: ("t",)}
+    leaves.update({u: ("u", k) for k, u in enumerate(symbols.u)})
+    if expression in leaves:
+        return leaves[expression]
+    if expression.is_Number:
+        return ("n", float(expression))
+    if expression.is_Pow and expression.exp.is_Integer and expression.exp > 0:
+        base = _expression_tree(expression.base, symbols)
+        tree = base
+        for _ in range(int(expression.exp) - 1):
+            tree = ("mul", base, tree)
+        return tree
+    if expression.is_Mul or expression.is_Add:
+        head = "mul" if expression.is_Mul else "add"
+        parts = [_expression_tree(a, symbols) for a in expression.args]
+        tree = parts[0]
+        for part in parts[1:]:
+            tree = (head, tree, part)
+        return tree
+    raise ValueError(f"feature {expression} has no tree form")
+
+
 def _row(scores: Scores, i: int) -> Scores:
     return Scores(*(np.asarray(getattr(scores, f.name))[i:i + 1]
                     for f in dataclasses.fields(Scores)))
@@ -214,3 +252,5 @@ def _store(records: list[Record], scores: Scores) -> None:
         record.f_freq = float(scores.f_freq[i])
         record.rms = float(scores.rms[i])
         record.status = int(scores.status[i])
+        if record.status == OK:
+            record.y0 = (float(scores.y0[i, 0]), float(scores.y0[i, 1]))

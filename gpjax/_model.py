@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import keyword
 import math
 from pathlib import Path
 
@@ -188,9 +189,14 @@ class Model:
         if not isinstance(response, str) or not isinstance(time, str) or not isinstance(
                 inputs, list) or not all(isinstance(u, str) for u in inputs):
             fail('"variables" needs "response" (a name), "time" (a name), "inputs" (a list of names)')
-        for name in [time, response, *inputs]:
-            if not name.isidentifier():
-                fail(f"variable name {name!r} is not an identifier")
+        names = [time, response, *inputs]
+        for name in names:
+            if not name.isidentifier() or keyword.iskeyword(name) or name.startswith("_"):
+                fail(f"variable name {name!r} is not usable; use letters, digits and _")
+            if name.endswith("_dot") or name.endswith("_ddot"):
+                fail(f"variable name {name!r} ends in _dot/_ddot, reserved for derivatives")
+        if len(set(names)) != len(names):
+            fail(f"variable names must differ, got {names}")
         symbols = Symbols(response, time, tuple(inputs))
         canonical = data.get("canonical")
         if not isinstance(canonical, dict):
@@ -200,10 +206,20 @@ class Model:
         forcing = _terms(canonical.get("forcing", []), "canonical.forcing", fail)
         names = symbols.names()
         expression = mass * symbols.x_ddot
+        exogenous = {symbols.t, *symbols.u}
         for text, value in state.items():
-            expression += value * _parse(text, names, source)
+            feature = _parse(text, names, source)
+            used = feature.free_symbols
+            if not (used == {symbols.x} or used == {symbols.x_dot}):
+                fail(f"term feature {text!r} must depend on {symbols.x} alone or on "
+                     f"{symbols.x_dot} alone (eqs. 5–6); move time/input terms to \"forcing\"")
+            expression += value * feature
         for text, value in forcing.items():
-            expression -= value * _parse(text, names, source)
+            feature = _parse(text, names, source)
+            if not feature.free_symbols <= exogenous:
+                fail(f"forcing feature {text!r} may depend only on time and inputs; move it "
+                     "to \"terms\"")
+            expression -= value * feature
         check = check_structure(expression, symbols)
         if not check.valid:
             fail(f"the canonical form breaks the structure rules: {check.reason}")
@@ -237,6 +253,9 @@ class Model:
             data = json.loads(text)
         except json.JSONDecodeError as err:
             raise ModelFileError(f"model file {path} is not valid JSON ({err}); fix the syntax") from None
+        except (ValueError, RecursionError):  # a number of thousands of digits, deep nesting
+            raise ModelFileError(f"model file {path} holds a number or nesting too large to read; "
+                                 "write numbers as ordinary floats") from None
         return cls.from_json(data, source=str(path))
 
 

@@ -12,6 +12,7 @@ raised).
 from __future__ import annotations
 
 import dataclasses
+import time
 
 import diffrax
 import jax
@@ -51,6 +52,8 @@ class Refiner:
         self._state_scale = np.array([np.std(response), np.std(np.diff(response))
                                       / evaluator.measurement.dt]) + 1e-300
         self._run = jax.jit(jax.vmap(self._refine_one, in_axes=(0, 0, 0, None)))
+        self._compiled: set[int] = set()
+        self.compile_seconds = 0.0
 
     def refine(self, population: Population, fixed_forcing: np.ndarray) -> Refinement:
         """Refine every model of ``population``; coefficients that are 0 stay 0.
@@ -88,7 +91,12 @@ class Refiner:
             pad = self.batch - (stop - begin)
             chunk = [np.concatenate([a[begin:stop], np.repeat(a[begin:begin + 1], pad, axis=0)])
                      for a in (start, index, index_scale)]
-            out = self._run(*map(jnp.asarray, chunk), jnp.asarray(ev._forcing_basis))
+            began = time.perf_counter()
+            out = jax.block_until_ready(
+                self._run(*map(jnp.asarray, chunk), jnp.asarray(ev._forcing_basis)))
+            if capacity not in self._compiled:  # the first call of a shape includes its compile
+                self._compiled.add(capacity)
+                self.compile_seconds += time.perf_counter() - began
             outputs.append([np.asarray(o)[: stop - begin] for o in out])
         params, ok, steps = (np.concatenate(p) for p in zip(*outputs))
         refined = Population(mass=params[:, 0], state=params[:, 1:1 + n_state],

@@ -1,12 +1,12 @@
-"""Choosing the reported model: the best structure, pruned, and the Pareto table.
+"""Choosing the reported model: the best structure, simplified, and the Pareto table.
 
 Least-squares coefficients make every additive term free to help a little, so the best
 structure GP finds often carries terms that buy almost nothing (a constant force of 1e-3,
-a t·T term). After the run the best structure is pruned by backward elimination: each
-removable term is dropped in turn, the smaller structure is refitted (least squares, then
-output-error refinement), and the removal that costs least is kept while the objective
-stays within ``selection_tolerance`` of the unpruned best. This is a difference from the
-paper, which reports the best tree as found.
+a t·T term), and on short records several structures fit to the noise floor (x + x⁴ + c
+mimics x + x² about an operating point). After the run a local search starts from the
+best structure and moves, by one-term removals and swaps, to the simplest structure whose
+objective stays within ``selection_tolerance`` of the best seen. This is a difference from
+the paper, which reports the best tree as found.
 """
 
 from __future__ import annotations
@@ -21,8 +21,9 @@ def _form(fitness: Fitness, state: list[str], forcing: list[str]) -> CanonicalFo
                          forcing=tuple((feature(f), 1.0) for f in forcing))
 
 
-def _records_for(fitness: Fitness, options: list[tuple[list[str], list[str]]]) -> list[Record]:
-    """Score and refine several structures together (one batch each)."""
+def _records_for(fitness: Fitness, options: list[tuple[list[str], list[str]]], *,
+                 refine_below: float) -> list[Record]:
+    """Score several structures together; refine those scoring below ``refine_below``."""
     keys, new = [], {}
     for state, forcing in options:
         form = _form(fitness, state, forcing)
@@ -35,28 +36,51 @@ def _records_for(fitness: Fitness, options: list[tuple[list[str], list[str]]]) -
     if new:
         fitness.score_forms(new)
     records = [fitness.records[k] for k in keys]
-    fitness.refine(records)
+    fitness.refine([r for r in records if r.objective <= refine_below])
     return records
 
 
-def prune(fitness: Fitness, best: Record, tolerance: float) -> tuple[Record, list[Record]]:
-    """Backward elimination from ``best``; returns the pruned record and the chain tried."""
+def simplify(fitness: Fitness, best: Record, tolerance: float) -> tuple[Record, list[Record]]:
+    """Local search from ``best`` for the simplest model within ``tolerance`` of the best.
+
+    Neighbours of a structure: every one-term removal and every one-term swap (a state
+    term replaced by another basis feature, a forcing term by another forcing feature;
+    see :meth:`Fitness.basis_features`), each refitted (least squares, then refinement
+    of those whose start is within 5x of the limit). A move is taken to the neighbour with
+    the fewest terms whose objective is within the limit, or, at equal size, to a lower
+    objective. The limit is (1 + tolerance) times the lowest objective seen. Returns the
+    final record and the path taken.
+    """
     normaliser = str(fitness.symbols.u[0]) if fitness.symbols.u else None
-    limit = best.objective * (1.0 + tolerance)
-    current, chain = best, [best]
+    basis = fitness.basis_features()
+    lowest = best.objective
+    current, path = best, [best]
     while True:
         options = []
-        for name in current.state:
-            options.append(([f for f in current.state if f != name], list(current.forcing)))
-        for name in current.forcing:
-            if name != normaliser:
-                options.append((list(current.state), [f for f in current.forcing if f != name]))
-        candidates = [c for c in _records_for(fitness, options)
-                      if c.valid and c.status == 0 and c.objective <= limit]
-        if not candidates:
-            return current, chain
-        current = min(candidates, key=lambda r: r.objective)
-        chain.append(current)
+        for part in ("state", "forcing"):
+            terms = list(getattr(current, part))
+            others = [t for t in basis[part] if t not in terms]
+            for name in terms:
+                if part == "forcing" and name == normaliser:
+                    continue
+                rest = [t for t in terms if t != name]
+                options.append((part, rest))
+                options += [(part, rest + [other]) for other in others]
+        structures = [(terms, list(current.forcing)) if part == "state"
+                      else (list(current.state), terms) for part, terms in options]
+        records = _records_for(fitness, structures, refine_below=5 * lowest * (1 + tolerance))
+        usable = [r for r in records if r.valid and r.status == 0]
+        lowest = min([lowest, *(r.objective for r in usable)])
+        limit = lowest * (1 + tolerance)
+        moves = [r for r in usable if r.objective <= limit and (
+            r.n_terms < current.n_terms
+            or (r.n_terms == current.n_terms and r.objective < current.objective))]
+        if current.objective > limit:  # a better model appeared: anything within reach
+            moves = [r for r in usable if r.objective <= limit]
+        if not moves:
+            return current, path
+        current = min(moves, key=lambda r: (r.n_terms, r.objective))
+        path.append(current)
 
 
 def pareto_front(records: list[Record]) -> list[Record]:

@@ -30,7 +30,7 @@ def _parser() -> argparse.ArgumentParser:
     commands = parser.add_subparsers(dest="command", required=True, parser_class=_Parser)
     demo = commands.add_parser("demo", help="the paper's protocol on the bundled gear example")
     demo.add_argument("--out", default="gpjax-demo", help="run folder (default: gpjax-demo)")
-    demo.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    demo.add_argument("--seed", type=_non_negative, default=0, help="random seed (default: 0)")
     demo.add_argument("--population", type=int, help="individuals per generation (default 500)")
     demo.add_argument("--generations", type=int, help="maximum generations (default 10)")
     fit = commands.add_parser("fit", help="identify a model from a CSV file")
@@ -42,10 +42,20 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("--config", help="TOML file of settings (see README)")
     fit.add_argument("--population", type=int, help="individuals per generation")
     fit.add_argument("--generations", type=int, help="maximum generations")
-    fit.add_argument("--seed", type=int, default=0, help="random seed (default: 0)")
+    fit.add_argument("--seed", type=_non_negative, default=0, help="random seed (default: 0)")
     fit.add_argument("--out", default="gpjax-run", help="run folder (default: gpjax-run)")
     fit.add_argument("--resume", action="store_true", help="continue the run in --out")
     return parser
+
+
+def _non_negative(text: str) -> int:
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid int value: {text!r}") from None
+    if value < 0:
+        raise argparse.ArgumentTypeError(f"must be a non-negative integer, got {value}")
+    return value
 
 
 def _config(args, base: GPConfig) -> GPConfig:
@@ -91,7 +101,7 @@ def _fit(args) -> int:
     identifier = _run(config, measurement, args.seed, Path(args.out), resume=args.resume)
     print(identifier)
     _timings(identifier, args.out)
-    return 0
+    return 130 if identifier.stopped_by == "interrupted" else 0
 
 
 def _run(config, measurement, seed, out: Path, *, resume: bool):
@@ -115,7 +125,8 @@ def main(argv: list[str] | None = None) -> int:
         handler = {"demo": _demo, "fit": _fit}[args.command]
         return handler(args)
     except UserInputError as err:
-        print(f"gpjax: error: {err}", file=sys.stderr)
+        message = " ".join(str(err).split("\n"))  # one line, whatever a name holds
+        print(f"gpjax: error: {message}", file=sys.stderr)
         return EXIT_USER_ERROR
     except KeyboardInterrupt:
         print("gpjax: interrupted", file=sys.stderr)

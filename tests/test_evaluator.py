@@ -90,15 +90,17 @@ def test_weights_combine_the_two_parts():
 def test_one_bad_candidate_never_spoils_the_others():
     measurement = _measurement()
     evaluator = PopulationEvaluator(measurement, S, max_degree=3, batch=8)
-    pop = _random_models(evaluator, np.random.default_rng(1), 6)
+    pop = _random_models(evaluator, np.random.default_rng(1), 7)
     alone = evaluator.score(Population(pop.mass[:2], pop.state[:2], pop.forcing[:2], pop.y0[:2]))
     pop.state[2, 0] = -1e6        # x'' = +1e6 x: explodes
     pop.mass[3] = 0.0             # zero mass
     pop.mass[4] = -1.0            # negative mass
     pop.state[5, 2] = -1e9        # strongly softening cubic: blows up
     pop.y0[5] = [5.0, 0.0]
+    pop.mass[6] = 1e-9            # stiff: omega*h ~ 500, beyond RK4's stability region
     scores = evaluator.score(pop)
-    assert list(scores.status[2:]) == [DIVERGED, NONPOSITIVE_MASS, NONPOSITIVE_MASS, DIVERGED]
+    assert list(scores.status[2:]) == [DIVERGED, NONPOSITIVE_MASS, NONPOSITIVE_MASS, DIVERGED,
+                                       DIVERGED]
     assert np.all(np.isfinite(scores.objective))
     assert np.all(scores.objective[2:] == PENALTY)
     np.testing.assert_array_equal(scores.objective[:2], alone.objective)

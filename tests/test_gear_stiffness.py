@@ -31,7 +31,8 @@ PAPER = GearPair.paper()
 def test_paper_pair_fields():
     assert (PAPER.module_mm, PAPER.teeth1, PAPER.teeth2) == (4.0, 19, 54)
     assert (PAPER.x1, PAPER.x2, PAPER.face_width_mm) == (0.228, -0.228, 25.0)
-    assert (PAPER.pressure_angle_deg, PAPER.youngs_modulus_pa, PAPER.poisson) == (20.0, 2.06e11, 0.3)
+    assert (PAPER.pressure_angle_deg, PAPER.youngs_modulus_pa, PAPER.poisson) == (
+        20.0, 2.06e11, 0.3)
 
 
 def test_hertz_stiffness_matches_hand_computation_of_eq15():
@@ -49,6 +50,7 @@ def test_paper_geometry_by_hand():
     assert g.tip_radius_mm == pytest.approx((42.912, 111.088))
     assert g.operating_pressure_angle_deg == pytest.approx(20.0, abs=1e-12)
     assert g.operating_center_distance_mm == pytest.approx(146.0)
+    assert g.operating_pitch_radius_mm == pytest.approx((38.0, 108.0))
     assert g.base_pitch_mm == pytest.approx(math.pi * 4.0 * math.cos(math.radians(20)))
 
 
@@ -237,6 +239,8 @@ def test_report_for_the_paper_pair():
     assert report["K_min"] == pytest.approx(3.179e8, rel=1e-3)
     assert report["K_max"] == pytest.approx(5.796e8, rel=1e-3)
     assert (low, high) == pytest.approx((7075.0, 12899.0), rel=1e-3)
+    # K1 := r1 k1 with r1 the operating pitch radius (38 mm for the paper pair)
+    assert report["k1_interval_N_per_deg"] == pytest.approx((low / 0.038, high / 0.038))
 
 
 def test_iso6336_cross_check():
@@ -295,8 +299,12 @@ def _ross():
     return GearElementTVMS, Mesh, Material
 
 
+@pytest.mark.slow
 def test_against_ross_potential_energy_tvms():
-    """ross has no profile shift, so compare the unshifted 19/54 pair (bores 30/60 mm)."""
+    """ross has no profile shift, so compare the unshifted 19/54 pair (bores 30/60 mm).
+
+    Marked slow: importing ross takes ~12 s and its Mesh evaluates 1000 positions (~5 s).
+    """
     gear_element, mesh_class, material = _ross()
     steel = material(name="gear_steel", rho=7850.0, E=2.06e11, Poisson=0.3)
     with warnings.catch_warnings():
@@ -305,9 +313,9 @@ def test_against_ross_potential_energy_tvms():
                               module=0.004, n_teeth=19)
         wheel = gear_element(n=1, material=steel, width=0.025, bore_diameter=0.060,
                              module=0.004, n_teeth=54)
-        mesh = mesh_class(pinion, wheel)
-        _, values = mesh.get_stiffness_for_mesh_period(n_points=40)
+        mesh = mesh_class(pinion, wheel)  # evaluates its TVMS over one mesh period
     ours = GearPair(module_mm=4.0, teeth1=19, teeth2=54, face_width_mm=25.0)
     assert ours.geometry.contact_ratio == pytest.approx(mesh.contact_ratio, rel=1e-9)
     assert hertz_stiffness(ours) == pytest.approx(mesh.hertzian_stiffness, rel=1e-12)
-    assert average_mesh_stiffness(ours) == pytest.approx(float(np.mean(values)), rel=0.15)
+    ross_mean = float(np.mean(mesh.stiffness_range))
+    assert average_mesh_stiffness(ours) == pytest.approx(ross_mean, rel=0.15)

@@ -1,7 +1,23 @@
-"""Gear-pair physics: the bundled example generator (eqs. 13–14)."""
+"""Gear-pair physics: the bundled example (eqs. 13–14), mesh stiffness (eqs. 15–20) and
+the 2-DOF gear-pair model (eqs. 21–23)."""
 
 from ._example import (PAPER_TRUTH, GearExample, Torque, generate_gear_example,
                        load_bundled_example, write_example)
+from ._stiffness import (KUANG_YANG_COEFFICIENTS, ContactPoints, GearPair, MeshGeometry,
+                         MeshStiffness, average_mesh_stiffness, bending_stiffness,
+                         contact_points, hertz_stiffness, iso6336_stiffness,
+                         kuang_yang_coefficients, mesh_cycle_angles, mesh_stiffness,
+                         pair_stiffness, stiffness_report, torsional_stiffness)
+from ._two_dof import (OneDofResponse, TwoDofGearPair, TwoDofResponse, mesh_stiffness_signal,
+                       reduction_error, reduction_scenarios, simulate_one_dof,
+                       simulate_two_dof)
 
-__all__ = ["PAPER_TRUTH", "GearExample", "Torque", "generate_gear_example",
-           "load_bundled_example", "write_example"]
+__all__ = [
+    "PAPER_TRUTH", "GearExample", "Torque", "generate_gear_example", "load_bundled_example",
+    "write_example", "KUANG_YANG_COEFFICIENTS", "ContactPoints", "GearPair", "MeshGeometry",
+    "MeshStiffness", "average_mesh_stiffness", "bending_stiffness", "contact_points",
+    "hertz_stiffness", "iso6336_stiffness", "kuang_yang_coefficients", "mesh_cycle_angles",
+    "mesh_stiffness", "pair_stiffness", "stiffness_report", "torsional_stiffness",
+    "OneDofResponse", "TwoDofGearPair", "TwoDofResponse", "mesh_stiffness_signal",
+    "reduction_error", "reduction_scenarios", "simulate_one_dof", "simulate_two_dof",
+]

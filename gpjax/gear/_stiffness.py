@@ -20,7 +20,7 @@ What this module computes, and from where:
   two pairs A and B in contact ``K = K_A + K_B``, and ``K_B = 0`` in single-tooth contact.
   Over one mesh cycle (pinion rotation 2π/z1) the averaged value (Shing 1994) is
   ``K̄ = (1/p_b) ∫_A^E K_pair(s) ds`` (p_b: base pitch), computed by Gauss–Legendre.
-* **Cross-check** against ISO 6336-1:2019 method B (§9): single stiffness
+* **Cross-check** against ISO 6336-1:2019 method B: single stiffness
   ``c' = c'_th C_M C_R C_B cos β`` with ``1/c'_th = q'`` from the standard's regression
   (C1 … C9), and mesh stiffness ``c_γα = c' (0.75 ε_α + 0.25)``; both in N/µm/mm.
 
@@ -33,10 +33,13 @@ spur gear pair", J. Vib. Acoust. 123(3):311–317. The values here were transcri
 secondary literature; no copy of either paper was reachable while writing this module, so
 they were *checked*, not verified against a scan: for the paper's pair they give a single
 pair stiffness of 12.9 N/µm/mm at the pitch point against ISO 6336-1's c'_th = 16.9 and
-c' = 13.2 N/µm/mm, and a mean mesh stiffness within ~10 % of ISO's c_γα and of the
-potential-energy TVMS of ``ross-rotordynamics`` (``GearElementTVMS``, Ma et al. 2014 /
-Sainsot et al. 2004). The cubic is used only for 12 ≤ N ≤ 100 teeth: outside that range it
-stops being monotone and grows without bound (this limit is ours, not the source's).
+c' = 13.2 N/µm/mm, and a mean mesh stiffness 1.4 % below ISO's c_γα. For the unshifted
+19/54 pair the mean is 3 % above the potential-energy TVMS of ``ross-rotordynamics``
+(``GearElementTVMS``, Ma et al. 2014 with the Sainsot et al. 2004 foundation term) with
+30/60 mm bores; ross's value depends on the bores (ours is 5 % below to 52 % above it for
+bores between 35/80 and 20/30 mm). The cubic is used only for 12 ≤ N ≤ 100 teeth: past
+100 it grows without bound (A0 = 45.8 at N = 120, 113.7 at N = 150). This limit is ours;
+the range of the source's FE study could not be checked.
 
 Units: lengths in mm at the interface (as in the paper), stiffness in N/m unless a name says
 ``per_width`` (then N/µm/mm, i.e. N/µm per mm of face width), angles in rad unless ``_deg``.
@@ -62,12 +65,12 @@ KUANG_YANG_COEFFICIENTS = np.array([
 ])
 #: Tooth numbers for which the Kuang & Yang cubic is used (our limit, see the module doc).
 KUANG_YANG_TEETH = (12, 100)
-#: ISO 6336-1:2019 eq. (72)/Table 8 regression for q' (mm·µm/N), C1 … C9.
+#: ISO 6336-1:2019 method B regression for q' (mm·µm/N), C1 … C9.
 ISO6336_Q_COEFFICIENTS = (0.04723, 0.15551, 0.25791, -0.00635, -0.11654, -0.00193,
                           -0.24188, 0.00529, 0.00182)
 #: ISO 6336-1 theoretical-to-real correction C_M for solid spur gears.
 ISO6336_CM = 0.8
-#: Basic-rack dedendum coefficient h_fP/m and root clearance used for C_B.
+#: Basic-rack dedendum h_fP/m (addendum 1 plus root clearance 0.25) assumed for ISO's C_B.
 DEDENDUM_COEFFICIENT = 1.25
 
 _POSITION_TOLERANCE_MM = 1e-9
@@ -111,6 +114,12 @@ class MeshGeometry:
     end_of_contact_mm: float
     pitch_point_mm: float
     mesh_period_rad: float
+
+    @property
+    def operating_pitch_radius_mm(self) -> tuple[float, float]:
+        """Operating (rolling) pitch radii r_b / cos α_w (mm); the paper's "kinematic radius"."""
+        cos_w = math.cos(math.radians(self.operating_pressure_angle_deg))
+        return (self.base_radius_mm[0] / cos_w, self.base_radius_mm[1] / cos_w)
 
     @property
     def path_of_contact_mm(self) -> float:
@@ -209,7 +218,7 @@ class GearPair:
 
     @classmethod
     def paper(cls) -> "GearPair":
-        """The paper's pair (§4): m = 4 mm, z = 19/54, x = +0.228/−0.228, b = 25 mm, β = 0, steel."""
+        """The paper's pair (§4): m = 4 mm, z = 19/54, x = ±0.228, b = 25 mm, β = 0, steel."""
         return cls(module_mm=4.0, teeth1=19, teeth2=54, x1=0.228, x2=-0.228,
                    face_width_mm=25.0)
 
@@ -464,7 +473,9 @@ def stiffness_report(pair: GearPair, *, samples: int = 2000) -> dict[str, Any]:
     unless named ``per_width`` (N/µm/mm); torsional values are K·r_b1² in N·m/rad and
     N·m/deg. ``K1_interval_N_m_per_deg`` is [min, max] of the torsional mesh stiffness over
     the cycle: the range this mesh model implies for the paper's K1 (eq. 14) if φ were the
-    pinion's mesh deflection alone.
+    pinion's mesh deflection alone; ``k1_interval_N_per_deg`` is that interval divided by the
+    pinion's operating pitch radius r1 (m), the GP constant k1 of eq. 11 under the paper's
+    K1 := r1 k1.
     """
     geometry = pair.geometry
     rb1 = geometry.base_radius_mm[0]
@@ -494,6 +505,7 @@ def stiffness_report(pair: GearPair, *, samples: int = 2000) -> dict[str, Any]:
                (("min", k_min), ("max", k_max), ("mean", k_mean))}
     torsion_deg = {name: torsional_stiffness(pair, value, per_degree=True) for name, value in
                    (("min", k_min), ("max", k_max), ("mean", k_mean))}
+    r1_m = geometry.operating_pitch_radius_mm[0] * 1e-3
     try:
         iso = iso6336_stiffness(pair)
     except ConfigError:
@@ -518,5 +530,6 @@ def stiffness_report(pair: GearPair, *, samples: int = 2000) -> dict[str, Any]:
         "torsional_N_m_per_rad": torsion,
         "torsional_N_m_per_deg": torsion_deg,
         "K1_interval_N_m_per_deg": (torsion_deg["min"], torsion_deg["max"]),
+        "k1_interval_N_per_deg": (torsion_deg["min"] / r1_m, torsion_deg["max"] / r1_m),
         "iso6336": iso,
     }
