@@ -12,7 +12,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
-from ._errors import ConfigError
+from ._errors import ConfigError, read_user_file
 
 #: Function-set names and their arity. ``div`` is protected: a/b is 1 where |b| < 1e-12.
 FUNCTIONS = {"add": 2, "sub": 2, "mul": 2, "div": 2}
@@ -117,13 +117,7 @@ class GPConfig:
     @classmethod
     def from_toml(cls, path: str | Path) -> "GPConfig":
         """Read a TOML file of top-level keys (the field names above)."""
-        path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise ConfigError(f"config file {path} does not exist; check the path") from None
-        except (OSError, UnicodeDecodeError) as err:
-            raise ConfigError(f"cannot read config file {path}: {err}") from None
+        text = read_user_file(path, "config file", ConfigError)
         try:
             values = tomllib.loads(text)
         except tomllib.TOMLDecodeError as err:

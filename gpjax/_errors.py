@@ -5,6 +5,8 @@ a model file) derives from :class:`UserInputError`; the command line turns those
 line on stderr and exit status 2. Anything else is a bug and keeps its traceback.
 """
 
+from pathlib import Path
+
 
 class UserInputError(ValueError):
     """Something the user supplied is wrong; the message names the problem and the fix."""
@@ -20,3 +22,16 @@ class ConfigError(UserInputError):
 
 class ModelFileError(UserInputError):
     """A model file (``model.json``) is malformed or holds an expression outside the whitelist."""
+
+
+def read_user_file(path: str | Path, kind: str, error: type[UserInputError]) -> str:
+    """Text of a file the user named; a missing or unreadable file raises ``error``."""
+    path = Path(path)
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise error(f"{kind} {path} does not exist; check the path") from None
+    except IsADirectoryError:
+        raise error(f"{kind} {path} is a directory; give a file") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise error(f"cannot read {kind} {path}: {err}") from None

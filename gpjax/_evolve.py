@@ -137,14 +137,8 @@ class Evolution:
                           or objectives[best] <= self.config.epsilon)
 
     def _refine_best(self, records: list[Record]) -> None:
-        distinct: dict[str, Record] = {}
-        for record in sorted((r for r in records if r.valid and r.status == 0),
-                             key=lambda r: (r.objective, r.n_terms)):
-            distinct.setdefault(record.key, record)
-            if len(distinct) >= self.config.refine_top:
-                break
         if self.config.refine_top:
-            self.fitness.refine(list(distinct.values()))
+            self.fitness.refine(_best_distinct(records, self.config.refine_top))
 
     def _extensions(self, trees: list[tuple]) -> list[tuple]:
         """Trees of the best distinct structures' one-term extensions (memetic step).
@@ -156,17 +150,11 @@ class Evolution:
         """
         if not self.config.local_search or self.config.coefficients != "least_squares":
             return []
-        records = self.fitness.records_for(trees)
-        best: dict[str, Record] = {}
-        for record in sorted((r for r in records if r.valid and r.status == 0),
-                             key=lambda r: (r.objective, r.n_terms)):
-            best.setdefault(record.key, record)
-            if len(best) >= self.config.local_search:
-                break
+        best = _best_distinct(self.fitness.records_for(trees), self.config.local_search)
         candidates = [(part, self.fitness.feature_tree(text))
                       for part, texts in self.fitness.basis_features().items() for text in texts]
         out = []
-        for record in best.values():
+        for record in best:
             terms = [(part, self.fitness.feature_tree(text), value)
                      for part in ("state", "forcing")
                      for text, value in getattr(record, part).items()]
@@ -217,6 +205,17 @@ class Evolution:
             if on_generation is not None:
                 on_generation(state)
         return state
+
+
+def _best_distinct(records: list[Record], count: int) -> list[Record]:
+    """The ``count`` best usable records with distinct structures, best first."""
+    distinct: dict[str, Record] = {}
+    for record in sorted((r for r in records if r.valid and r.status == 0),
+                         key=lambda r: (r.objective, r.n_terms)):
+        distinct.setdefault(record.key, record)
+        if len(distinct) >= count:
+            break
+    return list(distinct.values())
 
 
 def _sum_tree(mass: float, terms: list[tuple[str, tuple, float]]) -> tuple:

@@ -19,7 +19,7 @@ import sympy as sp
 
 from ._canonical import Symbols, check_structure
 from ._data import Measurement
-from ._errors import ModelFileError
+from ._errors import ModelFileError, read_user_file
 from ._evaluator import Population, PopulationEvaluator
 from ._expressions import parse_expression
 
@@ -242,13 +242,7 @@ class Model:
     @classmethod
     def load(cls, path: str | Path) -> "Model":
         """Read ``model.json``; any problem is a :class:`ModelFileError`."""
-        path = Path(path)
-        try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise ModelFileError(f"model file {path} does not exist; check the path") from None
-        except (OSError, UnicodeDecodeError) as err:
-            raise ModelFileError(f"cannot read model file {path}: {err}") from None
+        text = read_user_file(path, "model file", ModelFileError)
         try:
             data = json.loads(text)
         except json.JSONDecodeError as err:

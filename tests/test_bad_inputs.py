@@ -535,8 +535,6 @@ def test_model_file_injection_is_not_run(tmp_path, monkeypatch):
 
 
 def test_handwritten_model_loads(tmp_path):
-    import gpjax
-
     model = _load(tmp_path, json.dumps(model_json()))
     equation = str(model.equation())
     assert "phi_ddot" in equation
