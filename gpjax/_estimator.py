@@ -174,7 +174,7 @@ class Identifier:
         write_text_atomic(out / "config.json", json.dumps(self.config.to_dict(), indent=2) + "\n")
         calculated = self.simulate()
         m = self.model_.metrics
-        title = (f"{self.model_.sympy()}\nRMS = {m['rms']:.4g}, f = {m['objective']:.4g} "
+        title = (f"{self.model_}\nRMS = {m['rms']:.4g}, f = {m['objective']:.4g} "
                  f"(f_time {m['f_time']:.4g} + f_freq {m['f_freq']:.4g})")
         write_bytes_atomic(out / "fit.png", fit_figure(
             self.measurement_.time, self.measurement_.response, calculated,

@@ -112,7 +112,8 @@ class PopulationEvaluator:
         substeps: RK4 steps per sample interval.
         n_bins: spectral amplitudes m in f_freq (eq. 9); ``None`` for the 99 % energy rule.
         w_time, w_freq: weights of eq. 7.
-        extra_state_features: further state features (sympy, in x or x') compiled in.
+        extra_state_features: further state features (sympy expressions in x, x' and t,
+            e.g. ``sign(x_dot)`` or ``cos(1790*t)*x``) compiled in.
         batch: number of models per compiled call; populations are padded to a multiple.
         fit_initial_conditions: correct every model's (x0, x0') by one Gauss–Newton step
             on the simulated response (sensitivities from a batched solve with perturbed
@@ -147,7 +148,7 @@ class PopulationEvaluator:
         self._forcing_index: dict[sp.Expr, int] = {}
         self._forcing_basis = np.zeros((self.stage_times.size, 0))
         self.compile_seconds = 0.0
-        self._extra_fns = [sp.lambdify((symbols.x, symbols.x_dot), f, modules="jax")
+        self._extra_fns = [sp.lambdify((symbols.x, symbols.x_dot, symbols.t), f, modules="jax")
                            for f in extra_state_features]
         self._run = jax.jit(self._simulate_and_score)
         self._compiled: set[tuple] = set()
@@ -230,8 +231,8 @@ class PopulationEvaluator:
             self.compile_seconds += time.perf_counter() - start
         return out
 
-    def _state_basis(self, x: jax.Array, v: jax.Array) -> jax.Array:
-        """(…, F_state) values of the state features."""
+    def _state_basis(self, x: jax.Array, v: jax.Array, t: jax.Array) -> jax.Array:
+        """(…, F_state) values of the state features at time ``t``."""
         columns = []
         power = jnp.ones_like(x)
         for _ in range(self.max_degree):
@@ -241,14 +242,14 @@ class PopulationEvaluator:
         for _ in range(self.max_degree):
             power = power * v
             columns.append(power)
-        columns += [jnp.broadcast_to(fn(x, v), x.shape) for fn in self._extra_fns]
+        columns += [jnp.broadcast_to(fn(x, v, t), x.shape) for fn in self._extra_fns]
         return jnp.stack(columns, axis=-1)
 
-    def rhs(self, mass, state_coefficients, forcing_now, y, bound):
-        """dy/dt for all models: y = (x, x'), shape (P, 2); states clipped to ``bound``."""
+    def rhs(self, t, mass, state_coefficients, forcing_now, y, bound):
+        """dy/dt for all models at time t: y = (x, x'), shape (P, 2); states clipped."""
         y = jnp.clip(y, -bound, bound)
         x, v = y[:, 0], y[:, 1]
-        restoring = jnp.sum(state_coefficients * self._state_basis(x, v), axis=-1)
+        restoring = jnp.sum(state_coefficients * self._state_basis(x, v, t), axis=-1)
         return jnp.stack([v, (forcing_now - restoring) / mass], axis=1)
 
     def solve(self, mass, state, forcing_matrix, y0, *, adjoint=None):
@@ -267,7 +268,7 @@ class PopulationEvaluator:
         def field(t, y, args):
             index = jnp.clip(jnp.round((t - t0) / half).astype(jnp.int32), 0,
                              forcing_matrix.shape[0] - 1)
-            return self.rhs(mass, state, forcing_matrix[index], y, bound)
+            return self.rhs(t, mass, state, forcing_matrix[index], y, bound)
 
         solution = diffrax.diffeqsolve(
             diffrax.ODETerm(field), RK4(), t0=t0, t1=float(self.stage_times[-1]), dt0=self.h,

@@ -86,10 +86,12 @@ def _demo(args) -> int:
 
 def _timings(identifier, out) -> None:
     t = identifier.timings_
-    per = t["total_s"] / max(1, t["generations"] + 1)
-    print(f"\n{t['generations']} generations after generation 0, stopped by "
-          f"{identifier.stopped_by}; {t['total_s']:.1f} s total ({per:.2f} s per generation), "
-          f"{t['compile_s']:.1f} s compiling. Results in {out}/")
+    seconds = [row["seconds"] for row in identifier.history_]
+    later = (f", later generations {sum(seconds[1:]) / len(seconds[1:]):.2f} s each"
+             if len(seconds) > 1 else "")
+    print(f"\nStopped by {identifier.stopped_by} after generation {t['generations']}; "
+          f"{t['total_s']:.1f} s in all, {t['compile_s']:.1f} s of it compiling; generation 0 "
+          f"{seconds[0]:.2f} s{later}. Results in {out}/")
 
 
 def _fit(args) -> int:
