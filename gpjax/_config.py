@@ -61,7 +61,9 @@ class GPConfig:
         initial_conditions: ``(x0, x_dot0)`` at the first sample, or ``None`` to estimate
             them from the data (eq. 13).
         selection_tolerance: the reported model is the simplest one whose objective is within
-            this fraction of the best one found (parsimony; see README).
+            this fraction of the best one found (parsimony; see README). Terms that only
+            soak up integrated input noise buy 0.2–3 % on the gear example; missing physics
+            buys far more (x² over a linear model with offset: 15×).
         local_search: best distinct structures per generation whose one-term extensions
             (a power of x or x', a constant, an input) are built as trees and compete for
             the next generation; 0 gives the paper's pure GP. Least-squares mode only.
@@ -95,7 +97,7 @@ class GPConfig:
     refine_iterations: int = 10
     substeps: int = 1
     initial_conditions: tuple[float, float] | None = None
-    selection_tolerance: float = 0.02
+    selection_tolerance: float = 0.05
     local_search: int = 3
 
     def __post_init__(self) -> None:

@@ -94,18 +94,17 @@ def test_ctrl_c_writes_the_best_model_so_far(tmp_path):
 def test_fit_with_other_names_and_torque_recovers_eq14_structure(tmp_path):
     torque = Torque(mean=9.0, shaft_amplitudes=(0.4, 0.2), shaft_phases=(1.0, 2.0),
                     mesh_amplitudes=(0.9, 0.4, 0.1), mesh_phases=(0.5, 1.5, 3.0))
+    # Noise seed 4 is the hard case: a constant force buys 3 % by soaking up torque noise.
     example = generate_gear_example(seed=4, torque=torque, time_name="time_s",
-                                    response_name="twist", input_name="drive_torque",
-                                    revolutions=0.5)
-    identifier = Identifier(GPConfig(population=200, generations=6)).fit(
-        example.measurement, seed=0)
+                                    response_name="twist", input_name="drive_torque")
+    identifier = Identifier(GPConfig()).fit(example.measurement, seed=0)
     model = identifier.model_
     assert sorted(model.state) == ["twist", "twist**2"]
     assert list(model.forcing) == ["drive_torque"]
     truth = example.truth
     constants = model.constants()
     assert constants["m"] == pytest.approx(truth["J"], rel=0.02)
-    assert constants["k1"] == pytest.approx(truth["K1"], rel=0.05)
+    assert constants["k1"] == pytest.approx(truth["K1"], rel=0.02)
     assert constants["k2"] == pytest.approx(truth["K2"], rel=0.02)
 
 
