@@ -203,7 +203,7 @@ CLI_CASES = [
     case("config-missing", CONFIG_FIT, {"data.csv": VALID_CSV},
          ["cfg.toml", "does not exist", "check the path"]),
     case("config-is-a-directory", CONFIG_FIT, {"data.csv": VALID_CSV, "cfg.toml": DIR},
-         ["cannot read config file", "cfg.toml"]),
+         ["config file cfg.toml is a directory", "give a file"]),
     config_case("config-not-toml", "population: 500\n{oops", ["not valid TOML", "fix the syntax"]),
     config_case("config-unknown-key", "popsize = 100\n", ["unknown key 'popsize'", "valid keys"]),
     config_case("config-wrong-type", 'population = "many"\n',
