@@ -24,6 +24,11 @@ _EXPORTS = {
     "objective_parts": "_evaluator",
     "parse_expression": "_expressions",
     "Model": "_model", "simulate_model": "_model",
+    "Diagnosis": "_diagnose", "diagnose": "_diagnose", "write_report": "_diagnose",
+    "Effect": "_effects", "Parameter": "_effects", "Terms": "_effects",
+    "effects": "_effects", "register_effect": "_effects",
+    "load_silverbox": "_silverbox", "segment_rms": "_silverbox",
+    "silverbox_segments": "_silverbox",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -89,7 +89,10 @@ class Fitness:
         cutoff_hz = self.evaluator.n_bins / (measurement.n_samples * measurement.dt)
         self.derivatives = smoothed_derivatives(measurement, cutoff_hz)
         self.equation_error = EquationError(measurement, self.symbols, self.derivatives)
-        self.refiner = Refiner(self.evaluator, iterations=config.refine_iterations)
+        # GP refines from the weak-form least-squares start, already inside the basin: the
+        # short-horizon continuation (for poor starts) would only double the compile.
+        self.refiner = Refiner(self.evaluator, iterations=config.refine_iterations,
+                               horizons=(1.0,))
         if config.initial_conditions is not None:
             self.y0 = tuple(map(float, config.initial_conditions))
         else:  # eq. 13: response and a robust derivative estimate at the first sample

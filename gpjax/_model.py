@@ -4,6 +4,11 @@ The file is plain JSON a person can write by hand. Only ``variables`` and ``cano
 are needed to load it; everything else (equation, LaTeX, named constants, metrics) is
 derived and written for reading. Feature strings are parsed by the whitelist parser in
 :mod:`gpjax._expressions`, never evaluated.
+
+Extension of eqs. 5–6: ``canonical.parametric`` (optional) lists *declared* time-varying
+terms, each a product g(t)·h(x) or g(t)·h(x') of a function of time alone and a function of
+the response (or its derivative) alone, e.g. ``cos(1790.7*t)*phi`` for a mesh stiffness
+that varies at the mesh frequency. Ordinary ``terms`` keep the rule of eqs. 5–6.
 """
 
 from __future__ import annotations
@@ -20,7 +25,7 @@ import sympy as sp
 from ._canonical import Symbols, check_structure
 from ._data import Measurement
 from ._errors import ModelFileError, read_user_file
-from ._evaluator import Population, PopulationEvaluator
+from ._evaluator import Population, PopulationEvaluator, default_n_bins
 from ._expressions import parse_expression
 
 FORMAT = "gpjax-model"
@@ -40,6 +45,8 @@ class Model:
             ``None`` means: estimate them from the data when simulating.
         metrics: rms, f_time, f_freq, objective on the fitting data (may be empty).
         provenance: free-form facts about the run (seed, generations, tree, …).
+        parametric: feature text -> coefficient of declared time-varying terms g(t)·h(x)
+            or g(t)·h(x') (see the module docstring); on the left-hand side like ``state``.
     """
 
     symbols: Symbols
@@ -49,6 +56,7 @@ class Model:
     initial_conditions: tuple[float, float] | None = None
     metrics: dict[str, float] = dataclasses.field(default_factory=dict)
     provenance: dict = dataclasses.field(default_factory=dict)
+    parametric: dict[str, float] = dataclasses.field(default_factory=dict)
 
     # --- symbolic views -----------------------------------------------------------------
     def _feature(self, text: str) -> sp.Expr:
@@ -56,7 +64,8 @@ class Model:
 
     def constant_names(self) -> dict[str, tuple[str, str]]:
         """Constant name -> (part, feature): m; k1, k2 … for x terms; c1 … for x' terms;
-        g1 … for forcing terms other than the normalised first input."""
+        p1 … for parametric (time-varying) terms; g1 … for forcing terms other than the
+        normalised first input."""
         names: dict[str, tuple[str, str]] = {"m": ("mass", "")}
         x_dot = self.symbols.x_dot
         k = c = g = 0
@@ -67,6 +76,8 @@ class Model:
             else:
                 k += 1
                 names[f"k{k}"] = ("state", feature)
+        for p, feature in enumerate(self.parametric, start=1):
+            names[f"p{p}"] = ("parametric", feature)
         for feature in self.forcing:
             if self._normaliser() == feature:
                 continue
@@ -94,7 +105,7 @@ class Model:
         lhs = coefficient("m") * self.symbols.x_ddot
         rhs = sp.Integer(0)
         for name, (part, feature) in self.constant_names().items():
-            if part == "state":
+            if part in ("state", "parametric"):
                 lhs += coefficient(name) * self._feature(feature)
             elif part == "forcing":
                 rhs += coefficient(name) * self._feature(feature)
@@ -127,15 +138,17 @@ class Model:
                 polynomial.append(feature)
             else:
                 extra.append(feature)
+        extra += [self._feature(text) for text in self.parametric]
         return PopulationEvaluator(measurement, self.symbols, max_degree=degree,
-                                   substeps=substeps, extra_state_features=tuple(extra), batch=1)
+                                   substeps=substeps, extra_state_features=tuple(extra), batch=1,
+                                   n_bins=min(default_n_bins(measurement.response), 256))
 
     def population(self, evaluator: PopulationEvaluator, y0: tuple[float, float]) -> Population:
         for text in self.forcing:
             evaluator.forcing_index(self._feature(text))
         pop = evaluator.empty(1)
         pop.mass[0] = self.mass
-        for text, value in self.state.items():
+        for text, value in (*self.state.items(), *self.parametric.items()):
             pop.state[0, evaluator.state_index(self._feature(text))] = value
         for text, value in self.forcing.items():
             pop.forcing[0, evaluator.forcing_index(self._feature(text))] = value
@@ -145,6 +158,14 @@ class Model:
     # --- JSON ---------------------------------------------------------------------------
     def to_json(self) -> dict:
         ic = self.initial_conditions
+        canonical = {
+            "mass": self.mass,
+            "terms": [{"feature": f, "coefficient": c} for f, c in self.state.items()],
+            "forcing": [{"feature": f, "coefficient": g} for f, g in self.forcing.items()],
+        }
+        if self.parametric:
+            canonical["parametric"] = [{"feature": f, "coefficient": c}
+                                       for f, c in self.parametric.items()]
         return {
             "format": FORMAT, "version": VERSION,
             "equation": str(self.equation()),
@@ -156,11 +177,7 @@ class Model:
             "initial_conditions": None if ic is None else {
                 "response": ic[0], "response_dot": ic[1]},
             "metrics": dict(self.metrics),
-            "canonical": {
-                "mass": self.mass,
-                "terms": [{"feature": f, "coefficient": c} for f, c in self.state.items()],
-                "forcing": [{"feature": f, "coefficient": g} for f, g in self.forcing.items()],
-            },
+            "canonical": canonical,
             "provenance": self.provenance,
         }
 
@@ -204,6 +221,7 @@ class Model:
         mass = _number(canonical.get("mass", 1.0), "canonical.mass", fail)
         state = _terms(canonical.get("terms", []), "canonical.terms", fail)
         forcing = _terms(canonical.get("forcing", []), "canonical.forcing", fail)
+        parametric = _terms(canonical.get("parametric", []), "canonical.parametric", fail)
         names = symbols.names()
         expression = mass * symbols.x_ddot
         exogenous = {symbols.t, *symbols.u}
@@ -220,6 +238,8 @@ class Model:
                 fail(f"forcing feature {text!r} may depend only on time and inputs; move it "
                      "to \"terms\"")
             expression -= value * feature
+        for text in parametric:
+            _check_parametric(_parse(text, names, source), text, symbols, fail)
         check = check_structure(expression, symbols)
         if not check.valid:
             fail(f"the canonical form breaks the structure rules: {check.reason}")
@@ -237,7 +257,8 @@ class Model:
         return cls(symbols=symbols, mass=mass, state=state, forcing=forcing,
                    initial_conditions=initial,
                    metrics={k: v for k, v in metrics.items() if isinstance(v, (int, float))},
-                   provenance=provenance if isinstance(provenance, dict) else {})
+                   provenance=provenance if isinstance(provenance, dict) else {},
+                   parametric=parametric)
 
     @classmethod
     def load(cls, path: str | Path) -> "Model":
@@ -258,6 +279,17 @@ def _parse(text: str, names: set[str], source: str) -> sp.Expr:
         return parse_expression(text, names)
     except ModelFileError as err:
         raise ModelFileError(f"{source}: {err}") from None
+
+
+def _check_parametric(feature: sp.Expr, text: str, symbols: Symbols, fail) -> None:
+    """A declared time-varying term must be g(t)·h(x) or g(t)·h(x') (no inputs, no x'')."""
+    response, time = feature.as_independent(symbols.t, as_Add=False)
+    if not (isinstance(feature, sp.Mul) and time.free_symbols == {symbols.t}
+            and response.free_symbols in ({symbols.x}, {symbols.x_dot})):
+        fail(f"parametric feature {text!r} is not g({symbols.t})·h({symbols.x}) or "
+             f"g({symbols.t})·h({symbols.x_dot}); write it as a function of {symbols.t} alone "
+             f"times a function of {symbols.x} alone or {symbols.x_dot} alone, e.g. "
+             f"cos(100*{symbols.t})*{symbols.x}")
 
 
 def _number(value, where: str, fail) -> float:
@@ -282,7 +314,6 @@ def _terms(items, where: str, fail) -> dict[str, float]:
 def estimate_initial_conditions(measurement: Measurement) -> tuple[float, float]:
     """(x, x') at the first sample from a Savitzky–Golay fit (eq. 13's robust estimate)."""
     from ._equation_error import smoothed_derivatives
-    from ._evaluator import default_n_bins
 
     cutoff = default_n_bins(measurement.response) / (measurement.n_samples * measurement.dt)
     d = smoothed_derivatives(measurement, cutoff)

@@ -1,4 +1,4 @@
-"""Command line: ``gpjax demo``, ``gpjax fit``.
+"""Command line: ``gpjax demo``, ``gpjax fit``, ``gpjax diagnose``.
 
 User errors (bad file, column, configuration, model file) print one line,
 ``gpjax: error: <problem>; <fix>``, exit with status 2 and leave no output behind.
@@ -45,7 +45,41 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("--seed", type=_non_negative, default=0, help="random seed (default: 0)")
     fit.add_argument("--out", default="gpjax-run", help="run folder (default: gpjax-run)")
     fit.add_argument("--resume", action="store_true", help="continue the run in --out")
+    fit.add_argument("--diagnose", action="store_true",
+                     help="after the GP, diagnose missing effects (report in OUT/diagnosis)")
+    _diagnose_options(fit)
+    diagnose = commands.add_parser("diagnose", help="trace a model's residual to missing "
+                                   "physical effects, add them and report")
+    diagnose.add_argument("data", help="CSV file with a header row")
+    diagnose.add_argument("--model", required=True, help="model.json (constants are refitted)")
+    diagnose.add_argument("--time", required=True, help="name of the time column (seconds)")
+    diagnose.add_argument("--response", required=True, help="name of the response column")
+    diagnose.add_argument("--input", action="append", default=[], dest="inputs",
+                          help="name of an input column (repeat for several)")
+    diagnose.add_argument("--out", default="gpjax-diagnose",
+                          help="report folder (default: gpjax-diagnose)")
+    _diagnose_options(diagnose)
     return parser
+
+
+def _diagnose_options(parser) -> None:
+    parser.add_argument("--frequency", action="append", default=[], type=_positive_float,
+                        dest="frequencies", help="candidate frequency in Hz for time-varying "
+                        "effects, e.g. the gear mesh frequency (repeat for several)")
+    parser.add_argument("--holdout", type=_positive_float, default=0.25,
+                        help="fraction of the record held out at its end (default 0.25)")
+    parser.add_argument("--max-steps", type=_non_negative, default=4, dest="max_steps",
+                        help="most effects added (default 4)")
+
+
+def _positive_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid number: {text!r}") from None
+    if not (value > 0 and value < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
+    return value
 
 
 def _non_negative(text: str) -> int:
@@ -100,10 +134,47 @@ def _fit(args) -> int:
     config = GPConfig.from_toml(args.config) if args.config else GPConfig()
     config = _config(args, config)
     measurement = load_csv(args.data, time=args.time, response=args.response, inputs=args.inputs)
+    _check_diagnose_options(args)
     identifier = _run(config, measurement, args.seed, Path(args.out), resume=args.resume)
     print(identifier)
     _timings(identifier, args.out)
-    return 130 if identifier.stopped_by == "interrupted" else 0
+    if identifier.stopped_by == "interrupted":
+        return 130
+    if args.diagnose:
+        _run_diagnosis(args, measurement, identifier.model_, Path(args.out) / "diagnosis")
+    return 0
+
+
+def _check_diagnose_options(args) -> None:
+    if not 0.05 <= args.holdout <= 0.5:
+        raise UserInputError(f"--holdout must lie in [0.05, 0.5], got {args.holdout}; "
+                             "use e.g. 0.25")
+
+
+def _diagnose(args) -> int:
+    from ._data import load_csv
+    from ._model import Model
+
+    _check_diagnose_options(args)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UserInputError(f"--out {out} is a file; give a folder")
+    model = Model.load(args.model)
+    measurement = load_csv(args.data, time=args.time, response=args.response, inputs=args.inputs)
+    _run_diagnosis(args, measurement, model, out)
+    return 0
+
+
+def _run_diagnosis(args, measurement, model, out: Path) -> None:
+    from ._diagnose import diagnose, write_report
+
+    result = diagnose(measurement, model, frequencies=tuple(args.frequencies),
+                      holdout=args.holdout, max_steps=args.max_steps)
+    write_report(result, out)
+    before, after = result.before.metrics, result.after.metrics
+    print(f"Diagnosis ({result.mode}): effects added: {', '.join(result.effects_added) or 'none'}")
+    print(f"  RMS {before['rms']:.4g} -> {after['rms']:.4g}; model: {result.model().sympy()}")
+    print(f"Report in {out}/ (report.md, report.json, model.json, figures)")
 
 
 def _run(config, measurement, seed, out: Path, *, resume: bool):
@@ -124,7 +195,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gpjax`` console script; returns the exit status."""
     try:
         args = _parser().parse_args(argv)
-        handler = {"demo": _demo, "fit": _fit}[args.command]
+        handler = {"demo": _demo, "fit": _fit, "diagnose": _diagnose}[args.command]
         return handler(args)
     except UserInputError as err:
         message = " ".join(str(err).split("\n"))  # one line, whatever a name holds

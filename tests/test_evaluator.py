@@ -118,3 +118,48 @@ def test_results_do_not_depend_on_position_in_the_batch_and_barely_on_its_shape(
     # Another batch shape: XLA may vectorise differently; the last bit may differ.
     _random_models(large, np.random.default_rng(5), 10)
     np.testing.assert_allclose(large.score(pop).objective, small.score(pop).objective, rtol=1e-13)
+
+
+def test_scan_and_diffrax_integrators_agree():
+    measurement = _measurement()
+    scan = PopulationEvaluator(measurement, S, max_degree=3, substeps=2, batch=6)
+    reference = PopulationEvaluator(measurement, S, max_degree=3, substeps=2, batch=6,
+                                    integrator="diffrax")
+    pop = _random_models(scan, np.random.default_rng(11), 6)
+    _random_models(reference, np.random.default_rng(11), 6)
+    x_scan, s_scan = scan.simulate(pop)
+    x_diffrax, s_diffrax = reference.simulate(pop)
+    np.testing.assert_allclose(x_scan, x_diffrax, rtol=0, atol=1e-12 * np.abs(x_diffrax).max())
+    np.testing.assert_array_equal(s_scan.status, s_diffrax.status)
+
+
+def test_unknown_integrator_is_refused():
+    with pytest.raises(ValueError, match="integrator"):
+        PopulationEvaluator(_measurement(), S, integrator="euler")
+
+
+def test_initial_condition_fit_recovers_a_models_own_start():
+    measurement = _measurement()
+    plain = PopulationEvaluator(measurement, S, max_degree=3, batch=4)
+    pop = _random_models(plain, np.random.default_rng(2), 4)
+    pop.state[:, 1:] = 0.0  # linear models: one Gauss–Newton step is exact
+    simulated, _ = plain.simulate(pop)
+    own = Measurement(time=measurement.time, response=simulated[0], inputs=measurement.inputs,
+                      response_name="x", time_name="t")
+    fitter = PopulationEvaluator(own, S, max_degree=3, batch=4, fit_initial_conditions=True)
+    _random_models(fitter, np.random.default_rng(2), 4)
+    start = Population(pop.mass[:1], pop.state[:1], pop.forcing[:1], np.zeros((1, 2)))
+    scores = fitter.score(start)
+    np.testing.assert_allclose(scores.y0[0], pop.y0[0], rtol=1e-6, atol=1e-9)
+    assert scores.f_time[0] < 1e-8
+
+
+def test_dft_matrix_and_fft_amplitudes_agree():
+    import jax.numpy as jnp
+
+    from gpjax._evaluator import _amplitude, _dft_matrix
+    signal = np.random.default_rng(4).standard_normal((4000, 3))
+    by_matrix = _amplitude(jnp.asarray(_dft_matrix(4000, 400)), signal, 400)
+    by_fft = _amplitude(jnp.asarray(_dft_matrix(4000, 600)), signal, 400)
+    assert _dft_matrix(4000, 600).shape == (1, 600)  # over the size limit: weights only
+    np.testing.assert_allclose(by_fft, by_matrix, rtol=1e-10, atol=1e-14)

@@ -1,8 +1,9 @@
-"""Gear-pair physics: the bundled example (eqs. 13–14), mesh stiffness (eqs. 15–20) and
-the 2-DOF gear-pair model (eqs. 21–23)."""
+"""Gear-pair physics: the bundled example (eqs. 13–14), mesh stiffness (eqs. 15–20), the
+2-DOF gear-pair model (eqs. 21–23) and the linear eq. 23 fit (the paper's Fig. 12)."""
 
 from ._example import (PAPER_TRUTH, GearExample, Torque, generate_gear_example,
                        load_bundled_example, write_example)
+from ._linear import LinearFit, fit_linear_model
 from ._stiffness import (KUANG_YANG_COEFFICIENTS, ContactPoints, GearPair, MeshGeometry,
                          MeshStiffness, average_mesh_stiffness, bending_stiffness,
                          contact_points, hertz_stiffness, iso6336_stiffness,
@@ -14,7 +15,7 @@ from ._two_dof import (OneDofResponse, TwoDofGearPair, TwoDofResponse, mesh_stif
 
 __all__ = [
     "PAPER_TRUTH", "GearExample", "Torque", "generate_gear_example", "load_bundled_example",
-    "write_example", "KUANG_YANG_COEFFICIENTS", "ContactPoints", "GearPair", "MeshGeometry",
+    "write_example", "LinearFit", "fit_linear_model", "KUANG_YANG_COEFFICIENTS", "ContactPoints", "GearPair", "MeshGeometry",
     "MeshStiffness", "average_mesh_stiffness", "bending_stiffness", "contact_points",
     "hertz_stiffness", "iso6336_stiffness", "kuang_yang_coefficients", "mesh_cycle_angles",
     "mesh_stiffness", "pair_stiffness", "stiffness_report", "torsional_stiffness",

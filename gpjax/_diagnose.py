@@ -1,0 +1,800 @@
+"""Diagnosis: trace the residual of a model to a missing physical effect, add it, repeat.
+
+Each round:
+
+1. **Residuals.** The time-domain residual (measured − simulated), its amplitude
+   spectrum, and the equation-error residual — the generalised force the model misses,
+   ``m·x'' + Σ c·φ − Σ g·ψ`` evaluated on Savitzky–Golay derivatives (pointwise, for
+   plots) and in weak form (integrated against compact test functions, for fitting).
+2. **Evidence.** Every effect of the library (:mod:`gpjax._effects`), with its nonlinear
+   parameters searched on a grid from the data (candidate frequencies: the input's
+   strongest spectral lines and any the user gives) and polished by Nelder–Mead, is
+   scored by the fraction of the weak-form equation-error residual energy its regressors
+   explain once the model's own regressors are projected out. Effects are ranked by it.
+3. **Refit.** The ``shortlist`` best effects are each added to the model; all constants
+   are refitted — weak-form least squares for the start, then optimistix
+   Levenberg–Marquardt on the simulated response (:class:`gpjax._refine.Refiner`) — on
+   the *estimation* part of the record (the first ``1 − holdout``).
+4. **Acceptance by cross-validation on a held-out segment.** Each refitted model is
+   simulated over the whole record from its fitted initial state. A candidate passes if
+   its mean-square error on the held-out last ``holdout`` fraction is below the current
+   model's times (1 − ``min_gain``)^p, p = the coefficients plus nonlinear parameters it
+   adds (each free parameter must buy ``min_gain``, default 2 %, of held-out error — a
+   term that only fits noise buys nothing on data it was not fitted to). Of the passing
+   candidates, the one with the lowest held-out error so charged is kept, so a flexible
+   effect (backlash: a coefficient and two nonlinear parameters) must beat a simpler one
+   that explains the same. Rounds stop when no candidate passes.
+
+Drifting systems (a free mass with friction, a pure integrator): if the starting model has
+no restoring term (no term in x alone), the whole diagnosis runs on the **equation error** instead (mode
+``"equation_error"``): fits are weak-form least squares, the held-out criterion is the
+weak-form residual on the held-out segment, and the reported ``rms`` is the RMS of the
+pointwise generalised-force residual (force units, not response units).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from functools import lru_cache
+
+import numpy as np
+import sympy as sp
+from scipy.optimize import minimize
+
+from ._canonical import Symbols
+from ._data import Measurement
+from ._effects import Context, Effect, Terms, effects
+from ._equation_error import savgol_window, smoothed_derivatives
+from ._errors import ModelFileError, UserInputError
+from ._evaluator import PopulationEvaluator, amplitude_spectrum, default_n_bins
+from ._expressions import parse_expression
+from ._model import Model
+from ._refine import Refiner
+
+#: Strongest spectral lines of each input offered to frequency-dependent effects.
+INPUT_LINES = 6
+
+
+@dataclasses.dataclass(frozen=True)
+class Structure:
+    """Features of a model: state (x or x' alone), parametric g(t)·h(x), forcing."""
+
+    state: tuple[sp.Expr, ...]
+    parametric: tuple[sp.Expr, ...]
+    forcing: tuple[sp.Expr, ...]
+
+    def plus(self, terms: Terms) -> "Structure":
+        """This structure with ``terms`` added (features already present are kept once)."""
+        def merged(old, new):
+            return old + tuple(f for f in new if f not in old)
+        return Structure(merged(self.state, terms.state),
+                         merged(self.parametric, terms.parametric),
+                         merged(self.forcing, terms.forcing))
+
+
+@dataclasses.dataclass
+class Fit:
+    """A structure with fitted constants and its errors (see :func:`diagnose`)."""
+
+    structure: Structure
+    mass: float
+    state: np.ndarray
+    parametric: np.ndarray
+    forcing: np.ndarray
+    y0: tuple[float, float]
+    simulated: np.ndarray | None
+    metrics: dict[str, float]
+    criterion: float
+    force: np.ndarray | None = None
+
+    def model(self, symbols: Symbols, provenance: dict) -> Model:
+        """The fit as a :class:`Model` (feature texts as sympy prints them)."""
+        return Model(symbols=symbols, mass=float(self.mass),
+                     state={str(f): float(c) for f, c in zip(self.structure.state, self.state)},
+                     forcing={str(f): float(g)
+                              for f, g in zip(self.structure.forcing, self.forcing)},
+                     parametric={str(f): float(c) for f, c in
+                                 zip(self.structure.parametric, self.parametric)},
+                     initial_conditions=None if self.simulated is None else self.y0,
+                     metrics={k: v for k, v in self.metrics.items() if v is not None},
+                     provenance=provenance)
+
+
+@dataclasses.dataclass(frozen=True)
+class Candidate:
+    """An effect with its best parameters and its evidence in one round."""
+
+    effect: Effect
+    parameters: dict
+    terms: Terms
+    explained: float
+    evidence: str
+
+
+@dataclasses.dataclass
+class Diagnosis:
+    """Result of :func:`diagnose`; :func:`write_report` writes it out.
+
+    Attributes:
+        mode: ``"simulation"`` or ``"equation_error"`` (see the module docstring).
+        before, after: the starting and the final fits.
+        steps: one dict per accepted effect (effect, evidence, term, coefficient, …).
+        rankings: per round, every effect's evidence (best first).
+        fits: the accepted fits in order, starting with the refitted starting model.
+        frequencies: candidate frequencies in Hz offered to frequency effects.
+        n_train: samples of the estimation part; the rest is held out.
+        measurement, symbols: the data and its names.
+    """
+
+    mode: str
+    before: Fit
+    after: Fit
+    steps: list[dict]
+    rankings: list[list[dict]]
+    fits: list[Fit]
+    frequencies: tuple[float, ...]
+    n_train: int
+    measurement: Measurement
+    symbols: Symbols
+    settings: dict
+
+    @property
+    def effects_added(self) -> list[str]:
+        return [step["effect"] for step in self.steps]
+
+    def model(self) -> Model:
+        """The final model."""
+        return self.after.model(self.symbols, {"diagnosis": self.effects_added,
+                                               "mode": self.mode})
+
+    def to_json(self) -> dict:
+        return {"mode": self.mode, "criterion": _CRITERION[self.mode],
+                "settings": self.settings, "n_samples": self.measurement.n_samples,
+                "n_estimation": self.n_train, "frequencies_hz": list(self.frequencies),
+                "effects_added": self.effects_added,
+                "before": _summary(self.before), "after": _summary(self.after),
+                "steps": self.steps, "rankings": self.rankings,
+                "model": self.model().to_json()}
+
+
+_CRITERION = {
+    "simulation": "cross-validation on a held-out segment: the model is fitted on the first "
+                  "part of the record and simulated over all of it; an effect is kept only "
+                  "if the held-out mean-square error falls below (1 - min_gain)^p times the "
+                  "current model's, p = parameters the effect adds",
+    "equation_error": "cross-validation of the weak-form equation error on a held-out "
+                      "segment (the starting model drifts in open-loop simulation)",
+}
+
+
+def _summary(fit: Fit) -> dict:
+    return {k: fit.metrics.get(k) for k in ("rms", "objective", "spectral_error",
+                                            "rms_estimation", "rms_holdout")}
+
+
+# --- weak form by convolution ------------------------------------------------------------
+class WeakForm:
+    """Weak-form integrals ∫ψ_k·f dt for test functions ψ_k = (1 − s²)^4 of half width h.
+
+    Windows are centred every h/2 samples (as :func:`gpjax._equation_error.test_functions`)
+    but evaluated by correlation, so memory stays O(N) on long records.
+    """
+
+    def __init__(self, measurement: Measurement, symbols: Symbols, x_dot: np.ndarray,
+                 half_width: int):
+        self.measurement, self.symbols, self.x_dot = measurement, symbols, x_dot
+        h = max(2, min(half_width, (measurement.n_samples - 1) // 2))
+        self.half_width, self.step = h, max(1, h // 2)
+        s = np.arange(-h, h + 1) / h
+        scale, dt = h * measurement.dt, measurement.dt
+        self._kernels = ((1 - s ** 2) ** 4 * dt, -8 * s * (1 - s ** 2) ** 3 / scale * dt,
+                         (-8 * (1 - s ** 2) ** 3 + 48 * s ** 2 * (1 - s ** 2) ** 2)
+                         / scale ** 2 * dt)
+        self.centres = np.arange(h, measurement.n_samples - h, self.step)
+        self.kernel_area = float(np.sum(self._kernels[0]))
+        self._cache: dict[sp.Expr, np.ndarray] = {}
+
+    def _integrate(self, values: np.ndarray, kernel: int) -> np.ndarray:
+        out = np.correlate(values, self._kernels[kernel], mode="valid")
+        return out[: self.centres.size * self.step: self.step][: self.centres.size]
+
+    def acceleration(self) -> np.ndarray:
+        """∫ψ_k''·x: the inertia column (no derivative of the data needed)."""
+        return self._integrate(self.measurement.response, 2)
+
+    def column(self, feature: sp.Expr) -> np.ndarray:
+        """∫ψ_k·feature(x, x', t, u) for every window (cached)."""
+        if feature not in self._cache:
+            if feature == self.symbols.x_dot:
+                self._cache[feature] = -self._integrate(self.measurement.response, 1)
+            else:
+                self._cache[feature] = self._integrate(
+                    evaluate(feature, self.symbols, self.measurement, self.measurement.response,
+                             self.x_dot), 0)
+        return self._cache[feature]
+
+
+def evaluate(feature: sp.Expr, symbols: Symbols, measurement: Measurement, x: np.ndarray,
+             x_dot: np.ndarray) -> np.ndarray:
+    """A feature's values at the samples, given x and x' (numpy)."""
+    fn = _lambdified(feature, symbols)
+    values = fn(x, x_dot, measurement.time,
+                *(measurement.inputs[name] for name in symbols.inputs))
+    return np.broadcast_to(np.asarray(values, dtype=np.float64), x.shape).copy()
+
+
+@lru_cache(maxsize=4096)
+def _lambdified(feature: sp.Expr, symbols: Symbols):
+    return sp.lambdify((symbols.x, symbols.x_dot, symbols.t, *symbols.u), feature,
+                       modules="numpy")
+
+
+def _design(weak: WeakForm, structure: Structure, u0: sp.Symbol | None):
+    """(matrix, target, normalise) of the weak-form least-squares problem."""
+    acceleration = weak.acceleration()
+    normalise = u0 is not None and u0 in structure.forcing
+    columns = [acceleration] if normalise else []
+    columns += [weak.column(f) for f in structure.state + structure.parametric]
+    columns += [-weak.column(g) for g in structure.forcing if not (normalise and g == u0)]
+    target = weak.column(u0) if normalise else -acceleration
+    matrix = np.stack(columns, axis=1) if columns else np.zeros((target.size, 0))
+    return matrix, target, normalise
+
+
+def least_squares(weak: WeakForm, structure: Structure, u0: sp.Symbol | None):
+    """Weak-form least-squares constants: (mass, state+parametric coefficients, forcing
+    coefficients, solution vector of :func:`_design`'s problem). The first input's
+    coefficient is 1 if present, else the mass is 1."""
+    matrix, target, normalise = _design(weak, structure, u0)
+    solution = np.zeros(0)
+    if matrix.shape[1]:
+        scale = np.linalg.norm(matrix, axis=0)
+        scale[scale == 0] = 1.0
+        solution = np.linalg.lstsq(matrix / scale, target, rcond=None)[0] / scale
+    k = 1 if normalise else 0
+    mass = float(solution[0]) if normalise else 1.0
+    n_lhs = len(structure.state) + len(structure.parametric)
+    lhs = solution[k:k + n_lhs]
+    rest = iter(solution[k + n_lhs:])
+    forcing = np.array([1.0 if normalise and g == u0 else float(next(rest))
+                        for g in structure.forcing])
+    return mass, lhs, forcing, solution
+
+
+def explained_fraction(weak: WeakForm, structure: Structure, terms: Terms,
+                       u0: sp.Symbol | None) -> float:
+    """Fraction of the weak-form equation-error residual energy that ``terms`` explain
+    after the structure's own regressors are projected out (0 … 1)."""
+    matrix, target, _ = _design(weak, structure, u0)
+    new = [weak.column(f) for f in terms.state + terms.parametric + terms.forcing]
+    new = [c for c in new if np.all(np.isfinite(c))]
+    if not new:
+        return 0.0
+    extra = np.stack(new, axis=1)
+    if matrix.shape[1]:
+        scale = np.linalg.norm(matrix, axis=0)
+        q, _ = np.linalg.qr(matrix / np.where(scale > 0, scale, 1.0))
+        residual = target - q @ (q.T @ target)
+        extra = extra - q @ (q.T @ extra)
+    else:
+        residual = target
+    total = float(residual @ residual)
+    norms = np.linalg.norm(extra, axis=0)
+    if total == 0 or not np.any(norms > 1e-9 * (np.max(norms) + 1e-300)):
+        return 0.0
+    extra = extra[:, norms > 1e-9 * np.max(norms)]
+    qe, _ = np.linalg.qr(extra / np.linalg.norm(extra, axis=0))
+    projected = qe.T @ residual
+    return float(np.clip(projected @ projected / total, 0.0, 1.0))
+
+
+# --- candidate frequencies and evidence ---------------------------------------------------
+def input_lines(measurement: Measurement, *, count: int = INPUT_LINES) -> list[float]:
+    """The ``count`` strongest spectral lines (local maxima, DC excluded) of each input, Hz."""
+    lines: list[float] = []
+    for values in measurement.inputs.values():
+        amplitude = amplitude_spectrum(values - np.mean(values))
+        peaks = [j for j in range(1, amplitude.size - 1)
+                 if amplitude[j] >= amplitude[j - 1] and amplitude[j] > amplitude[j + 1]]
+        peaks.sort(key=lambda j: -amplitude[j])
+        frequency = np.fft.rfftfreq(values.size, measurement.dt)
+        lines += [float(frequency[j]) for j in peaks[:count]]
+    return lines
+
+
+def rank_effects(weak: WeakForm, structure: Structure, context: Context,
+                 library: dict[str, Effect], u0: sp.Symbol | None, *,
+                 polish: bool = True) -> list[Candidate]:
+    """Every applicable effect with its best grid parameters (polished by Nelder–Mead if
+    ``polish``), ranked by the fraction of the equation-error residual it explains."""
+    ranked = []
+    present = set(structure.state + structure.parametric + structure.forcing)
+    for effect in library.values():
+        best = None
+        for parameters in effect.grid(context):
+            terms = effect.build(context, parameters)
+            if terms is None or set(terms.state + terms.parametric + terms.forcing) <= present:
+                continue
+            score = explained_fraction(weak, structure, terms, u0)
+            if best is None or score > best[0]:
+                best = (score, parameters, terms)
+        if best is None:
+            continue
+        score, parameters, terms = (_polish(effect, context, best, weak, structure, u0)
+                                    if polish else best)
+        evidence = f"explains {100 * score:.1f} % of the equation-error residual energy"
+        if "frequency" in parameters:
+            evidence += f" with a line at {parameters['frequency']:.6g} Hz"
+        ranked.append(Candidate(effect, parameters, terms, score, evidence))
+    ranked.sort(key=lambda c: -c.explained)
+    return ranked
+
+
+def _polish(effect: Effect, context: Context, best, weak, structure, u0):
+    """Nelder–Mead on the numeric parameters (within bounds), maximising the evidence."""
+    score, parameters, terms = best
+    names = [p.name for p in effect.parameters if isinstance(parameters.get(p.name), float)]
+    if not names:
+        return best
+    bounds = effect.bounds(context)
+    duration = context.time[-1] - context.time[0]
+    start = np.array([parameters[n] for n in names])
+    steps = np.array([0.5 / duration if n == "frequency" else
+                      0.2 * (abs(v) or 0.1 * (bounds[n][1] - bounds[n][0]))
+                      for n, v in zip(names, start)])
+
+    def negative(values):
+        trial = dict(parameters, **{n: float(np.clip(v, *bounds[n]))
+                                    for n, v in zip(names, values)})
+        built = effect.build(context, trial)
+        return -explained_fraction(weak, structure, built, u0) if built else 0.0
+
+    simplex = np.vstack([start] + [start + np.eye(len(names))[i] * steps[i]
+                                   for i in range(len(names))])
+    result = minimize(negative, start, method="Nelder-Mead",
+                      options={"initial_simplex": simplex, "maxfev": 30 * len(names),
+                               "xatol": 1e-12, "fatol": 1e-6})
+    if -result.fun <= score:
+        return best
+    polished = dict(parameters, **{n: float(np.clip(v, *bounds[n]))
+                                   for n, v in zip(names, result.x)})
+    return -float(result.fun), polished, effect.build(context, polished)
+
+
+# --- fitting ------------------------------------------------------------------------------
+class _Problem:
+    """Data, split and settings shared by all fits of one diagnosis."""
+
+    def __init__(self, measurement: Measurement, symbols: Symbols, *, holdout: float,
+                 iterations: int, substeps: int, batch: int):
+        self.measurement, self.symbols = measurement, symbols
+        self.n_train = int(round((1.0 - holdout) * measurement.n_samples))
+        self.train = measurement.segment(0, self.n_train)
+        self.n_bins = default_n_bins(measurement.response)
+        cutoff = default_n_bins(self.train.response) / (self.n_train * measurement.dt)
+        window = savgol_window(self.train, cutoff)
+        self.derivatives = smoothed_derivatives(measurement, cutoff)
+        train_derivatives = smoothed_derivatives(self.train, cutoff)
+        self.weak = WeakForm(self.train, symbols, train_derivatives.x_dot, window)
+        self.weak_full = WeakForm(measurement, symbols, self.derivatives.x_dot, window)
+        self.holdout_rows = self.weak_full.centres - self.weak_full.half_width >= self.n_train
+        self.u0 = symbols.u[0] if symbols.u else None
+        self.y0 = (float(self.derivatives.x[0]), float(self.derivatives.x_dot[0]))
+        self.iterations, self.substeps, self.batch = iterations, substeps, batch
+        self.train_x_dot = train_derivatives.x_dot
+        self.pool_lhs: tuple[sp.Expr, ...] = ()
+        self.pool_forcing: tuple[sp.Expr, ...] = ()
+        self.simulator: _Simulator | None = None
+
+    def context(self, structure: Structure, frequencies: tuple[float, ...]) -> Context:
+        return Context(symbols=self.symbols, x=self.train.response, x_dot=self.train_x_dot,
+                       time=self.train.time, inputs=self.train.inputs,
+                       frequencies=frequencies, forcing=tuple(map(str, structure.forcing)))
+
+    def generalised_force(self, fit: Fit) -> np.ndarray:
+        """Pointwise equation-error residual m·x'' + Σc·φ − Σg·ψ on smoothed derivatives."""
+        d, s, m = self.derivatives, fit.structure, self.measurement
+        force = fit.mass * d.x_ddot
+        for feature, c in zip(s.state + s.parametric, np.concatenate([fit.state, fit.parametric])):
+            force = force + c * evaluate(feature, self.symbols, m, d.x, d.x_dot)
+        for feature, g in zip(s.forcing, fit.forcing):
+            force = force - g * evaluate(feature, self.symbols, m, d.x, d.x_dot)
+        return force
+
+    def drifts(self, structure: Structure) -> bool:
+        """Whether the model drifts in open loop: it has no restoring term (no term in x
+        alone or g(t)·h(x)) — a free mass or an integrator."""
+        x = self.symbols.x
+        return not any(x in f.free_symbols for f in structure.state + structure.parametric)
+
+    def fit_equation_error(self, structures: list[Structure]) -> list[Fit]:
+        fits = []
+        for structure in structures:
+            mass, lhs, forcing, solution = least_squares(self.weak, structure, self.u0)
+            n_state = len(structure.state)
+            fit = Fit(structure, mass, lhs[:n_state], lhs[n_state:], forcing, self.y0, None, {}, 0.0)
+            matrix, target, _ = _design(self.weak_full, structure, self.u0)
+            # window residual / ∫ψ: the generalised force averaged over each window
+            windowed = (target - matrix @ solution) / self.weak_full.kernel_area
+            fit.force = self.generalised_force(fit)
+            held_out = windowed[self.holdout_rows]
+            fit.criterion = float(np.mean(held_out ** 2)) if held_out.size else 0.0
+            fit.metrics = {"rms": float(np.sqrt(np.mean(windowed ** 2))),
+                           "objective": float(np.sqrt(np.sum(windowed ** 2))),
+                           "spectral_error": None, "rms_estimation": None, "rms_holdout": None}
+            fits.append(fit)
+        return fits
+
+    def fit_simulation(self, structures: list[Structure]) -> list[Fit]:
+        """Least-squares start, Levenberg–Marquardt refinement on the estimation part,
+        simulation of the whole record; the better of start and refinement is kept."""
+        starts = self.fit_equation_error(structures)
+        simulator = self._simulator_for(structures)
+        train_ev, count = simulator.train, len(structures)
+        population = train_ev.empty(count)
+        fixed = np.full(count, -1)
+        for i, (s, fit) in enumerate(zip(structures, starts)):
+            population.mass[i] = fit.mass
+            for f, c in zip(s.state + s.parametric, np.concatenate([fit.state, fit.parametric])):
+                population.state[i, train_ev.state_index(f)] = c
+            for g, value in zip(s.forcing, fit.forcing):
+                population.forcing[i, train_ev.forcing_index(g)] = value
+            population.y0[i] = self.y0
+            if self.u0 is not None and self.u0 in s.forcing:
+                fixed[i] = train_ev.forcing_index(self.u0)
+        refined = simulator.refiner.refine(population, fixed).population
+        both = _stack(population, refined)
+        responses, scores = simulator.full.simulate(both)
+        fits = []
+        for i, s in enumerate(structures):
+            options = []
+            for j in (i, count + i):
+                residual = self.measurement.response[: self.n_train] - responses[j, : self.n_train]
+                train_rms = float(np.sqrt(np.mean(residual ** 2)))
+                ok = scores.status[j] == 0 and np.isfinite(train_rms)
+                options.append((train_rms if ok else math.inf, j))
+            j = min(options)[1]
+            fits.append(self._simulated_fit(s, both, j, responses[j], train_ev, scores.status[j]))
+        return fits
+
+    def _simulator_for(self, structures: list[Structure]) -> "_Simulator":
+        """The compiled evaluators and refiner, rebuilt only when a feature is new to them."""
+        lhs, forcing = list(self.pool_lhs), list(self.pool_forcing)
+        for s in structures:
+            lhs += [f for f in s.state + s.parametric if f not in lhs]
+            forcing += [g for g in s.forcing if g not in forcing]
+        if self.simulator is None or not (set(lhs) <= set(self.simulator.lhs)
+                                          and set(forcing) <= set(self.simulator.forcing)):
+            if self.simulator is not None:
+                lhs = list(dict.fromkeys(self.simulator.lhs + tuple(lhs)))
+                forcing = list(dict.fromkeys(self.simulator.forcing + tuple(forcing)))
+            self.simulator = _Simulator(self, tuple(lhs), tuple(forcing))
+        return self.simulator
+
+    def _simulated_fit(self, s: Structure, population, j: int, simulated, ev, status) -> Fit:
+        lhs = np.array([population.state[j, ev.state_index(f)] for f in s.state + s.parametric])
+        forcing = np.array([population.forcing[j, ev.forcing_index(g)] for g in s.forcing])
+        fit = Fit(s, float(population.mass[j]), lhs[:len(s.state)], lhs[len(s.state):], forcing,
+                  (float(population.y0[j, 0]), float(population.y0[j, 1])), simulated, {}, math.inf)
+        fit.force = self.generalised_force(fit)
+        if status != 0:
+            fit.metrics = {"rms": math.inf, "objective": math.inf, "spectral_error": math.inf,
+                           "rms_estimation": math.inf, "rms_holdout": math.inf}
+            return fit
+        fit.metrics = simulation_metrics(self.measurement.response, simulated, self.n_train,
+                                         self.n_bins)
+        holdout = self.measurement.response[self.n_train:] - simulated[self.n_train:]
+        fit.criterion = float(np.mean(holdout ** 2))
+        return fit
+
+
+class _Simulator:
+    """Evaluators on the estimation part and the whole record, and a refiner, compiled
+    once for a fixed set of features (the refiner's compile dominates a diagnosis)."""
+
+    def __init__(self, problem: _Problem, lhs: tuple[sp.Expr, ...],
+                 forcing: tuple[sp.Expr, ...]):
+        self.lhs, self.forcing = lhs, forcing
+        powers = [_power(f, problem.symbols) for f in lhs]
+        extra = tuple(f for f, p in zip(lhs, powers) if p is None)
+        degree = max([3] + [p[1] for p in powers if p is not None])
+        settings = dict(max_degree=degree, substeps=problem.substeps, n_bins=1,
+                        extra_state_features=extra)
+        self.train = PopulationEvaluator(problem.train, problem.symbols, batch=problem.batch,
+                                         **settings)
+        self.full = PopulationEvaluator(problem.measurement, problem.symbols,
+                                        batch=2 * problem.batch, **settings)
+        for ev in (self.train, self.full):
+            for g in forcing:
+                ev.forcing_index(g)
+        self.refiner = Refiner(self.train, iterations=problem.iterations, batch=problem.batch,
+                               max_free=3 + len(lhs) + len(forcing))
+
+
+def simulation_metrics(measured: np.ndarray, simulated: np.ndarray, n_train: int,
+                       n_bins: int) -> dict[str, float]:
+    """RMS (all, estimation part, held-out part), objective f = f_time + f_freq (eqs. 7–9
+    with unit weights) and the spectral error f_freq, in response units."""
+    residual = measured - simulated
+    f_time = float(np.sqrt(np.sum(residual ** 2)))
+    f_freq = float(np.sum(np.abs(amplitude_spectrum(measured)[:n_bins]
+                                 - amplitude_spectrum(simulated)[:n_bins])))
+    holdout = residual[n_train:]
+    return {"rms": float(np.sqrt(np.mean(residual ** 2))), "objective": f_time + f_freq,
+            "spectral_error": f_freq, "rms_estimation": float(np.sqrt(np.mean(
+                residual[:n_train] ** 2))),
+            "rms_holdout": float(np.sqrt(np.mean(holdout ** 2))) if holdout.size else None}
+
+
+def _power(feature: sp.Expr, symbols: Symbols):
+    for symbol in (symbols.x, symbols.x_dot):
+        if feature == symbol:
+            return symbol, 1
+        if isinstance(feature, sp.Pow) and feature.base == symbol and feature.exp.is_Integer \
+                and feature.exp > 0:
+            return symbol, int(feature.exp)
+    return None
+
+
+def _stack(a, b):
+    from ._evaluator import Population
+    return Population(mass=np.concatenate([a.mass, b.mass]),
+                      state=np.concatenate([a.state, b.state]),
+                      forcing=np.concatenate([a.forcing, b.forcing]),
+                      y0=np.concatenate([a.y0, b.y0]))
+
+
+# --- the loop ------------------------------------------------------------------------------
+def structure_of(model: Model) -> Structure:
+    """The features of a model (its constants are ignored: they are refitted)."""
+    def parse(texts):
+        return tuple(parse_expression(t, model.symbols.names()) for t in texts)
+    return Structure(parse(model.state), parse(model.parametric), parse(model.forcing))
+
+
+def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effect] | None = None,
+             frequencies: tuple[float, ...] = (), holdout: float = 0.25, max_steps: int = 4,
+             shortlist: int = 4, min_gain: float = 0.02, iterations: int = 20,
+             substeps: int = 1, mode: str = "auto") -> Diagnosis:
+    """Add missing effects to ``model`` while held-out error improves (module docstring).
+
+    Args:
+        measurement: the data; its columns must carry the model's variable names.
+        model: the starting model; only its structure is used, constants are refitted.
+        library: effects to consider (default: all registered effects).
+        frequencies: candidate frequencies in Hz for frequency effects (e.g. the gear mesh
+            frequency), tried before the input's strongest spectral lines.
+        holdout: fraction of the record (at its end) held out for cross-validation.
+        max_steps: most effects added.
+        shortlist: best-ranked effects refitted per round.
+        min_gain: relative fall of the held-out mean-square error each added parameter
+            must bring.
+        iterations: Levenberg–Marquardt steps per refit.
+        substeps: RK4 steps per sample interval.
+        mode: ``"auto"``, ``"simulation"`` or ``"equation_error"``.
+
+    Raises:
+        UserInputError: the data's names differ from the model's, or a setting is out of
+            range.
+    """
+    symbols = model.symbols
+    names = (measurement.time_name, measurement.response_name, tuple(measurement.input_names))
+    if names != (symbols.time, symbols.response, tuple(symbols.inputs)):
+        raise ModelFileError(
+            f"the model's variables (time {symbols.time!r}, response {symbols.response!r}, "
+            f"inputs {list(symbols.inputs)}) differ from the data's columns (time {names[0]!r}, "
+            f"response {names[1]!r}, inputs {list(names[2])}); pass matching --time, "
+            "--response and --input or edit the model's \"variables\"")
+    if not 0.05 <= holdout <= 0.5:
+        raise UserInputError(f"holdout must lie in [0.05, 0.5], got {holdout}; use e.g. 0.25")
+    if mode not in ("auto", "simulation", "equation_error"):
+        raise UserInputError(f"mode {mode!r} is unknown; use auto, simulation or equation_error")
+    if max_steps < 0 or shortlist < 1 or min_gain < 0 or iterations < 1 or substeps < 1:
+        raise UserInputError("max_steps >= 0, shortlist >= 1, min_gain >= 0, iterations >= 1 "
+                             "and substeps >= 1 are required; fix the setting")
+    library = effects() if library is None else dict(library)
+    problem = _Problem(measurement, symbols, holdout=holdout, iterations=iterations,
+                       substeps=substeps, batch=shortlist + 1)
+    lines = tuple(dict.fromkeys([*map(float, frequencies), *input_lines(problem.train)]))
+    structure = structure_of(model)
+    chosen_mode = "equation_error" if mode == "equation_error" else "simulation"
+    current = None
+    steps, rankings, fits = [], [], []
+    for round_number in range(max_steps + 1):
+        context = problem.context(structure, lines)
+        ranked = rank_effects(problem.weak, structure, context, library, problem.u0,
+                              polish=round_number == 0)
+        if round_number == 0:  # parameters found on the starting residual are kept
+            library = {c.effect.name: _frozen(c) for c in ranked}
+            problem.pool_lhs = tuple(dict.fromkeys(
+                f for c in ranked for f in c.terms.state + c.terms.parametric))
+            problem.pool_forcing = tuple(dict.fromkeys(f for c in ranked for f in c.terms.forcing))
+        rankings.append([{"effect": c.effect.name, "explained": c.explained,
+                          "parameters": c.parameters, "evidence": c.evidence} for c in ranked])
+        shortlisted = ranked[:shortlist] if round_number < max_steps else []
+        candidates = [structure.plus(c.terms) for c in shortlisted]
+        if current is None:
+            if mode == "auto" and problem.drifts(structure):
+                chosen_mode = "equation_error"
+            results = _fit(problem, chosen_mode, [structure] + candidates)
+            current, results = results[0], results[1:]
+            fits.append(current)
+        else:
+            results = _fit(problem, chosen_mode, candidates) if candidates else []
+        if not results:
+            break
+        # held-out error charged (1 − min_gain) per added parameter: lowest wins if it beats
+        # the current model
+        penalised = [r.criterion / (1.0 - min_gain) ** _complexity(c)
+                     for r, c in zip(results, shortlisted)]
+        best = int(np.argmin(penalised))
+        if not penalised[best] < current.criterion:
+            break
+        steps.append(_step(shortlisted[best], ranked, current, results[best], chosen_mode))
+        structure, current = results[best].structure, results[best]
+        fits.append(current)
+    settings = {"holdout": holdout, "max_steps": max_steps, "shortlist": shortlist,
+                "min_gain": min_gain, "iterations": iterations, "substeps": substeps}
+    return Diagnosis(mode=chosen_mode, before=fits[0], after=current, steps=steps,
+                     rankings=rankings, fits=fits, frequencies=lines, n_train=problem.n_train,
+                     measurement=measurement, symbols=symbols, settings=settings)
+
+
+def _fit(problem: _Problem, mode: str, structures: list[Structure]) -> list[Fit]:
+    if mode == "equation_error":
+        return problem.fit_equation_error(structures)
+    return problem.fit_simulation(structures)
+
+
+def _complexity(candidate: Candidate) -> int:
+    """Coefficients plus nonlinear parameters an effect adds."""
+    terms = candidate.terms
+    return len(terms.state + terms.parametric + terms.forcing) + len(
+        candidate.effect.parameters)
+
+
+def _frozen(candidate: Candidate) -> Effect:
+    """The candidate's effect with its parameters fixed (a one-point grid)."""
+    parameters = dict(candidate.parameters)
+    return dataclasses.replace(candidate.effect, grid=lambda context: [parameters])
+
+
+def _step(candidate: Candidate, ranked: list[Candidate], before: Fit, after: Fit,
+          mode: str) -> dict:
+    s = after.structure
+    added = candidate.terms.state + candidate.terms.parametric + candidate.terms.forcing
+    values = dict(zip(s.state + s.parametric + s.forcing,
+                      np.concatenate([after.state, after.parametric, after.forcing])))
+    coefficients = {str(f): float(values[f]) for f in added}
+    parameters = dict(candidate.parameters)
+    if len(added) == 2 and candidate.effect.name == "mesh_stiffness_variation":
+        a, b = coefficients[str(added[0])], coefficients[str(added[1])]
+        coefficient = float(math.hypot(a, b))
+        parameters["phase_rad"] = float(math.atan2(-b, a))
+    else:
+        coefficient = float(next(iter(coefficients.values())))
+    rank = 1 + [c.effect.name for c in ranked].index(candidate.effect.name)
+    step = {"effect": candidate.effect.name, "meaning": candidate.effect.meaning,
+            "evidence": f"{candidate.evidence} (rank {rank} of {len(ranked)})",
+            "explained": candidate.explained, "term": candidate.effect.term,
+            "features": [str(f) for f in added], "coefficient": coefficient,
+            "coefficients": coefficients, "parameters": parameters, "mode": mode}
+    for when, fit in (("before", before), ("after", after)):
+        for key in ("rms", "objective", "spectral_error", "rms_holdout"):
+            step[f"{key}_{when}"] = fit.metrics.get(key)
+    return step
+
+
+# --- report ----------------------------------------------------------------------------
+def write_report(diagnosis: Diagnosis, out) -> None:
+    """Write report.json, report.md, model.json and three figures into folder ``out``:
+    residual_time.png, residual_spectrum.png, measured_vs_simulated.png."""
+    import json
+    from pathlib import Path
+
+    from ._report import write_bytes_atomic, write_text_atomic
+
+    out = Path(out)
+    report = diagnosis.to_json()
+    write_text_atomic(out / "report.json", json.dumps(_finite(report), indent=2) + "\n")
+    write_text_atomic(out / "report.md", report_markdown(diagnosis))
+    diagnosis.model().save(out / "model.json")
+    for name, figure in _figures(diagnosis).items():
+        write_bytes_atomic(out / name, figure)
+
+
+def _finite(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    return value
+
+
+def _number(value) -> str:
+    return "–" if value is None else f"{value:.4g}"
+
+
+def report_markdown(diagnosis: Diagnosis) -> str:
+    """The report as Markdown: the table effect → evidence → term → coefficient → errors."""
+    d = diagnosis
+    unit = "response units" if d.mode == "simulation" else "force units (equation error)"
+    lines = [f"# Diagnosis of {d.symbols.response}", "",
+             f"Mode: **{d.mode}** — {_CRITERION[d.mode]}.", "",
+             f"Starting model: `{d.fits[0].model(d.symbols, {}).sympy()}`", "",
+             f"Final model: `{d.model().sympy()}`", "",
+             f"Effects added: {', '.join(d.effects_added) or 'none'}", "",
+             f"RMS in {unit}; f = f_time + f_freq (eqs. 7–9); spectral error = f_freq.", "",
+             "| effect | evidence | term | coefficient | RMS before | RMS after | f before | "
+             "f after | spectral before | spectral after | held-out RMS before | after |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for s in d.steps:
+        lines.append(f"| {s['effect']} | {s['evidence']} | {s['term']} | {s['coefficient']:.6g} "
+                     f"| {_number(s['rms_before'])} | {_number(s['rms_after'])} | "
+                     f"{_number(s['objective_before'])} | {_number(s['objective_after'])} | "
+                     f"{_number(s['spectral_error_before'])} | {_number(s['spectral_error_after'])} "
+                     f"| {_number(s['rms_holdout_before'])} | {_number(s['rms_holdout_after'])} |")
+    lines += ["", "## Evidence per round (best first)", ""]
+    for i, ranking in enumerate(d.rankings, start=1):
+        cells = ", ".join(f"{r['effect']} {100 * r['explained']:.1f} %" for r in ranking)
+        lines.append(f"{i}. {cells}")
+    lines += ["", "Figures: residual_time.png, residual_spectrum.png, measured_vs_simulated.png.",
+              ""]
+    return "\n".join(lines)
+
+
+def _figures(d: Diagnosis) -> dict[str, bytes]:
+    import io
+
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    def png(fig) -> bytes:
+        buffer = io.BytesIO()
+        fig.savefig(buffer, format="png", dpi=110)
+        plt.close(fig)
+        return buffer.getvalue()
+
+    m, time = d.measurement, d.measurement.time
+    out = {}
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for label, fit in (("before", d.before), ("after", d.after)):
+        if fit.simulated is not None:
+            axes[0].plot(time, m.response - fit.simulated, lw=0.7, label=label)
+    axes[0].axvline(time[d.n_train - 1], color="k", ls=":", label="held out →")
+    axes[0].set_ylabel(f"{m.response_name} measured − simulated")
+    axes[0].legend(loc="upper right")
+    for label, fit in (("before", d.before), ("after", d.after)):
+        axes[1].plot(time, fit.force, lw=0.7, label=label)
+    axes[1].set_ylabel("equation-error residual\n(generalised force)")
+    axes[1].set_xlabel(f"{m.time_name} [s]")
+    axes[1].legend(loc="upper right")
+    out["residual_time.png"] = png(fig)
+
+    fig, ax = plt.subplots(figsize=(9, 4))
+    frequency = np.fft.rfftfreq(m.n_samples, m.dt)
+    for label, fit in (("before", d.before), ("after", d.after)):
+        signal = (m.response - fit.simulated) if fit.simulated is not None else fit.force
+        ax.semilogy(frequency[1:], amplitude_spectrum(signal)[1:] + 1e-300, lw=0.7, label=label)
+    for f in d.frequencies:
+        ax.axvline(f, color="grey", ls=":", lw=0.8)
+    ax.set_xlabel("frequency [Hz] (dotted: candidate frequencies)")
+    ax.set_ylabel("residual amplitude")
+    ax.legend()
+    out["residual_spectrum.png"] = png(fig)
+
+    fig, ax = plt.subplots(figsize=(9, 4))
+    ax.plot(time, m.response, "k", lw=0.8, label="measured")
+    for label, fit in (("before", d.before), ("after", d.after)):
+        if fit.simulated is not None:
+            ax.plot(time, fit.simulated, lw=0.8, ls="--", label=f"simulated {label}")
+    ax.set_xlabel(f"{m.time_name} [s]")
+    ax.set_ylabel(m.response_name)
+    ax.legend()
+    out["measured_vs_simulated.png"] = png(fig)
+    return out
+

@@ -1,0 +1,100 @@
+"""Loader for the Silverbox benchmark (Wigren & Schoukens, ECC 2013) from a user's folder.
+
+Reads ``SNLS80mV.csv`` (columns V1 = input voltage, V2 = output voltage, a trailing comma
+on every row) and returns it as a :class:`~gpjax._data.Measurement` with columns
+``t`` (s, fs = 10^7/2^14 Hz), ``y`` (V2, V) and ``u`` (V1, V), plus the standard segments
+(0-based Python slices, as in the ``nonlinear-benchmarks`` package). The data are never
+copied into this repository.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from ._data import Measurement
+from ._errors import DataError
+
+SAMPLE_RATE = 1e7 / 2 ** 14
+FILE = "SNLS80mV.csv"
+#: Standard split: estimation (multisines) and the three test segments.
+SEGMENTS = {"estimation": (40650, 105712), "multisine": (105712, 127400),
+            "arrow_full": (100, 40575), "arrow_no_extrapolation": (100, 32100)}
+#: Samples at the start of a test segment that may be used to initialise the state.
+WARMUP = 50
+
+
+def load_silverbox(directory: str | Path) -> Measurement:
+    """The whole SNLS80mV record as a Measurement (t in s, y = V2 and u = V1 in volts).
+
+    Raises:
+        DataError: the folder or file is missing, or the file is not the expected table.
+    """
+    path = Path(directory) / FILE
+    if not path.is_file():
+        raise DataError(f"{path} does not exist; give the folder that holds {FILE}")
+    try:
+        values = np.loadtxt(path, delimiter=",", skiprows=1, usecols=(0, 1), dtype=np.float64)
+    except (OSError, ValueError) as err:
+        raise DataError(f"cannot read {path} as two numeric columns V1, V2: {err}") from None
+    if values.ndim != 2 or values.shape[0] < SEGMENTS["estimation"][1]:
+        raise DataError(f"{path} holds {values.shape[0] if values.ndim == 2 else 0} rows; the "
+                        f"Silverbox record has 131,072")
+    time = np.arange(values.shape[0]) / SAMPLE_RATE
+    return Measurement(time=time, response=values[:, 1], inputs={"u": values[:, 0]},
+                       time_name="t", response_name="y")
+
+
+def silverbox_segments(directory: str | Path) -> dict[str, Measurement]:
+    """The estimation segment and the test segments ``multisine``, ``arrow_full`` and
+    ``arrow_no_extrapolation`` (each a Measurement on its own slice of the record)."""
+    record = load_silverbox(directory)
+    return {name: record.segment(start, stop) for name, (start, stop) in SEGMENTS.items()}
+
+
+def segment_rms(models: list, segment: Measurement, *, warmup: int = WARMUP,
+             substeps: int = 1) -> np.ndarray:
+    """RMS simulation error in the response's units of each model on a test segment.
+
+    The initial state is estimated from the first ``warmup`` samples (Savitzky–Golay, as
+    the benchmark allows); the error is taken over the samples after them. All models are
+    simulated in one compiled solve.
+
+    Args:
+        models: :class:`~gpjax._model.Model` objects with the segment's variable names.
+        segment: the test data.
+        warmup: samples used for the initial state and left out of the RMS.
+        substeps: RK4 steps per sample interval.
+    """
+    from ._evaluator import PopulationEvaluator, polynomial_state_features
+    from ._model import estimate_initial_conditions
+
+    y0 = estimate_initial_conditions(segment.segment(0, max(warmup + 1, 21)))
+    lhs, forcing, degree = [], [], 3
+    for model in models:
+        for text in (*model.state, *model.parametric):
+            feature = model._feature(text)
+            if feature not in lhs:
+                lhs.append(feature)
+        forcing += [model._feature(t) for t in model.forcing if model._feature(t) not in forcing]
+    symbols = models[0].symbols
+    polynomial = set(polynomial_state_features(symbols, degree))
+    evaluator = PopulationEvaluator(
+        segment, symbols, max_degree=degree, substeps=substeps, n_bins=1, batch=len(models),
+        extra_state_features=tuple(f for f in lhs if f not in polynomial))
+    for feature in forcing:
+        evaluator.forcing_index(feature)
+    population = evaluator.empty(len(models))
+    for i, model in enumerate(models):
+        population.mass[i] = model.mass
+        for text, value in (*model.state.items(), *model.parametric.items()):
+            population.state[i, evaluator.state_index(model._feature(text))] = value
+        for text, value in model.forcing.items():
+            population.forcing[i, evaluator.forcing_index(model._feature(text))] = value
+        population.y0[i] = y0
+    responses, scores = evaluator.simulate(population)
+    error = segment.response[None, warmup:] - responses[:, warmup:]
+    rms = np.sqrt(np.mean(error ** 2, axis=1))
+    return np.where(scores.status == 0, rms, np.inf)
+
