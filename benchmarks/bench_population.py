@@ -24,7 +24,6 @@ if "--devices" not in sys.argv or sys.argv[sys.argv.index("--devices") + 1] != "
 
 import jax  # noqa: E402
 import numpy as np  # noqa: E402
-import sympy as sp  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
 from gpjax import GPConfig, Identifier, Measurement, PopulationEvaluator, Symbols  # noqa: E402

@@ -265,26 +265,32 @@ class PopulationEvaluator:
             self.compile_seconds += time.perf_counter() - start
         return out
 
-    def _state_basis(self, x: jax.Array, v: jax.Array, t: jax.Array) -> jax.Array:
-        """(…, F_state) values of the state features at time ``t``."""
-        columns = []
-        power = jnp.ones_like(x)
-        for _ in range(self.max_degree):
-            power = power * x
-            columns.append(power)
-        power = jnp.ones_like(v)
-        for _ in range(self.max_degree):
-            power = power * v
-            columns.append(power)
-        columns += [jnp.broadcast_to(fn(x, v, t), x.shape) for fn in self._extra_fns]
-        return jnp.stack(columns, axis=-1)
+    def _acceleration_fn(self, mass, state):
+        """x''(x, v, force, t) for all models (vectors of length P), states clipped.
 
-    def rhs(self, t, mass, state_coefficients, forcing_now, y, bound):
-        """dy/dt for all models at time t: y = (x, x'), shape (P, 2); states clipped."""
-        y = jnp.clip(y, -bound, bound)
-        x, v = y[:, 0], y[:, 1]
-        restoring = jnp.sum(state_coefficients * self._state_basis(x, v, t), axis=-1)
-        return jnp.stack([v, (forcing_now - restoring) / mass], axis=1)
+        The one right-hand side both integrators use: Horner sums over the powers of x and
+        x', plus the compiled extra features.
+        """
+        d = self.max_degree
+        bound_x, bound_v = self._bound
+        cx, cv, extra = state[:, :d].T, state[:, d:2 * d].T, state[:, 2 * d:].T
+        inverse_mass = 1.0 / mass
+
+        def horner(c, z):
+            total = c[d - 1]
+            for k in range(d - 2, -1, -1):
+                total = total * z + c[k]
+            return total * z
+
+        def acceleration(x, v, force, t):
+            x = jnp.clip(x, -bound_x, bound_x)
+            v = jnp.clip(v, -bound_v, bound_v)
+            restoring = horner(cx, x) + horner(cv, v)
+            for c, fn in zip(extra, self._extra_fns):
+                restoring = restoring + c * fn(x, v, t)
+            return (force - restoring) * inverse_mass
+
+        return acceleration
 
     def integrate(self, mass, state, forcing_matrix, y0):
         """x at the sample times, shape (N, P), by the configured integrator.
@@ -302,26 +308,9 @@ class PopulationEvaluator:
             mass: (P,); state: (P, F_state) coefficients; y0: (P, 2).
             forcing_matrix: (n_stage, P) forcing of every model at every RK4 stage time.
         """
-        d = self.max_degree
         h = self.h
-        bound_x, bound_v = self._bound
-        cx, cv, extra = state[:, :d].T, state[:, d:2 * d].T, state[:, 2 * d:].T
-        inverse_mass = 1.0 / mass
         t0 = float(self.stage_times[0])
-
-        def horner(c, z):
-            total = c[d - 1]
-            for k in range(d - 2, -1, -1):
-                total = total * z + c[k]
-            return total * z
-
-        def acceleration(x, v, force, t):
-            x = jnp.clip(x, -bound_x, bound_x)
-            v = jnp.clip(v, -bound_v, bound_v)
-            restoring = horner(cx, x) + horner(cv, v)
-            for c, fn in zip(extra, self._extra_fns):
-                restoring = restoring + c * fn(x, v, t)
-            return (force - restoring) * inverse_mass
+        acceleration = self._acceleration_fn(mass, state)
 
         def step(carry, stage):
             x, v, i = carry
@@ -348,14 +337,16 @@ class PopulationEvaluator:
         ``adjoint=diffrax.ForwardMode()`` makes the solve forward-differentiable (for
         Levenberg–Marquardt); the default suits plain evaluation.
         """
-        bound = jnp.array(self._bound)
         t0 = float(self.stage_times[0])
         half = 0.5 * self.h
+        acceleration = self._acceleration_fn(mass, state)
 
         def field(t, y, args):
             index = jnp.clip(jnp.round((t - t0) / half).astype(jnp.int32), 0,
                              forcing_matrix.shape[0] - 1)
-            return self.rhs(t, mass, state, forcing_matrix[index], y, bound)
+            velocity = jnp.clip(y[:, 1], -self._bound[1], self._bound[1])
+            return jnp.stack([velocity, acceleration(y[:, 0], y[:, 1], forcing_matrix[index], t)],
+                             axis=1)
 
         solution = diffrax.diffeqsolve(
             diffrax.ODETerm(field), RK4(), t0=t0, t1=float(self.stage_times[-1]), dt0=self.h,
