@@ -14,7 +14,7 @@ __version__ = "0.1.0"
 
 _EXPORTS = {
     "CanonicalForm": "_canonical", "StructureCheck": "_canonical", "Symbols": "_canonical",
-    "check_structure": "_canonical", "tree_to_sympy": "_canonical",
+    "check_structure": "_canonical", "check_tree": "_canonical", "tree_to_sympy": "_canonical",
     "GPConfig": "_config",
     "Measurement": "_data", "load_csv": "_data",
     "ConfigError": "_errors", "DataError": "_errors", "ModelFileError": "_errors",

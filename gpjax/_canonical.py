@@ -93,35 +93,80 @@ class StructureCheck:
 
 
 def tree_to_sympy(tree: Tree, symbols: Symbols, constants: dict[str, float]) -> sp.Expr:
-    """The expression a tree denotes; named constants take their numeric values."""
+    """The expression a tree denotes, expanded; named constants take their numeric values."""
+    value = _expanded(tree, symbols, tuple(sorted(constants.items())))
+    return value if isinstance(value, sp.Expr) else value.as_expr()
+
+
+def check_tree(tree: Tree, symbols: Symbols, constants: dict[str, float], *,
+               max_degree: int | None = None) -> StructureCheck:
+    """:func:`check_structure` of the expression a tree denotes (read as ``tree = 0``).
+
+    Subtrees without division are multiplied out as sparse polynomials over the reals
+    (sympy's ``ring``) and checked term by term without building the whole expression —
+    far cheaper than expanding expressions; a division falls back to ``sympy.expand``.
+    Every subtree's result is cached (crossover and mutation reuse most of their parents'
+    subtrees), so a new tree costs the work along its changed path.
+    """
+    value = _expanded(tree, symbols, tuple(sorted(constants.items())))
+    if isinstance(value, sp.Expr):
+        return check_structure(value, symbols, max_degree=max_degree)
+    terms = tuple((float(c), _monomial(symbols, exponents)) for exponents, c in value.terms())
+    return _check_terms(terms, symbols, max_degree)
+
+
+@lru_cache(maxsize=64)
+def _ring(symbols: Symbols):
+    return sp.ring((symbols.x, symbols.x_dot, symbols.x_ddot, symbols.t, *symbols.u), sp.RR)
+
+
+@lru_cache(maxsize=100_000)
+def _monomial(symbols: Symbols, exponents: tuple[int, ...]) -> sp.Expr:
+    generators = (symbols.x, symbols.x_dot, symbols.x_ddot, symbols.t, *symbols.u)
+    return sp.Mul(*(g ** e for g, e in zip(generators, exponents) if e))
+
+
+@lru_cache(maxsize=500_000)
+def _expanded(tree: Tree, symbols: Symbols, constants: tuple):
+    """A subtree as a ring polynomial (no division below it) or an expanded expression."""
+    ring, x, x_dot, x_ddot, t, *u = _ring(symbols)
     head = tree[0]
     if is_function(tree):
-        a = tree_to_sympy(tree[1], symbols, constants)
-        b = tree_to_sympy(tree[2], symbols, constants)
-        if head == "add":
-            return a + b
-        if head == "sub":
-            return a - b
-        if head == "mul":
-            return a * b
-        return sp.Integer(1) if sp.expand(b) == 0 else a / b  # protected division
+        a = _expanded(tree[1], symbols, constants)
+        b = _expanded(tree[2], symbols, constants)
+        if head == "div":  # protected division
+            if b == 0:
+                return ring.one
+            return sp.expand(_as_expr(a) / _as_expr(b))
+        if isinstance(a, sp.Expr) or isinstance(b, sp.Expr):
+            a, b = _as_expr(a), _as_expr(b)
+            if head == "mul":
+                return sp.expand(a * b)
+        return a + b if head == "add" else a - b if head == "sub" else a * b
     if head == "x":
-        return symbols.x
+        return x
     if head == "x_dot":
-        return symbols.x_dot
+        return x_dot
     if head == "x_ddot":
-        return symbols.x_ddot
+        return x_ddot
     if head == "t":
-        return symbols.t
+        return t
     if head == "u":
-        return symbols.u[tree[1]]
+        return u[tree[1]]
     if head == "c":
-        return sp.Float(constants[tree[1]])
-    if head == "k":
-        return sp.Float(tree[2])
-    return sp.Integer(tree[1]) if isinstance(tree[1], int) else sp.Float(tree[1])
+        value = dict(constants)[tree[1]]
+    elif head == "k":
+        value = tree[2]
+    else:
+        value = tree[1]
+    return ring.ground_new(sp.RR(value))  # ring(value) would build a new mpmath context
 
 
+def _as_expr(value) -> sp.Expr:
+    return value if isinstance(value, sp.Expr) else value.as_expr()
+
+
+@lru_cache(maxsize=100_000)
 def _degree(feature: sp.Expr, symbol: sp.Symbol) -> int:
     if feature.is_polynomial(symbol):
         return int(sp.degree(feature, symbol))
@@ -150,44 +195,55 @@ def check_structure(expression: sp.Expr | sp.Eq, symbols: Symbols, *,
 
 @lru_cache(maxsize=200_000)
 def _check(expression: sp.Expr, symbols: Symbols, max_degree: int | None) -> StructureCheck:
-    x, v, a, t, u = symbols.x, symbols.x_dot, symbols.x_ddot, symbols.t, symbols.u
-    known = {x, v, a, t, *u}
+    known = {symbols.x, symbols.x_dot, symbols.x_ddot, symbols.t, *symbols.u}
     unknown = expression.free_symbols - known
     if unknown:
         return StructureCheck(False, f"unknown symbol {sorted(map(str, unknown))[0]}")
     expanded = sp.expand(expression)
-    if not expanded.is_finite and expanded.has(sp.zoo, sp.oo, -sp.oo, sp.nan):
+    if expanded.has(sp.zoo, sp.oo, -sp.oo, sp.nan):
         return StructureCheck(False, "the expression is not finite")
-    mass = 0.0
-    state: dict[sp.Expr, float] = {}
-    forcing: dict[sp.Expr, float] = {}
-    exogenous = {t, *u}
+    terms = []
     for term in sp.Add.make_args(expanded):
         coefficient, feature = term.as_coeff_Mul()
         if not feature.free_symbols:
             coefficient, feature = term, sp.Integer(1)
-        symbols_in = feature.free_symbols
+        terms.append((float(coefficient), feature))
+    return _check_terms(tuple(terms), symbols, max_degree)
+
+
+@lru_cache(maxsize=200_000)
+def _check_terms(terms: tuple[tuple[float, sp.Expr], ...], symbols: Symbols,
+                 max_degree: int | None) -> StructureCheck:
+    """The §3 rules on an expanded expression given as (coefficient, feature) terms."""
+    x, v, a, t, u = symbols.x, symbols.x_dot, symbols.x_ddot, symbols.t, symbols.u
+    mass = 0.0
+    state: dict[sp.Expr, float] = {}
+    forcing: dict[sp.Expr, float] = {}
+    exogenous = {t, *u}
+    for coefficient, feature in terms:
+        symbols_in = _free_symbols(feature)
         if a in symbols_in:
             if feature != a:
                 return StructureCheck(False, f"{a} appears other than as a constant times {a}: "
-                                             f"term {term} (eq. 3: constant inertia)")
-            mass += float(coefficient)
+                                             f"term {_term(coefficient, feature)} (eq. 3: "
+                                             "constant inertia)")
+            mass += coefficient
             continue
         if x in symbols_in and v in symbols_in:
-            return StructureCheck(False, f"cross term {term}: a term may depend on {x} or on {v}, "
-                                         "not both (eqs. 5–6)")
+            return StructureCheck(False, f"cross term {_term(coefficient, feature)}: a term may "
+                                         f"depend on {x} or on {v}, not both (eqs. 5–6)")
         if symbols_in & {x, v}:
             if symbols_in & exogenous:
-                return StructureCheck(False, f"cross term {term}: the response and time/inputs "
-                                             "mixed in one term (eq. 3)")
+                return StructureCheck(False, f"cross term {_term(coefficient, feature)}: the "
+                                             "response and time/inputs mixed in one term (eq. 3)")
             if max_degree is not None:
                 degree = _degree(feature, x if x in symbols_in else v)
                 if degree > max_degree:
-                    return StructureCheck(False, f"term {term} has degree {degree} > max_degree "
-                                                 f"{max_degree}")
-            state[feature] = state.get(feature, 0.0) + float(coefficient)
+                    return StructureCheck(False, f"term {_term(coefficient, feature)} has degree "
+                                                 f"{degree} > max_degree {max_degree}")
+            state[feature] = state.get(feature, 0.0) + coefficient
         else:
-            forcing[feature] = forcing.get(feature, 0.0) - float(coefficient)
+            forcing[feature] = forcing.get(feature, 0.0) - coefficient
     scale = max([abs(mass), *map(abs, state.values()), *map(abs, forcing.values())], default=0.0)
     if scale == 0.0 or abs(mass) <= ZERO_TOLERANCE * scale:
         return StructureCheck(False, f"no {a} term: eq. 3 needs an acceleration (inertia) term")
@@ -197,6 +253,25 @@ def _check(expression: sp.Expr, symbols: Symbols, max_degree: int | None) -> Str
     norm = norm if norm != 0.0 else mass
     form = CanonicalForm(
         mass=mass / norm,
-        state=tuple(sorted(((f, c / norm) for f, c in state.items()), key=lambda p: str(p[0]))),
-        forcing=tuple(sorted(((f, g / norm) for f, g in forcing.items()), key=lambda p: str(p[0]))))
+        state=tuple(sorted(((f, c / norm) for f, c in state.items()), key=lambda p: _name(p[0]))),
+        forcing=tuple(sorted(((f, g / norm) for f, g in forcing.items()),
+                             key=lambda p: _name(p[0]))))
     return StructureCheck(True, "", form)
+
+
+# Features recur across thousands of candidates: their symbols, degrees and names are cached.
+@lru_cache(maxsize=100_000)
+def _free_symbols(feature: sp.Expr) -> frozenset:
+    return frozenset(feature.free_symbols)
+
+
+@lru_cache(maxsize=100_000)
+def _name(feature: sp.Expr) -> str:
+    return str(feature)
+
+
+def _term(coefficient: float, feature: sp.Expr) -> sp.Expr:
+    """A term for a message: integral coefficients print as integers."""
+    number = sp.Integer(int(coefficient)) if float(coefficient).is_integer() else sp.Float(
+        coefficient)
+    return number * feature

@@ -54,6 +54,8 @@ DIVERGENCE_RANGES = 100.0
 #: Fraction of the measured response's AC spectral energy the default m bins hold.
 SPECTRAL_ENERGY_FRACTION = 0.99
 INTEGRATORS = ("scan", "diffrax")
+#: Most (RK4 stage × model) numbers one compiled call holds per array (200 MB in float64).
+STAGE_ELEMENTS_PER_CALL = 25_000_000
 
 
 class RK4(diffrax.AbstractERK):
@@ -127,9 +129,11 @@ class PopulationEvaluator:
         extra_state_features: further state features (sympy expressions in x, x' and t,
             e.g. ``sign(x_dot)`` or ``cos(1790*t)*x``) compiled in.
         batch: number of models per compiled call; populations are padded to a multiple.
+            Capped so one call's (stage × model) arrays hold at most
+            :data:`STAGE_ELEMENTS_PER_CALL` numbers: memory stays bounded for long records.
         fit_initial_conditions: correct every model's (x0, x0') by one Gauss–Newton step
-            on the simulated response (exact sensitivities by forward-mode differentiation
-            of the solve) before scoring; otherwise the given y0 is used as is.
+            on the simulated response (exact sensitivities from the variational equations,
+            :meth:`scan_jvp`) before scoring; otherwise the given y0 is used as is.
         integrator: ``"scan"`` or ``"diffrax"`` (see the module docstring).
         devices: devices a batch is split over; default all of ``jax.devices()``.
 
@@ -153,6 +157,8 @@ class PopulationEvaluator:
         self.substeps = substeps
         self.integrator = integrator
         self.devices = list(devices) if devices is not None else jax.devices()
+        n_stage = 2 * (measurement.n_samples - 1) * substeps + 1
+        batch = max(1, min(batch, STAGE_ELEMENTS_PER_CALL // n_stage))
         self.batch = -(-batch // len(self.devices)) * len(self.devices)
         self.fit_initial_conditions = fit_initial_conditions
         self.w_time, self.w_freq = float(w_time), float(w_freq)
@@ -271,10 +277,24 @@ class PopulationEvaluator:
         The one right-hand side both integrators use: Horner sums over the powers of x and
         x', plus the compiled extra features.
         """
-        d = self.max_degree
+        restoring = self._restoring_fn(state)
         bound_x, bound_v = self._bound
-        cx, cv, extra = state[:, :d].T, state[:, d:2 * d].T, state[:, 2 * d:].T
         inverse_mass = 1.0 / mass
+
+        def acceleration(x, v, force, t):
+            x = jnp.clip(x, -bound_x, bound_x)
+            v = jnp.clip(v, -bound_v, bound_v)
+            return (force - restoring(x, v, t)) * inverse_mass
+
+        return acceleration
+
+    def _restoring_fn(self, state):
+        """Σ c·φ(x, x', t) for coefficients ``state`` of shape (..., P, F): Horner sums over
+        the powers of x and x', plus the compiled extra features; x and x' have shape (P,)."""
+        d = self.max_degree
+        cx = jnp.moveaxis(state[..., :d], -1, 0)
+        cv = jnp.moveaxis(state[..., d:2 * d], -1, 0)
+        extra = jnp.moveaxis(state[..., 2 * d:], -1, 0)
 
         def horner(c, z):
             total = c[d - 1]
@@ -282,15 +302,13 @@ class PopulationEvaluator:
                 total = total * z + c[k]
             return total * z
 
-        def acceleration(x, v, force, t):
-            x = jnp.clip(x, -bound_x, bound_x)
-            v = jnp.clip(v, -bound_v, bound_v)
-            restoring = horner(cx, x) + horner(cv, v)
+        def restoring(x, v, t):
+            total = horner(cx, x) + horner(cv, v)
             for c, fn in zip(extra, self._extra_fns):
-                restoring = restoring + c * fn(x, v, t)
-            return (force - restoring) * inverse_mass
+                total = total + c * fn(x, v, t)
+            return total
 
-        return acceleration
+        return restoring
 
     def integrate(self, mass, state, forcing_matrix, y0):
         """x at the sample times, shape (N, P), by the configured integrator.
@@ -308,28 +326,88 @@ class PopulationEvaluator:
             mass: (P,); state: (P, F_state) coefficients; y0: (P, 2).
             forcing_matrix: (n_stage, P) forcing of every model at every RK4 stage time.
         """
-        h = self.h
-        t0 = float(self.stage_times[0])
         acceleration = self._acceleration_fn(mass, state)
 
+        def rates(y, force, t):
+            x, v = y
+            return v, acceleration(x, v, force, t)
+
+        (x,) = self._rk4_scan(rates, (y0[:, 0], y0[:, 1]), forcing_matrix, lambda y: (y[0],))
+        return x
+
+    def scan_jvp(self, mass, state, forcing_matrix, y0, d_y0, *, d_mass=None, d_state=None,
+                 d_forcing=None):
+        """x at the sample times (N, P) and its derivatives (N, Q, P) along Q directions.
+
+        The variational equations s' = w, w' = ∂a/∂x·s + ∂a/∂x'·w + ∂a/∂θ·dθ run in the same
+        RK4 scan as the model. RK4 commutes with linearisation, so this is the exact
+        derivative of the discrete solution — what forward-mode autodiff of
+        :meth:`scan_solve` gives (tested) — without differentiating through the scan.
+
+        Args:
+            mass, state, forcing_matrix, y0: as :meth:`scan_solve`.
+            d_y0: (Q, P, 2) directions of the initial state.
+            d_mass: (Q, P), d_state: (Q, P, F_state), d_forcing: (n_stage, Q, P) directions
+                of the constants (``None``: zero). Directions come first so the population
+                axis stays the minor one that XLA vectorises.
+        """
+        acceleration = self._acceleration_fn(mass, state)
+        restoring = self._restoring_fn(state)
+        d_restoring = self._restoring_fn(d_state) if d_state is not None else None
+        inverse_mass = 1.0 / mass
+        if d_forcing is None:
+            d_forcing = jnp.zeros((forcing_matrix.shape[0], 1, 1))
+
+        def rates(y, force, t):
+            x, v, s, w = y
+            f, df = force
+            a = acceleration(x, v, f, t)
+            ones = jnp.ones_like(x)
+            _, r_x = jax.jvp(lambda z: restoring(z, v, t), (x,), (ones,))
+            _, r_v = jax.jvp(lambda z: restoring(x, z, t), (v,), (ones,))
+            explicit = df
+            if d_restoring is not None:
+                explicit = explicit - d_restoring(x, v, t)
+            if d_mass is not None:
+                explicit = explicit - a * d_mass
+            dw = (explicit - r_x * s - r_v * w) * inverse_mass
+            return v, a, w, jnp.broadcast_to(dw, s.shape)
+
+        start = (y0[:, 0], y0[:, 1], d_y0[..., 0], d_y0[..., 1])
+        x, s = self._rk4_scan(rates, start, (forcing_matrix, d_forcing), lambda y: (y[0], y[2]))
+        return x, s
+
+    def _rk4_scan(self, rates, y0, forces, saved):
+        """Classical RK4 over the stage grid in ``lax.scan`` for a tuple of states.
+
+        ``rates(y, force, t)`` gives dy/dt; ``forces`` holds arrays with the stage axis
+        first (t0, t0 + h/2, t0 + h, …); ``saved(y)`` picks what is returned at the sample
+        times, each with the initial value first.
+        """
+        h = self.h
+        t0 = float(self.stage_times[0])
+
+        def along(y, k, c):
+            return tuple(a + c * b for a, b in zip(y, k))
+
         def step(carry, stage):
-            x, v, i = carry
+            y, i = carry
             f0, f_half, f1 = stage
             t = t0 + i * h
-            k1x, k1v = v, acceleration(x, v, f0, t)
-            x2, v2 = x + 0.5 * h * k1x, v + 0.5 * h * k1v
-            k2x, k2v = v2, acceleration(x2, v2, f_half, t + 0.5 * h)
-            x3, v3 = x + 0.5 * h * k2x, v + 0.5 * h * k2v
-            k3x, k3v = v3, acceleration(x3, v3, f_half, t + 0.5 * h)
-            x4, v4 = x + h * k3x, v + h * k3v
-            k4x, k4v = v4, acceleration(x4, v4, f1, t + h)
-            x = x + h / 6 * (k1x + 2 * k2x + 2 * k3x + k4x)
-            v = v + h / 6 * (k1v + 2 * k2v + 2 * k3v + k4v)
-            return (x, v, i + 1), x
+            k1 = rates(y, f0, t)
+            k2 = rates(along(y, k1, 0.5 * h), f_half, t + 0.5 * h)
+            k3 = rates(along(y, k2, 0.5 * h), f_half, t + 0.5 * h)
+            k4 = rates(along(y, k3, h), f1, t + h)
+            y = tuple(a + h / 6 * (b1 + 2 * b2 + 2 * b3 + b4)
+                      for a, b1, b2, b3, b4 in zip(y, k1, k2, k3, k4))
+            return (y, i + 1), saved(y)
 
-        stages = (forcing_matrix[0:-1:2], forcing_matrix[1::2], forcing_matrix[2::2])
-        _, xs = jax.lax.scan(step, (y0[:, 0], y0[:, 1], jnp.zeros((), jnp.int32)), stages)
-        return jnp.concatenate([y0[None, :, 0], xs[self.substeps - 1:: self.substeps]])
+        stages = jax.tree_util.tree_map(lambda f: (f[0:-1:2], f[1::2], f[2::2]), forces)
+        stages = jax.tree_util.tree_transpose(
+            jax.tree_util.tree_structure(forces), jax.tree_util.tree_structure((0, 0, 0)), stages)
+        _, path = jax.lax.scan(step, (y0, jnp.zeros((), jnp.int32)), stages)
+        return tuple(jnp.concatenate([first[None], p[self.substeps - 1:: self.substeps]])
+                     for first, p in zip(saved(y0), path))
 
     def solve(self, mass, state, forcing_matrix, y0, *, adjoint=None):
         """Integrate all models with diffrax; returns x at the sample times, shape (N, P).
@@ -358,16 +436,11 @@ class PopulationEvaluator:
 
     def _fitted_initial_conditions(self, mass, state, forcing_matrix, y0):
         """One Gauss–Newton step on (x0, x0') per model; the sensitivities dx/dx0 and
-        dx/dx0' of all models come from one forward-mode pass (two tangents)."""
+        dx/dx0' come from the variational equations in the same scan (:meth:`scan_jvp`)."""
         measured = jnp.asarray(self.measurement.response)[:, None]
-
-        def response(start):
-            return self.integrate(mass, state, forcing_matrix, start)
-
-        def sensitivity(direction):
-            return jax.jvp(response, (y0,), (jnp.broadcast_to(direction, y0.shape),))
-
-        base, (sx, sv) = jax.vmap(sensitivity, out_axes=(None, 0))(jnp.eye(2))
+        directions = jnp.broadcast_to(jnp.eye(2)[:, None, :], (2,) + y0.shape)
+        base, sensitivity = self.scan_jvp(mass, state, forcing_matrix, y0, directions)
+        sx, sv = sensitivity[:, 0], sensitivity[:, 1]
         residual = measured - base
         a11, a12, a22 = jnp.sum(sx * sx, 0), jnp.sum(sx * sv, 0), jnp.sum(sv * sv, 0)
         b1, b2 = jnp.sum(sx * residual, 0), jnp.sum(sv * residual, 0)

@@ -11,9 +11,11 @@ raised).
 The fit grows its horizon (continuation): Levenberg–Marquardt first matches a leading part
 of the record, then the whole. A wrong stiffness shifts the phase in proportion to the time
 elapsed, so on the full record (~24 periods on the gear example) a start a few per cent
-off already lies past a phase wrap; on a short horizon it does not. The Jacobian is
-forward-mode through the evaluator's RK4 scan (one pass with one tangent per free
-constant).
+off already lies past a phase wrap; on a short horizon it does not. The Jacobian comes
+from the variational equations integrated beside the model in the evaluator's RK4 scan
+(:meth:`PopulationEvaluator.scan_jvp`, exact for the discrete solution), through a custom
+derivative rule: one augmented solve per Levenberg–Marquardt step, 3–4× cheaper than
+forward-mode autodiff through the scan.
 """
 
 from __future__ import annotations
@@ -23,10 +25,18 @@ import time
 
 import jax
 import jax.numpy as jnp
+import lineax as lx
 import numpy as np
 import optimistix as optx
 
 from ._evaluator import Population, PopulationEvaluator
+
+JACOBIANS = ("variational", "autodiff")
+#: The damped Gauss–Newton step solves the normal equations (JᵀJ + λI)·δ = Jᵀr by LU: the
+#: default QR of the (N + k) × k system runs into a slow path of XLA's CPU QR for k ≥ 8
+#: (13× slower at k = 8, 140× at k = 12 for 64 models; benchmarks/bench_population.py,
+#: ``lm_floor``). Constants are scaled by their start values, so JᵀJ stays well conditioned.
+LINEAR_SOLVER = lx.Normal(lx.LU())
 
 
 @dataclasses.dataclass(frozen=True)
@@ -45,19 +55,30 @@ class Refiner:
         evaluator: supplies the simulation and the measured response.
         iterations: maximum Levenberg–Marquardt steps.
         batch: models refined per compiled call (padded).
-        max_free: most free constants per model (further ones stay at their start values).
+        max_free: most free constants per model (further ones stay at their start values);
+            the width of every Jacobian, so the cost of a step grows with it.
         horizons: increasing fractions of the record fitted in turn, each for up to
             ``iterations`` steps; the last should be 1.
+        jacobian: ``"variational"`` (default: the variational equations in the scan, see
+            :meth:`_response`) or ``"autodiff"`` (forward-mode differentiation of the
+            evaluator's integrator — through ``diffrax.diffeqsolve`` with
+            ``ForwardMode`` when it is ``"diffrax"``; slower, kept as the reference that
+            ``benchmarks/bench_population.py`` compares against).
 
     Raises:
-        ValueError: if ``horizons`` is empty, not increasing or outside (0, 1].
+        ValueError: if ``horizons`` is empty, not increasing or outside (0, 1], or for an
+            unknown ``jacobian``.
     """
 
     def __init__(self, evaluator: PopulationEvaluator, *, iterations: int = 20, batch: int = 8,
-                 max_free: int = 12, horizons: tuple[float, ...] = (0.25, 1.0)):
+                 max_free: int = 8, horizons: tuple[float, ...] = (0.25, 1.0),
+                 jacobian: str = "variational"):
         if not horizons or any(not 0 < h <= 1 for h in horizons) or list(horizons) != sorted(
                 set(horizons)):
             raise ValueError(f"horizons must increase within (0, 1], got {horizons}")
+        if jacobian not in JACOBIANS:
+            raise ValueError(f"jacobian must be one of {JACOBIANS}, got {jacobian!r}")
+        self.jacobian = jacobian
         self.evaluator = evaluator
         self.iterations = iterations
         n = evaluator.measurement.n_samples
@@ -95,7 +116,7 @@ class Refiner:
         for i, column in enumerate(np.asarray(fixed_forcing)):
             free[i, 1 + n_state + column if column >= 0 else 0] = False
         scale = np.where(scale > 0, scale, 1.0)
-        # Only free parameters are differentiated: index (P, max_free), padded with scale 0.
+        # Only free parameters are differentiated: index (P, width), padded with scale 0.
         index = np.zeros((count, self.max_free), dtype=np.int32)
         index_scale = np.zeros((count, self.max_free))
         for i, row in enumerate(free):
@@ -122,29 +143,77 @@ class Refiner:
         return Refinement(population=refined, succeeded=ok.astype(bool), steps=steps)
 
     def _refine_one(self, start, index, index_scale, forcing_basis):
-        ev = self.evaluator
-        n_state = len(ev.state_features)
-        measured = jnp.asarray(ev.measurement.response)
+        measured = jnp.asarray(self.evaluator.measurement.response)
 
         def full(delta):
             return start.at[index].add(index_scale * delta)
 
-        def residuals(delta, samples):
-            p = full(delta)
-            stages = forcing_basis[: 2 * (samples - 1) * ev.substeps + 1]
-            x = ev.integrate(p[0:1], p[None, 1:1 + n_state],
-                             (stages @ p[1 + n_state:-2])[:, None], p[None, -2:])[:, 0]
-            return (x - measured[:samples]) / self._noise_scale
-
-        solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-9)
+        # The normal equations need Jᵀ: a matrix with the variational Jacobian, but autodiff
+        # through a while loop (diffrax) cannot be transposed, so that path keeps QR.
+        linear_solver = LINEAR_SOLVER if self.jacobian == "variational" else lx.QR()
+        solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-9, linear_solver=linear_solver)
         delta = jnp.zeros(index.shape)
         ok, steps = jnp.array(True), jnp.array(0)
         for samples in self.horizon_samples:
-            solution = optx.least_squares(lambda d, _, s=samples: residuals(d, s), solver,
-                                          delta, max_steps=self.iterations, throw=False)
+            response = self._response(samples)
+
+            def residuals(d, _, samples=samples, response=response):
+                x = response(d, start, index, index_scale, forcing_basis)
+                return (x - measured[:samples]) / self._noise_scale
+
+            solution = optx.least_squares(residuals, solver, delta, max_steps=self.iterations,
+                                          throw=False)
             finite = jnp.all(jnp.isfinite(solution.value))
             delta = jnp.where(finite, solution.value, delta)
             ok = ok & finite & ((solution.result == optx.RESULTS.successful) | (
                 solution.result == optx.RESULTS.nonlinear_max_steps_reached))
             steps = steps + solution.stats["num_steps"]
         return full(delta), ok, steps
+
+    def _response(self, samples: int):
+        """x over the first ``samples`` samples as a function of the scaled step ``delta``
+        of one model's free constants, with its Jacobian from the variational equations.
+
+        The derivative rule computes the whole Jacobian (samples, max_free) from primal
+        values only — one :meth:`PopulationEvaluator.scan_jvp` pass — and returns J·t; so
+        the linearisation Levenberg–Marquardt takes each step costs one augmented solve,
+        and materialising J is a matrix product, not one tangent solve per constant.
+        """
+        ev = self.evaluator
+        n_state = len(ev.state_features)
+        n_stage = 2 * (samples - 1) * ev.substeps + 1
+
+        def parts(delta, start, index, index_scale, forcing_basis):
+            p = start.at[index].add(index_scale * delta)
+            stages = forcing_basis[:n_stage]
+            return (p[0:1], p[None, 1:1 + n_state], (stages @ p[1 + n_state:-2])[:, None],
+                    p[None, -2:], stages)
+
+        if self.jacobian == "autodiff":
+            def plain(delta, start, index, index_scale, forcing_basis):
+                p = start.at[index].add(index_scale * delta)
+                return ev.integrate(p[0:1], p[None, 1:1 + n_state],
+                                    (forcing_basis @ p[1 + n_state:-2])[:, None],
+                                    p[None, -2:])[:samples, 0]
+            return plain
+
+        @jax.custom_jvp
+        def response(delta, start, index, index_scale, forcing_basis):
+            mass, state, forcing, y0, _ = parts(delta, start, index, index_scale,
+                                                forcing_basis)
+            return ev.scan_solve(mass, state, forcing, y0)[:, 0]
+
+        @response.defjvp
+        def response_jvp(primals, tangents):
+            delta, start, index, index_scale, forcing_basis = primals
+            mass, state, forcing, y0, stages = parts(*primals)
+            # Column j of the directions: constant index[j] moved by index_scale[j].
+            directions = ((index[:, None] == jnp.arange(start.size)[None, :])
+                          * index_scale[:, None])[:, None, :]  # (max_free, 1, constants)
+            x, jacobian = ev.scan_jvp(
+                mass, state, forcing, y0, directions[..., -2:], d_mass=directions[..., 0],
+                d_state=directions[..., 1:1 + n_state],
+                d_forcing=jnp.einsum("qpk,sk->sqp", directions[..., 1 + n_state:-2], stages))
+            return x[:, 0], jacobian[:, :, 0] @ tangents[0]
+
+        return response

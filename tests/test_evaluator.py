@@ -163,3 +163,36 @@ def test_dft_matrix_and_fft_amplitudes_agree():
     by_fft = _amplitude(jnp.asarray(_dft_matrix(4000, 600)), signal, 400)
     assert _dft_matrix(4000, 600).shape == (1, 600)  # over the size limit: weights only
     np.testing.assert_allclose(by_fft, by_matrix, rtol=1e-10, atol=1e-14)
+
+
+def test_variational_scan_equals_forward_mode_autodiff_of_the_solve():
+    """scan_jvp's sensitivities = jax.jvp of scan_solve, for directions in every kind of
+    constant (mass, polynomial and extra state features, forcing, initial state)."""
+    import jax
+    import jax.numpy as jnp
+    import sympy as sp
+    measurement = _measurement()
+    extra = (sp.tanh(20 * S.x_dot), sp.cos(9 * S.t) * S.x)
+    evaluator = PopulationEvaluator(measurement, S, max_degree=3, batch=6,
+                                    extra_state_features=extra)
+    pop = _random_models(evaluator, np.random.default_rng(3), 6)
+    pop.state[:, -2:] = [0.3, 4.0]
+    basis = jnp.asarray(evaluator._forcing_basis)
+    mass, state, forcing, y0 = map(jnp.asarray, (pop.mass, pop.state, pop.forcing, pop.y0))
+    rng = np.random.default_rng(4)
+    q = 3
+    d_mass, d_state, d_forcing, d_y0 = (jnp.asarray(rng.normal(size=(q,) + a.shape))
+                                        for a in (pop.mass, pop.state, pop.forcing, pop.y0))
+    x, sensitivities = evaluator.scan_jvp(
+        mass, state, basis @ forcing.T, y0, d_y0, d_mass=d_mass, d_state=d_state,
+        d_forcing=jnp.einsum("qpk,sk->sqp", d_forcing, basis))
+
+    def solve(m, c, g, start):
+        return evaluator.scan_solve(m, c, basis @ g.T, start)
+
+    for j in range(q):
+        x_ad, s_ad = jax.jvp(solve, (mass, state, forcing, y0),
+                             (d_mass[j], d_state[j], d_forcing[j], d_y0[j]))
+        np.testing.assert_allclose(x, x_ad, rtol=0, atol=1e-14 * float(jnp.max(jnp.abs(x_ad))))
+        np.testing.assert_allclose(sensitivities[:, j], s_ad, rtol=0,
+                                   atol=1e-10 * float(jnp.max(jnp.abs(s_ad))))

@@ -1,7 +1,7 @@
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from gpjax import GPConfig, Symbols, check_structure, tree_to_sympy
+from gpjax import GPConfig, Symbols, check_structure, check_tree, tree_to_sympy
 from gpjax._operators import (Grammar, crossover, initial_population, mutation, perturbation)
 from gpjax._trees import depth, from_json, is_function, nodes, size, to_json
 
@@ -72,3 +72,22 @@ def test_equivalent_expressions_share_one_canonical_form(a, b, power):
     two = sp.expand((S.x_ddot + x) * 2) - 2 * x + (x**power) * a + b * x - T
     c1, c2 = check_structure(one, S), check_structure(two, S)
     assert c1.valid and c2.valid and c1.canonical == c2.canonical
+
+
+@settings(max_examples=30, deadline=None)
+@given(st.integers(0, 2**32 - 1))
+def test_tree_check_on_polynomials_agrees_with_the_expression_check(seed):
+    """check_tree (ring arithmetic, term by term) decides like check_structure on the
+    expanded expression, with and without division in the tree."""
+    config = GPConfig.paper(max_depth=5, max_size=25, functions=("add", "sub", "mul", "div"))
+    grammar = Grammar.from_config(config, n_inputs=1)
+    rng = np.random.default_rng(seed)
+    for tree in initial_population(grammar, rng, 20, (2, 4)):
+        fast = check_tree(tree, S, config.named_constants, max_degree=3)
+        slow = check_structure(tree_to_sympy(tree, S, config.named_constants), S, max_degree=3)
+        assert fast.valid == slow.valid, (tree, fast.reason, slow.reason)
+        if fast.valid:
+            for (f1, c1), (f2, c2) in zip(fast.canonical.state + fast.canonical.forcing,
+                                          slow.canonical.state + slow.canonical.forcing):
+                assert f1 == f2 and np.isclose(c1, c2, rtol=1e-12)
+            assert np.isclose(fast.canonical.mass, slow.canonical.mass, rtol=1e-12)
