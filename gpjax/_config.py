@@ -56,6 +56,8 @@ class GPConfig:
             ``"tree"`` uses the constants written in the tree, as the paper does.
         refine_top: best distinct structures per generation whose coefficients are refined
             on the simulated response (optimistix Levenberg–Marquardt); 0 turns it off.
+            In tree mode every new candidate is refined from its tree's constants before
+            it competes (Lamarckian), and refine_top only matters as 0 (no refinement).
         refine_iterations: maximum Levenberg–Marquardt steps per refinement.
         substeps: fixed RK4 steps per sample interval.
         initial_conditions: ``(x0, x_dot0)`` at the first sample, or ``None`` to estimate
@@ -66,7 +68,9 @@ class GPConfig:
             buys far more (x² over a linear model with offset: 15×).
         local_search: best distinct structures per generation whose one-term extensions
             (a power of x or x', a constant, an input) are built as trees and compete for
-            the next generation; 0 gives the paper's pure GP. Least-squares mode only.
+            the next generation; 0 gives the paper's pure GP. In tree mode an added state
+            term starts from a value drawn from the interval constants (Rnd[real] if none),
+            and each named constant is also tried as the structure's inertia coefficient.
     """
 
     population: int = 500

@@ -6,24 +6,42 @@ Each round:
    spectrum, and the equation-error residual — the generalised force the model misses,
    ``m·x'' + Σ c·φ − Σ g·ψ`` evaluated on Savitzky–Golay derivatives (pointwise, for
    plots) and in weak form (integrated against compact test functions, for fitting).
-2. **Evidence.** Every effect of the library (:mod:`gpjax._effects`), with its nonlinear
-   parameters searched on a grid from the data (candidate frequencies: the input's
-   strongest spectral lines and any the user gives) and polished by Nelder–Mead, is
-   scored by the fraction of the weak-form equation-error residual energy its regressors
-   explain once the model's own regressors are projected out. Effects are ranked by it.
-3. **Refit.** The ``shortlist`` best effects are each added to the model; all constants
-   are refitted — weak-form least squares for the start, then optimistix
+2. **Parameters of each effect.** Every effect of the library (:mod:`gpjax._effects`)
+   has its nonlinear parameters searched on a grid from the data (candidate frequencies:
+   the input's strongest spectral lines and any the user gives) and, in the first round,
+   polished by Nelder–Mead, to maximise the fraction of the weak-form equation-error
+   residual energy its regressors explain once the model's own regressors are projected
+   out (cheap and linear); they stay frozen for the rest of the diagnosis. If more than
+   ``shortlist`` effects apply, the best by that fraction go on.
+3. **Refit.** Each effect is added to the model on its own and all constants are
+   refitted — weak-form least squares for the start, then optimistix
    Levenberg–Marquardt on the simulated response (:class:`gpjax._refine.Refiner`) — on
-   the *estimation* part of the record (the first ``1 − holdout``).
-4. **Acceptance by cross-validation on a held-out segment.** Each refitted model is
-   simulated over the whole record from its fitted initial state. A candidate passes if
-   its mean-square error on the held-out last ``holdout`` fraction is below the current
-   model's times (1 − ``min_gain``)^p, p = the coefficients plus nonlinear parameters it
-   adds (each free parameter must buy ``min_gain``, default 2 %, of held-out error — a
-   term that only fits noise buys nothing on data it was not fitted to). Of the passing
-   candidates, the one with the lowest held-out error so charged is kept, so a flexible
-   effect (backlash: a coefficient and two nonlinear parameters) must beat a simpler one
-   that explains the same. Rounds stop when no candidate passes.
+   the *estimation* part of the record (the first ``1 − holdout``), and the refit is
+   simulated over the whole record from its fitted initial state.
+4. **Evidence: held-out output error, with one step of look-ahead.** (Simulation mode.)
+   The equation error weighs a missing force by its size, the simulated response by what
+   it does to the response (a force near resonance counts ~Q times more than a static
+   one), so effects are ranked on the simulated response: by the mean-square error on the
+   held-out last ``holdout`` fraction, each added parameter charged a factor
+   (1 − ``min_gain``)^−1 — for the effect refitted alone, and for the best *pair* it
+   belongs to. A pair's error is predicted by one Gauss–Newton step from the refit of
+   either member with the other's coefficients added (from 0; sensitivities of the
+   simulated response by forward-mode differentiation of the solve; the step is the
+   least-squares fit of the estimation part of the residual, applied to the held-out
+   part; the lower of the two predictions counts). An effect scores the lower of its
+   charged error alone and that of its best pair; the two members of the best pair tie
+   and the one better alone ranks first. The look-ahead keeps a flexible effect that
+   mimics two simple ones at once (a one-sided backlash spring: an offset plus a
+   stiffness change) from pre-empting them when the pair of simple effects does better.
+   In equation-error mode (below) the ranking is the explained fraction of step 2. The
+   report's evidence column states which.
+5. **Acceptance by cross-validation on a held-out segment.** A candidate passes if its
+   held-out mean-square error is below the current model's times (1 − ``min_gain``)^p,
+   p = the coefficients plus nonlinear parameters it adds (each free parameter must buy
+   ``min_gain``, default 2 %, of held-out error — a term that only fits noise buys
+   nothing on data it was not fitted to). The best-ranked passing candidate is added
+   (equation-error mode: the passing one with the lowest charged held-out error). Rounds
+   stop when no candidate passes.
 
 Drifting systems (a free mass with friction, a pure integrator): if the starting model has
 no restoring term (no term in x alone), the whole diagnosis runs on the **equation error** instead (mode
@@ -38,6 +56,8 @@ import dataclasses
 import math
 from functools import lru_cache
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import sympy as sp
 from scipy.optimize import minimize
@@ -103,13 +123,17 @@ class Fit:
 
 @dataclasses.dataclass(frozen=True)
 class Candidate:
-    """An effect with its best parameters and its evidence in one round."""
+    """An effect with its best parameters and its evidence in one round: ``explained``
+    (share of the equation-error residual) and, in simulation mode once refitted,
+    ``predicted`` (ranking score, held-out RMS alone, best partner and the pair's
+    predicted held-out RMS; see :func:`rank_by_output_error`)."""
 
     effect: Effect
     parameters: dict
     terms: Terms
     explained: float
     evidence: str
+    predicted: dict | None = None
 
 
 @dataclasses.dataclass
@@ -159,10 +183,13 @@ class Diagnosis:
 
 
 _CRITERION = {
-    "simulation": "cross-validation on a held-out segment: the model is fitted on the first "
-                  "part of the record and simulated over all of it; an effect is kept only "
-                  "if the held-out mean-square error falls below (1 - min_gain)^p times the "
-                  "current model's, p = parameters the effect adds",
+    "simulation": "effects ranked by held-out output error charged (1 - min_gain)^-p, "
+                  "refitted alone and, one Gauss-Newton step ahead, with the best partner "
+                  "effect; cross-validation on a held-out segment: the model is fitted on "
+                  "the first part of the record and simulated over all of it; the "
+                  "best-ranked effect whose held-out mean-square error falls below "
+                  "(1 - min_gain)^p times the current model's is kept, p = parameters the "
+                  "effect adds",
     "equation_error": "cross-validation of the weak-form equation error on a held-out "
                       "segment (the starting model drifts in open-loop simulation)",
 }
@@ -510,6 +537,100 @@ class _Simulator:
                 ev.forcing_index(g)
         self.refiner = Refiner(self.train, iterations=problem.iterations, batch=problem.batch,
                                max_free=3 + len(lhs) + len(forcing))
+        self._jacobian = None
+
+    def jacobian(self, fit: Fit) -> np.ndarray:
+        """Sensitivities of the simulated response over the whole record to the parameter
+        vector (mass, every state coefficient, every forcing coefficient, x0, x0') at
+        ``fit`` — shape (N, 1 + F_state + F_forcing + 2) — by forward-mode differentiation
+        of the RK4 solve (one pass, one tangent per parameter)."""
+        ev = self.full
+        n_state = len(ev.state_features)
+        if self._jacobian is None:
+            basis = jnp.asarray(ev._forcing_basis)
+
+            def response(p):
+                forcing = (basis @ p[1 + n_state:-2])[:, None]
+                return ev.integrate(p[0:1], p[None, 1:1 + n_state], forcing, p[None, -2:])[:, 0]
+            self._jacobian = jax.jit(jax.jacfwd(response))
+        p = np.zeros(1 + n_state + ev.forcing_capacity + 2)
+        p[0] = fit.mass
+        s = fit.structure
+        for f, c in zip(s.state + s.parametric, np.concatenate([fit.state, fit.parametric])):
+            p[1 + ev.state_index(f)] = c
+        for g, c in zip(s.forcing, fit.forcing):
+            p[1 + n_state + ev.forcing_index(g)] = c
+        p[-2:] = fit.y0
+        return np.asarray(self._jacobian(jnp.asarray(p)))
+
+
+# --- output-error evidence -----------------------------------------------------------------
+def rank_by_output_error(problem: _Problem, candidates: list[Candidate], results: list[Fit],
+                         min_gain: float) -> list[int]:
+    """Order (indices, best first) of the candidates whose refits are ``results``, ranked
+    on the held-out output error with one step of look-ahead (module docstring, 4.); the
+    candidates' evidence is rewritten to say so."""
+    charge = [(1.0 - min_gain) ** -_complexity(c) for c in candidates]
+    alone = [r.criterion * k for r, k in zip(results, charge)]
+    pairs: dict[tuple[int, int], float] = {}
+    for i, fit in enumerate(results):
+        if not math.isfinite(fit.criterion):
+            continue
+        predict = _gauss_newton(problem, fit)
+        for j, other in enumerate(candidates):
+            if j != i:
+                key = (min(i, j), max(i, j))
+                pairs[key] = min(pairs.get(key, math.inf), predict(other.terms))
+    best = [(value, None, None) for value in alone]  # (score, partner, pair prediction)
+    for (i, j), value in pairs.items():
+        charged = value * charge[i] * charge[j]
+        for a, b in ((i, j), (j, i)):
+            if charged < best[a][0]:
+                best[a] = (charged, b, value)
+    for i, c in enumerate(candidates):
+        score, partner, pair = best[i]
+        evidence = f"held-out RMS {math.sqrt(results[i].criterion):.4g} refitted alone"
+        if partner is not None:
+            evidence += (f", {math.sqrt(pair):.4g} predicted with "
+                         f"{candidates[partner].effect.name} (Gauss–Newton step)")
+        candidates[i] = dataclasses.replace(c, evidence=evidence, predicted={
+            "score": score, "holdout_rms_alone": math.sqrt(results[i].criterion),
+            "partner": None if partner is None else candidates[partner].effect.name,
+            "holdout_rms_with_partner": None if pair is None else math.sqrt(pair)})
+    return sorted(range(len(candidates)), key=lambda i: (best[i][0], alone[i]))
+
+
+def _gauss_newton(problem: _Problem, fit: Fit):
+    """A function: the terms of one more effect -> the held-out mean-square error that one
+    Gauss–Newton step from ``fit`` predicts with them added (their coefficients from 0,
+    the fit's own parameters free): least squares of the residual measured − simulated on
+    the estimation part, applied to the held-out part."""
+    structure = fit.structure
+    simulator = problem._simulator_for([structure])
+    ev = simulator.full
+    jacobian = simulator.jacobian(fit)
+    residual = problem.measurement.response - fit.simulated
+    n_state, n = len(ev.state_features), problem.n_train
+
+    def columns(lhs, forcing, fixed=None):
+        return ([1 + ev.state_index(f) for f in lhs]
+                + [1 + n_state + ev.forcing_index(g) for g in forcing if g != fixed])
+
+    normalised = problem.u0 is not None and problem.u0 in structure.forcing
+    base = (([0] if normalised else [])
+            + columns(structure.state + structure.parametric, structure.forcing,
+                      problem.u0 if normalised else None)
+            + [jacobian.shape[1] - 2, jacobian.shape[1] - 1])
+
+    def predicted(terms: Terms) -> float:
+        extra = columns(terms.state + terms.parametric, terms.forcing)
+        a = jacobian[:, base + [c for c in dict.fromkeys(extra) if c not in base]]
+        scale = np.linalg.norm(a[:n], axis=0)
+        a = a / np.where(scale > 0, scale, 1.0)
+        step = np.linalg.lstsq(a[:n], residual[:n], rcond=None)[0]
+        return float(np.mean((residual[n:] - a[n:] @ step) ** 2))
+
+    return predicted
 
 
 def simulation_metrics(measured: np.ndarray, simulated: np.ndarray, n_train: int,
@@ -567,7 +688,8 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             frequency), tried before the input's strongest spectral lines.
         holdout: fraction of the record (at its end) held out for cross-validation.
         max_steps: most effects added.
-        shortlist: best-ranked effects refitted per round.
+        shortlist: most effects refitted per round (the best by explained fraction of the
+            equation-error residual, if more apply).
         min_gain: relative fall of the held-out mean-square error each added parameter
             must bring.
         iterations: Levenberg–Marquardt steps per refit.
@@ -610,8 +732,6 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             problem.pool_lhs = tuple(dict.fromkeys(
                 f for c in ranked for f in c.terms.state + c.terms.parametric))
             problem.pool_forcing = tuple(dict.fromkeys(f for c in ranked for f in c.terms.forcing))
-        rankings.append([{"effect": c.effect.name, "explained": c.explained,
-                          "parameters": c.parameters, "evidence": c.evidence} for c in ranked])
         shortlisted = ranked[:shortlist] if round_number < max_steps else []
         candidates = [structure.plus(c.terms) for c in shortlisted]
         if current is None:
@@ -622,15 +742,25 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             fits.append(current)
         else:
             results = _fit(problem, chosen_mode, candidates) if candidates else []
+        if chosen_mode == "simulation" and results:
+            order = rank_by_output_error(problem, shortlisted, results, min_gain)
+            ranked = [shortlisted[i] for i in order] + ranked[len(shortlisted):]
+            shortlisted, results = ranked[:len(order)], [results[i] for i in order]
+        rankings.append([{"effect": c.effect.name, "explained": c.explained,
+                          "parameters": c.parameters, "evidence": c.evidence,
+                          **({"predicted": c.predicted} if c.predicted else {})}
+                         for c in ranked])
         if not results:
             break
-        # held-out error charged (1 − min_gain) per added parameter: lowest wins if it beats
-        # the current model
+        # held-out error charged (1 − min_gain) per added parameter must beat the current
+        # model's; simulation: the best-ranked such candidate, equation error: the lowest
         penalised = [r.criterion / (1.0 - min_gain) ** _complexity(c)
                      for r, c in zip(results, shortlisted)]
-        best = int(np.argmin(penalised))
-        if not penalised[best] < current.criterion:
+        passing = [i for i, value in enumerate(penalised) if value < current.criterion]
+        if not passing:
             break
+        best = passing[0] if chosen_mode == "simulation" else min(passing,
+                                                                   key=penalised.__getitem__)
         steps.append(_step(shortlisted[best], ranked, current, results[best], chosen_mode))
         structure, current = results[best].structure, results[best]
         fits.append(current)
@@ -639,6 +769,16 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
     return Diagnosis(mode=chosen_mode, before=fits[0], after=current, steps=steps,
                      rankings=rankings, fits=fits, frequencies=lines, n_train=problem.n_train,
                      measurement=measurement, symbols=symbols, settings=settings)
+
+
+def refit(measurement: Measurement, models: list[Model], *, holdout: float = 0.25,
+          iterations: int = 20, substeps: int = 1) -> list[Fit]:
+    """All constants of each model refitted on ``measurement`` as in a diagnosis round:
+    weak-form least squares, then Levenberg–Marquardt on the simulated response over the
+    first ``1 − holdout`` of the record; simulated over the whole record."""
+    problem = _Problem(measurement, models[0].symbols, holdout=holdout, iterations=iterations,
+                       substeps=substeps, batch=len(models))
+    return problem.fit_simulation([structure_of(m) for m in models])
 
 
 def _fit(problem: _Problem, mode: str, structures: list[Structure]) -> list[Fit]:
@@ -737,13 +877,25 @@ def report_markdown(diagnosis: Diagnosis) -> str:
                      f"{_number(s['objective_before'])} | {_number(s['objective_after'])} | "
                      f"{_number(s['spectral_error_before'])} | {_number(s['spectral_error_after'])} "
                      f"| {_number(s['rms_holdout_before'])} | {_number(s['rms_holdout_after'])} |")
-    lines += ["", "## Evidence per round (best first)", ""]
+    lines += ["", "## Evidence per round (best first)", "",
+              "Simulation mode: held-out RMS with the effect refitted alone (/ predicted with "
+              "its best partner); equation-error mode: share of the weak-form equation-error "
+              "residual energy the effect explains.", ""]
     for i, ranking in enumerate(d.rankings, start=1):
-        cells = ", ".join(f"{r['effect']} {100 * r['explained']:.1f} %" for r in ranking)
-        lines.append(f"{i}. {cells}")
+        lines.append(f"{i}. " + ", ".join(map(_evidence_cell, ranking)))
     lines += ["", "Figures: residual_time.png, residual_spectrum.png, measured_vs_simulated.png.",
               ""]
     return "\n".join(lines)
+
+
+def _evidence_cell(entry: dict) -> str:
+    predicted = entry.get("predicted")
+    if predicted is None:
+        return f"{entry['effect']} {100 * entry['explained']:.1f} %"
+    cell = f"{entry['effect']} {_number(predicted['holdout_rms_alone'])}"
+    if predicted["partner"]:
+        cell += f" / {_number(predicted['holdout_rms_with_partner'])} with {predicted['partner']}"
+    return cell
 
 
 def _figures(d: Diagnosis) -> dict[str, bytes]:

@@ -2,9 +2,11 @@
 
 Each generation: offspring are made by crossover / mutation / perturbation / reproduction
 (probabilities from the config) from parents chosen by tournament; offspring are scored
-(new structures only, in one batch); the best distinct structures are refined; the next
-population is the best ``population`` of parents ∪ offspring (elitist replacement,
-duplicates of a structure ranked after all distinct ones). The run stops after
+(new structures only, in one batch); the best distinct structures are refined and extended
+by one term (memetic step); the next population is the best ``population`` of parents ∪
+offspring ∪ extensions (elitist replacement, repeats of a feature set ranked after all
+distinct ones). In tree mode (``coefficients="tree"``) every new candidate is refined from
+its tree's constants before it competes (see :meth:`Evolution._score`). The run stops after
 ``generations`` generations or when the best objective f <= epsilon (eq. 12).
 
 Selection is a tournament: it depends only on the ranking, so it is unaffected by the
@@ -25,7 +27,7 @@ import numpy as np
 
 from . import _trees
 from ._config import GPConfig
-from ._fitness import Fitness, Record
+from ._fitness import Fitness, Record, feature_set_key
 from ._operators import Grammar, crossover, initial_population, mutation, perturbation
 
 
@@ -95,7 +97,8 @@ class Evolution:
         began = time.perf_counter()
         population = initial_population(self.grammar, rng, self.config.population,
                                         self.config.init_depth)
-        population = self._replace(population + self._extensions(population))
+        self._score(population)
+        population = self._replace(population + self._extensions(population, rng))
         state = RunState(generation=0, population=population, rng_state=rng.bit_generator.state,
                          history=[])
         self._finish_generation(state, population, began)
@@ -111,8 +114,8 @@ class Evolution:
         ranks = _ranks(records, parents)
         offspring = [self._offspring(parents, ranks, rng) for _ in range(self.config.population)]
         union = parents + offspring
-        self.fitness.records_for(offspring)
-        union += self._extensions(union)
+        self._score(offspring)
+        union += self._extensions(union, rng)
         next_population = self._replace(union)
         state = RunState(generation=state.generation + 1, population=next_population,
                          rng_state=rng.bit_generator.state, history=state.history)
@@ -136,36 +139,85 @@ class Evolution:
         state.done = bool(state.generation >= self.config.generations
                           or objectives[best] <= self.config.epsilon)
 
+    def _score(self, trees: list[tuple]) -> None:
+        """Score new trees; in tree mode also refine every new valid candidate (Lamarckian;
+        ``refine_top = 0`` turns refinement off in both modes).
+
+        A tree's random constants almost never give the right natural frequency, and over
+        the ~24 periods of the gear example a wrong one wraps the phase, so an unrefined
+        oscillating model scores worse than a near-constant response and the right
+        structure is lost before the best few get refined. Refining each new candidate
+        from its tree's constants makes it compete with what Levenberg–Marquardt reaches
+        from them: the constants (and so the intervals they are drawn from) set the start,
+        and decide success. The refined constants become the record's values.
+        """
+        records = self.fitness.records_for(trees)
+        if self.config.coefficients == "tree" and self.config.refine_top:
+            self.fitness.refine(records)
+
     def _refine_best(self, records: list[Record]) -> None:
         if self.config.refine_top:
             self.fitness.refine(_best_distinct(records, self.config.refine_top))
 
-    def _extensions(self, trees: list[tuple]) -> list[tuple]:
+    def _extensions(self, trees: list[tuple], rng: np.random.Generator) -> list[tuple]:
         """Trees of the best distinct structures' one-term extensions (memetic step).
 
-        For each of the ``local_search`` best distinct valid structures, every feature the
-        configured variables can express and the structure lacks (x^k, x'^k for k up to
+        For each of the ``local_search`` best distinct valid feature sets, every feature the
+        configured variables can express and the set lacks (x^k, x'^k for k up to
         max_degree, a constant force, each input) is added; the extended structure is
-        written as a compact sum-of-terms tree, kept if within the tree limits.
+        written as a compact sum-of-terms tree, kept if within the tree limits. The old
+        terms keep the record's (refined) coefficients. The new term's coefficient is 1 in
+        least-squares mode (the data set it). In tree mode it is drawn (see
+        :meth:`_new_coefficient`), each set is also tried with each named constant as its
+        inertia coefficient (the one constant no added term can change; a tree's random
+        constants rarely give J·x'', and refinement cannot move an inertia by orders of
+        magnitude), and each new tree is refined at once (Lamarckian: the refined constants
+        become its record's), so it competes with the constants the start led
+        Levenberg–Marquardt to, not with a phase-wrapped start.
         """
-        if not self.config.local_search or self.config.coefficients != "least_squares":
+        if not self.config.local_search:
             return []
         best = _best_distinct(self.fitness.records_for(trees), self.config.local_search)
-        candidates = [(part, self.fitness.feature_tree(text))
+        candidates = [(part, text, self.fitness.feature_tree(text))
                       for part, texts in self.fitness.basis_features().items() for text in texts]
+        tree_mode = self.config.coefficients == "tree"
         out = []
         for record in best:
             terms = [(part, self.fitness.feature_tree(text), value)
                      for part in ("state", "forcing")
                      for text, value in getattr(record, part).items()]
             present = {_trees.to_json(t).__repr__() for _, t, _ in terms}
-            for part, feature in candidates:
+            trees = []
+            for part, text, feature in candidates:
                 if repr(_trees.to_json(feature)) in present:
                     continue
-                tree = _sum_tree(record.mass, terms + [(part, feature, 1.0)])
-                if self.grammar.within_limits(tree):
-                    out.append(tree)
+                value = self._new_coefficient(part, text, rng) if tree_mode else 1.0
+                trees.append(_sum_tree(record.mass, terms + [(part, feature, value)]))
+            if tree_mode:
+                trees += [_sum_tree(mass, terms) for mass in self.config.named_constants.values()
+                          if mass != record.mass]
+            out += [tree for tree in trees if self.grammar.within_limits(tree)]
+        if tree_mode:
+            self._score(out)
         return out
+
+    def _new_coefficient(self, part: str, text: str, rng: np.random.Generator) -> float:
+        """Tree mode: the start value of a term an extension adds.
+
+        A state term (a stiffness- or damping-like coefficient) gets an interval constant
+        drawn by eq. 11's rule (one configured interval constant at random, one of its
+        intervals at random, a uniform value), or Rnd[real] where none is configured; the
+        first input gets 1 (the canonical normaliser); any other forcing term Rnd[real].
+        So the intervals set the Levenberg–Marquardt start of every added stiffness term.
+        """
+        inputs = self.fitness.symbols.u
+        if part == "forcing" and inputs and text == str(inputs[0]):
+            return 1.0
+        intervals = self.config.interval_constants
+        if part == "state" and intervals:
+            pairs = intervals[list(intervals)[rng.integers(len(intervals))]]
+            return float(rng.uniform(*pairs[rng.integers(len(pairs))]))
+        return float(rng.uniform(*self.config.real_interval))
 
     def _offspring(self, parents: list[tuple], ranks: np.ndarray, rng: np.random.Generator):
         c = self.config
@@ -191,7 +243,7 @@ class Evolution:
         seen: set[str] = set()
         first, repeats = [], []
         for i in order:
-            key = records[i].key if records[i].valid else repr(candidates[i])
+            key = feature_set_key(records[i]) if records[i].valid else repr(candidates[i])
             (repeats if key in seen else first).append(i)
             seen.add(key)
         chosen = (first + repeats)[: self.config.population]
@@ -208,11 +260,12 @@ class Evolution:
 
 
 def _best_distinct(records: list[Record], count: int) -> list[Record]:
-    """The ``count`` best usable records with distinct structures, best first."""
+    """The best usable record of each of the ``count`` best distinct feature sets, best
+    first (in tree mode the best coefficient variant of each set, not the best variants)."""
     distinct: dict[str, Record] = {}
     for record in sorted((r for r in records if r.valid and r.status == 0),
                          key=lambda r: (r.objective, r.n_terms)):
-        distinct.setdefault(record.key, record)
+        distinct.setdefault(feature_set_key(record), record)
         if len(distinct) >= count:
             break
     return list(distinct.values())

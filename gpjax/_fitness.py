@@ -2,8 +2,10 @@
 
 Two caches make repeated individuals free: tree → structure check, and structure key →
 scored record. With ``coefficients="least_squares"`` the key is the set of features (the
-numbers come from the data); with ``"tree"`` it also holds the tree's coefficients.
-Records are plain JSON-ready values so a checkpoint can carry the cache whole.
+numbers come from the data); with ``"tree"`` it also holds the tree's coefficients, so one
+feature set has many records (its coefficient variants) and :func:`feature_set_key` names
+the set they share. Records are plain JSON-ready values so a checkpoint can carry the cache
+whole.
 """
 
 from __future__ import annotations
@@ -14,7 +16,7 @@ import math
 import numpy as np
 import sympy as sp
 
-from ._canonical import CanonicalForm, Symbols, check_structure, tree_to_sympy
+from ._canonical import CanonicalForm, Symbols, check_tree
 from ._config import GPConfig
 from ._data import Measurement
 from ._equation_error import EquationError, smoothed_derivatives
@@ -68,6 +70,12 @@ def structure_key(form: CanonicalForm, with_coefficients: bool) -> str:
     return f"{mass} | {part(form.state)} | {part(form.forcing)}"
 
 
+def feature_set_key(record: Record) -> str:
+    """The key of a valid record's feature set, without coefficients (``record.key`` itself
+    in least-squares mode; in tree mode shared by all coefficient variants of the set)."""
+    return f"m | {', '.join(record.state)} | {', '.join(record.forcing)}"
+
+
 class Fitness:
     """Scores trees against one measurement (see the module docstring).
 
@@ -89,10 +97,12 @@ class Fitness:
         cutoff_hz = self.evaluator.n_bins / (measurement.n_samples * measurement.dt)
         self.derivatives = smoothed_derivatives(measurement, cutoff_hz)
         self.equation_error = EquationError(measurement, self.symbols, self.derivatives)
-        # GP refines from the weak-form least-squares start, already inside the basin: the
-        # short-horizon continuation (for poor starts) would only double the compile.
+        # Least squares starts refinement inside the basin, where the short-horizon
+        # continuation (for poor starts) would only double the compile. Tree constants are
+        # poor starts: a wrong stiffness wraps the phase over the full record.
         self.refiner = Refiner(self.evaluator, iterations=config.refine_iterations,
-                               horizons=(1.0,))
+                               horizons=(1.0,) if config.coefficients == "least_squares"
+                               else (0.25, 1.0))
         if config.initial_conditions is not None:
             self.y0 = tuple(map(float, config.initial_conditions))
         else:  # eq. 13: response and a robust derivative estimate at the first sample
@@ -106,8 +116,8 @@ class Fitness:
     def classify(self, tree: Tree) -> tuple[str, CanonicalForm | None, str]:
         """(key, canonical form or None, reason) of a tree, cached."""
         if tree not in self.checks:
-            expression = tree_to_sympy(tree, self.symbols, self.config.named_constants)
-            check = check_structure(expression, self.symbols, max_degree=self.config.max_degree)
+            check = check_tree(tree, self.symbols, self.config.named_constants,
+                               max_degree=self.config.max_degree)
             if check.valid:
                 form = check.canonical
                 unsupported = [f for f, _ in form.state if self.evaluator.state_index(f) is None]

@@ -11,22 +11,29 @@ the paper, which reports the best tree as found.
 
 from __future__ import annotations
 
+import math
+
 from ._canonical import CanonicalForm
 from ._fitness import Fitness, Record, structure_key
 
 
-def _form(fitness: Fitness, state: list[str], forcing: list[str]) -> CanonicalForm:
+def _form(fitness: Fitness, mass: float, state: dict[str, float],
+          forcing: dict[str, float]) -> CanonicalForm:
     feature = fitness._feature
-    return CanonicalForm(mass=1.0, state=tuple((feature(f), 1.0) for f in state),
-                         forcing=tuple((feature(f), 1.0) for f in forcing))
+    return CanonicalForm(mass=mass, state=tuple((feature(f), v) for f, v in state.items()),
+                         forcing=tuple((feature(f), v) for f, v in forcing.items()))
 
 
-def _records_for(fitness: Fitness, options: list[tuple[list[str], list[str]]], *,
+def _records_for(fitness: Fitness, mass: float,
+                 options: list[tuple[dict[str, float], dict[str, float]]], *,
                  refine_below: float) -> list[Record]:
-    """Score several structures together; refine those scoring below ``refine_below``."""
+    """Score several structures together; refine those scoring below ``refine_below``.
+
+    The values are the start coefficients tree mode uses (least squares ignores them).
+    """
     keys, new = [], {}
     for state, forcing in options:
-        form = _form(fitness, state, forcing)
+        form = _form(fitness, mass, state, forcing)
         key = structure_key(form, with_coefficients=False)
         if fitness.config.coefficients == "tree":
             key = "pruned " + key
@@ -46,29 +53,34 @@ def simplify(fitness: Fitness, best: Record, tolerance: float) -> tuple[Record, 
     Neighbours of a structure: every one-term removal and every one-term swap (a state
     term replaced by another basis feature, a forcing term by another forcing feature;
     see :meth:`Fitness.basis_features`), each refitted (least squares, then refinement
-    of those whose start is within 5x of the limit). A move is taken to the neighbour with
-    the fewest terms whose objective is within the limit, or, at equal size, to a lower
-    objective. The limit is (1 + tolerance) times the lowest objective seen. Returns the
-    final record and the path taken.
+    of those whose start is within 5x of the limit). In tree mode a neighbour starts from
+    the current model's constants (a swapped-in term from the coefficient of the term it
+    replaces) and is always refined: with no least-squares refit, a dropped term's share
+    of the fit shifts the phase until Levenberg–Marquardt moves the other constants.
+    A move is taken to the neighbour with the fewest terms whose objective is within the
+    limit, or, at equal size, to a lower objective. The limit is (1 + tolerance) times the
+    lowest objective seen. Returns the final record and the path taken.
     """
     normaliser = str(fitness.symbols.u[0]) if fitness.symbols.u else None
+    tree_mode = fitness.config.coefficients == "tree"
     basis = fitness.basis_features()
     lowest = best.objective
     current, path = best, [best]
     while True:
         options = []
         for part in ("state", "forcing"):
-            terms = list(getattr(current, part))
+            terms = dict(getattr(current, part))
             others = [t for t in basis[part] if t not in terms]
-            for name in terms:
+            for name, value in terms.items():
                 if part == "forcing" and name == normaliser:
                     continue
-                rest = [t for t in terms if t != name]
+                rest = {t: v for t, v in terms.items() if t != name}
                 options.append((part, rest))
-                options += [(part, rest + [other]) for other in others]
-        structures = [(terms, list(current.forcing)) if part == "state"
-                      else (list(current.state), terms) for part, terms in options]
-        records = _records_for(fitness, structures, refine_below=5 * lowest * (1 + tolerance))
+                options += [(part, {**rest, other: value}) for other in others]
+        structures = [(terms, dict(current.forcing)) if part == "state"
+                      else (dict(current.state), terms) for part, terms in options]
+        records = _records_for(fitness, current.mass, structures, refine_below=(
+            math.inf if tree_mode else 5 * lowest * (1 + tolerance)))
         usable = [r for r in records if r.valid and r.status == 0]
         lowest = min([lowest, *(r.objective for r in usable)])
         limit = lowest * (1 + tolerance)

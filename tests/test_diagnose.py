@@ -147,6 +147,9 @@ def test_mesh_stiffness_variation_is_found_and_closes_the_residual():
     step = result.steps[0]
     assert abs(step["parameters"]["frequency"] - 285.0) < 1.0
     assert step["rms_after"] < step["rms_before"]
+    assert step["evidence"].startswith("held-out RMS")  # output error, not equation error
+    first = result.rankings[0][0]
+    assert first["predicted"]["holdout_rms_alone"] == pytest.approx(step["rms_holdout_after"])
 
 
 def test_control_with_no_missing_effect_adds_nothing(tmp_path):
@@ -158,6 +161,8 @@ def test_control_with_no_missing_effect_adds_nothing(tmp_path):
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["effects_added"] == [] and report["steps"] == []
     assert report["before"]["rms"] == report["after"]["rms"]
+    assert all("predicted" in r for r in report["rankings"][0][:4])  # the refitted four
+    assert "refitted alone" in (tmp_path / "report.md").read_text()
 
 
 @pytest.mark.slow

@@ -5,9 +5,9 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import pytest
+from _runs import wait_for_generation
 
 from gpjax import GPConfig, Identifier, load_csv
 from gpjax.gear import Torque, generate_gear_example
@@ -42,19 +42,6 @@ def _cli_case(tmp_path, generations=4):
     return base, dict(os.environ, JAX_PLATFORMS="cpu")
 
 
-def _wait_for_generation(run, generation, process):
-    deadline = time.time() + 300
-    checkpoint = run / "checkpoint.json"
-    while time.time() < deadline and process.poll() is None:
-        try:
-            if json.loads(checkpoint.read_text())["state"]["generation"] >= generation:
-                return
-        except (FileNotFoundError, json.JSONDecodeError, KeyError):
-            pass
-        time.sleep(0.02)
-    raise AssertionError(f"generation {generation} never checkpointed")
-
-
 @pytest.mark.slow
 def test_resume_after_sigkill_gives_the_same_model(tmp_path):
     base, env = _cli_case(tmp_path)
@@ -65,7 +52,7 @@ def test_resume_after_sigkill_gives_the_same_model(tmp_path):
         run = tmp_path / f"killed{trial}"
         process = subprocess.Popen(base + ["--out", str(run)], env=env,
                                    stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        _wait_for_generation(run, generation, process)
+        wait_for_generation(run, generation, process)
         process.send_signal(signal.SIGKILL)
         process.wait()
         assert not (run / "model.json").exists()
@@ -80,7 +67,7 @@ def test_ctrl_c_writes_the_best_model_so_far(tmp_path):
     run = tmp_path / "interrupted"
     process = subprocess.Popen(base + ["--out", str(run)], env=env,
                                stdout=subprocess.PIPE, stderr=subprocess.PIPE)
-    _wait_for_generation(run, 1, process)
+    wait_for_generation(run, 1, process)
     process.send_signal(signal.SIGINT)
     _, stderr = process.communicate(timeout=300)
     assert process.returncode == 130, stderr.decode()[-2000:]

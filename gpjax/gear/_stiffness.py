@@ -39,7 +39,11 @@ c' = 13.2 N/µm/mm, and a mean mesh stiffness 1.4 % below ISO's c_γα. For the 
 30/60 mm bores; ross's value depends on the bores (ours is 5 % below to 52 % above it for
 bores between 35/80 and 20/30 mm). The cubic is used only for 12 ≤ N ≤ 100 teeth: past
 100 it grows without bound (A0 = 45.8 at N = 120, 113.7 at N = 150). This limit is ours;
-the range of the source's FE study could not be checked.
+the range of the source's FE study could not be checked. A later search for an independent
+copy of the table (public source code, documentation and web pages reachable to this
+project, searched for the coefficient values themselves, e.g. 1.612, 0.02916, 0.0001553,
+17.060, 0.7289, and for the Kuang–Yang fit by name) found none: no public implementation
+or page quoting A0 … A3 turned up, so the values remain unverified against a second source.
 
 Units: lengths in mm at the interface (as in the paper), stiffness in N/m unless a name says
 ``per_width`` (then N/µm/mm, i.e. N/µm per mm of face width), angles in rad unless ``_deg``.

@@ -1,0 +1,141 @@
+"""The paper's tree-constant mode: feature sets, Lamarckian refinement, interval-drawn
+extensions and named-constant inertias, recovery of eq. 14, reproducibility and resume."""
+
+import os
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from _runs import wait_for_generation
+
+from gpjax import GPConfig, Identifier
+from gpjax._evolve import Evolution, _best_distinct
+from gpjax._fitness import Fitness, Record, feature_set_key
+from gpjax.gear import generate_gear_example
+
+EXAMPLE = generate_gear_example(revolutions=0.35, seed=0)
+K1, K2 = EXAMPLE.truth["K1"], EXAMPLE.truth["K2"]
+
+
+def _intervals(low, high):
+    return {"K1": ((low * K1, high * K1),), "K2": ((low * K2, high * K2),)}
+
+
+def _tree(k1, k2):
+    """J·x'' + k1·x + k2·x·x − T as a tree."""
+    return ("sub", ("add", ("mul", ("c", "J"), ("x_ddot",)),
+                    ("add", ("mul", ("n", k1), ("x",)),
+                     ("mul", ("n", k2), ("mul", ("x",), ("x",))))), ("u", 0))
+
+
+def test_coefficient_variants_share_a_feature_set_key():
+    trees = [_tree(400.0, 5e4), _tree(300.0, 6e4)]
+    tree_fitness = Fitness(EXAMPLE.measurement, GPConfig.paper(population=4,
+                                                               coefficients="tree"))
+    a, b = tree_fitness.records_for(trees)
+    assert a.key != b.key
+    assert feature_set_key(a) == feature_set_key(b) == "m | phi, phi**2 | T"
+    ls_fitness = Fitness(EXAMPLE.measurement, GPConfig.paper(population=4))
+    c, d = ls_fitness.records_for(trees)
+    assert c is d and feature_set_key(c) == c.key
+
+
+def test_best_distinct_takes_the_best_variant_of_each_feature_set():
+    def record(key, state, objective):
+        return Record(key=key, valid=True, state=state, forcing={"T": 1.0},
+                      objective=objective, status=0)
+
+    records = [record("a", {"x": 1.0}, 0.3), record("b", {"x": 2.0}, 0.1),
+               record("c", {"x": 3.0}, 0.2), record("d", {"x**2": 1.0}, 0.4),
+               record("e", {"x": 1.0, "x**2": 1.0}, 0.5)]
+    best = _best_distinct(records, 2)
+    assert [r.key for r in best] == ["b", "d"]
+
+
+def test_extensions_draw_stiffness_terms_from_the_intervals():
+    config = GPConfig.paper(population=4, coefficients="tree",
+                            interval_constants={"K1": ((1.0, 2.0), (50.0, 60.0)),
+                                                "K2": ((7.0, 8.0),)})
+    evolution = Evolution(Fitness(EXAMPLE.measurement, config), config)
+    rng = np.random.default_rng(0)
+    state = np.array([evolution._new_coefficient("state", "phi**2", rng) for _ in range(300)])
+    inside = [(state >= lo) & (state <= hi) for lo, hi in ((1, 2), (50, 60), (7, 8))]
+    assert np.all(np.any(inside, axis=0)) and all(np.sum(i) > 30 for i in inside)
+    assert evolution._new_coefficient("forcing", "T", rng) == 1.0
+    forces = [evolution._new_coefficient("forcing", "1", rng) for _ in range(50)]
+    assert all(-10 <= f <= 10 for f in forces) and np.std(forces) > 1
+
+
+def test_tree_mode_extensions_try_each_named_constant_as_the_inertia():
+    config = GPConfig.paper(population=4, coefficients="tree", local_search=1)
+    fitness = Fitness(EXAMPLE.measurement, config)
+    parent = ("sub", ("add", ("x_ddot",), ("mul", ("n", 400.0), ("x",))), ("u", 0))
+    extensions = Evolution(fitness, config)._extensions([parent], np.random.default_rng(0))
+    forms = [fitness.classify(tree)[1] for tree in extensions]
+    same_terms = {form.mass for form in forms if len(form.state) + len(form.forcing) == 2}
+    assert same_terms == set(config.named_constants.values())
+    added = [form for form in forms if len(form.state) + len(form.forcing) == 3]
+    assert added and all(form.mass == 1.0 for form in added)
+    assert all(r.refined for r in fitness.records_for(extensions))
+
+
+def test_tree_mode_refines_every_new_candidate_and_refine_top_0_none():
+    config = GPConfig.paper(population=30, coefficients="tree", generations=1)
+    fitness = Fitness(EXAMPLE.measurement, config)
+    Evolution(fitness, config).start(0)
+    valid = [r for r in fitness.records.values() if r.valid]
+    assert len(valid) >= 3 and all(r.refined for r in valid)
+    config = config.replace(refine_top=0)
+    fitness = Fitness(EXAMPLE.measurement, config)
+    Evolution(fitness, config).start(0)
+    assert not any(r.refined for r in fitness.records.values())
+
+
+def _recovered(model):
+    if sorted(model.state) != ["phi", "phi**2"] or list(model.forcing) != ["T"]:
+        return False
+    scale = model.forcing["T"]
+    found = (model.mass / scale, model.state["phi"] / scale, model.state["phi**2"] / scale)
+    truth = (EXAMPLE.truth["J"], K1, K2)
+    return all(abs(f / t - 1) <= 0.02 for f, t in zip(found, truth))
+
+
+@pytest.mark.slow
+def test_tree_mode_recovers_eq14_from_an_interval_around_the_truth():
+    # Before every tree-mode candidate was refined, all such runs stalled at phi'' = 0.
+    # The interval shifts the odds rather than deciding them (notebook 2: a wrong interval
+    # also recovers eq. 14 in some seeds), so only the success is asserted.
+    config = GPConfig.paper(coefficients="tree", population=200, generations=10,
+                            interval_constants=_intervals(0.9, 1.1))
+    right = Identifier(config).fit(EXAMPLE.measurement, seed=0)
+    assert right.stopped_by == "epsilon" and _recovered(right.model_), str(right)
+
+
+@pytest.mark.slow
+def test_tree_mode_is_bit_reproducible_and_resumes_after_sigkill(tmp_path):
+    csv = tmp_path / "data.csv"
+    EXAMPLE.measurement.to_csv(csv)
+    config = tmp_path / "config.toml"
+    k1, k2 = _intervals(0.5, 2.0).values()
+    config.write_text(f'population = 60\ngenerations = 3\nepsilon = 0.0\ncoefficients = "tree"\n'
+                      f"[interval_constants]\nK1 = {[list(p) for p in k1]}\n"
+                      f"K2 = {[list(p) for p in k2]}\n")
+    base = [sys.executable, "-m", "gpjax", "fit", str(csv), "--time", "t", "--response", "phi",
+            "--input", "T", "--config", str(config), "--seed", "2"]
+    env = dict(os.environ, JAX_PLATFORMS="cpu")
+    for name in ("a", "b"):
+        subprocess.run(base + ["--out", str(tmp_path / name)], check=True, env=env,
+                       capture_output=True)
+    expected = (tmp_path / "a" / "model.json").read_text()
+    assert (tmp_path / "b" / "model.json").read_text() == expected
+    run = tmp_path / "killed"
+    process = subprocess.Popen(base + ["--out", str(run)], env=env,
+                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    wait_for_generation(run, 1, process)
+    process.send_signal(signal.SIGKILL)
+    process.wait()
+    subprocess.run(base + ["--out", str(run), "--resume"], check=True, env=env,
+                   capture_output=True)
+    assert (run / "model.json").read_text() == expected
