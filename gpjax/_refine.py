@@ -33,9 +33,10 @@ from ._evaluator import Population, PopulationEvaluator
 
 JACOBIANS = ("variational", "autodiff")
 #: The damped Gauss–Newton step solves the normal equations (JᵀJ + λI)·δ = Jᵀr by LU: the
-#: default QR of the (N + k) × k system runs into a slow path of XLA's CPU QR for k ≥ 8
-#: (13× slower at k = 8, 140× at k = 12 for 64 models; benchmarks/bench_population.py,
-#: ``lm_floor``). Constants are scaled by their start values, so JᵀJ stays well conditioned.
+#: default QR of the (N + k) × k system slows sharply on XLA's CPU from k = 8 (optimistix
+#: alone, 64 models: 1,204 models/s at k = 6, 583 at k = 8, 248 at k = 12; LU 1,604 at k = 8;
+#: ``lm_floor`` in benchmarks/bench_population.py). Constants are scaled by their start
+#: values, so JᵀJ stays well conditioned.
 LINEAR_SOLVER = lx.Normal(lx.LU())
 
 
