@@ -94,8 +94,7 @@ class StructureCheck:
 
 def tree_to_sympy(tree: Tree, symbols: Symbols, constants: dict[str, float]) -> sp.Expr:
     """The expression a tree denotes, expanded; named constants take their numeric values."""
-    value = _expanded(tree, symbols, tuple(sorted(constants.items())))
-    return value if isinstance(value, sp.Expr) else value.as_expr()
+    return _as_expr(_expanded(tree, symbols, tuple(sorted(constants.items()))))
 
 
 def check_tree(tree: Tree, symbols: Symbols, constants: dict[str, float], *,

@@ -542,17 +542,14 @@ class _Simulator:
     def jacobian(self, fit: Fit) -> np.ndarray:
         """Sensitivities of the simulated response over the whole record to the parameter
         vector (mass, every state coefficient, every forcing coefficient, x0, x0') at
-        ``fit`` — shape (N, 1 + F_state + F_forcing + 2) — by forward-mode differentiation
-        of the RK4 solve (one pass, one tangent per parameter)."""
+        ``fit`` — shape (N, 1 + F_state + F_forcing + 2) — from the variational equations
+        (:meth:`PopulationEvaluator.constant_jacobian`, one pass)."""
         ev = self.full
         n_state = len(ev.state_features)
         if self._jacobian is None:
             basis = jnp.asarray(ev._forcing_basis)
-
-            def response(p):
-                forcing = (basis @ p[1 + n_state:-2])[:, None]
-                return ev.integrate(p[0:1], p[None, 1:1 + n_state], forcing, p[None, -2:])[:, 0]
-            self._jacobian = jax.jit(jax.jacfwd(response))
+            self._jacobian = jax.jit(
+                lambda p: ev.constant_jacobian(p, jnp.eye(p.size), basis)[1])
         p = np.zeros(1 + n_state + ev.forcing_capacity + 2)
         p[0] = fit.mass
         s = fit.structure

@@ -377,6 +377,27 @@ class PopulationEvaluator:
         x, s = self._rk4_scan(rates, start, (forcing_matrix, d_forcing), lambda y: (y[0], y[2]))
         return x, s
 
+    def unpack(self, constants, forcing_basis):
+        """One model's flat constant vector — mass, state coefficients, forcing coefficients
+        (the forcing capacity's columns), x0, x0' — as :meth:`scan_solve` arguments for a
+        population of one: mass (1,), state (1, F_state), forcing (n_stage, 1) from the rows
+        of ``forcing_basis`` (which set n_stage), y0 (1, 2)."""
+        n_state = len(self.state_features)
+        return (constants[0:1], constants[None, 1:1 + n_state],
+                (forcing_basis @ constants[1 + n_state:-2])[:, None], constants[None, -2:])
+
+    def constant_jacobian(self, constants, directions, forcing_basis):
+        """x of one model (:meth:`unpack`) at the sample times, (N,), and its derivatives
+        along ``directions`` (Q, len(constants)) of the flat constant vector, (N, Q), by
+        :meth:`scan_jvp`."""
+        n_state = len(self.state_features)
+        d = directions[:, None, :]  # (Q, 1, constants): a population of one
+        x, dx = self.scan_jvp(*self.unpack(constants, forcing_basis), d[..., -2:],
+                              d_mass=d[..., 0], d_state=d[..., 1:1 + n_state],
+                              d_forcing=jnp.einsum("qpk,sk->sqp", d[..., 1 + n_state:-2],
+                                                   forcing_basis))
+        return x[:, 0], dx[:, :, 0]
+
     def _rk4_scan(self, rates, y0, forces, saved):
         """Classical RK4 over the stage grid in ``lax.scan`` for a tuple of states.
 

@@ -146,10 +146,6 @@ class Refiner:
 
     def _refine_one(self, start, index, index_scale, forcing_basis):
         measured = jnp.asarray(self.evaluator.measurement.response)
-
-        def full(delta):
-            return start.at[index].add(index_scale * delta)
-
         # The normal equations need Jᵀ: a matrix with the variational Jacobian, but autodiff
         # through a while loop (diffrax) cannot be transposed, so that path keeps QR.
         linear_solver = LINEAR_SOLVER if self.jacobian == "variational" else lx.QR()
@@ -170,52 +166,43 @@ class Refiner:
             ok = ok & finite & ((solution.result == optx.RESULTS.successful) | (
                 solution.result == optx.RESULTS.nonlinear_max_steps_reached))
             steps = steps + solution.stats["num_steps"]
-        return full(delta), ok, steps
+        return _moved(start, index, index_scale, delta), ok, steps
 
     def _response(self, samples: int):
         """x over the first ``samples`` samples as a function of the scaled step ``delta``
         of one model's free constants, with its Jacobian from the variational equations.
 
         The derivative rule computes the whole Jacobian (samples, max_free) from primal
-        values only — one :meth:`PopulationEvaluator.scan_jvp` pass — and returns J·t; so
-        the linearisation Levenberg–Marquardt takes each step costs one augmented solve,
-        and materialising J is a matrix product, not one tangent solve per constant.
+        values only — one :meth:`PopulationEvaluator.constant_jacobian` pass — and returns
+        J·t; so the linearisation Levenberg–Marquardt takes each step costs one augmented
+        solve, and materialising J is a matrix product, not one tangent solve per constant.
         """
         ev = self.evaluator
-        n_state = len(ev.state_features)
         n_stage = 2 * (samples - 1) * ev.substeps + 1
-
-        def parts(delta, start, index, index_scale, forcing_basis):
-            p = start.at[index].add(index_scale * delta)
-            stages = forcing_basis[:n_stage]
-            return (p[0:1], p[None, 1:1 + n_state], (stages @ p[1 + n_state:-2])[:, None],
-                    p[None, -2:], stages)
-
         if self.jacobian == "autodiff":
             def plain(delta, start, index, index_scale, forcing_basis):
-                p = start.at[index].add(index_scale * delta)
-                return ev.integrate(p[0:1], p[None, 1:1 + n_state],
-                                    (forcing_basis @ p[1 + n_state:-2])[:, None],
-                                    p[None, -2:])[:samples, 0]
+                constants = _moved(start, index, index_scale, delta)
+                return ev.integrate(*ev.unpack(constants, forcing_basis))[:samples, 0]
             return plain
 
         @jax.custom_jvp
         def response(delta, start, index, index_scale, forcing_basis):
-            mass, state, forcing, y0, _ = parts(delta, start, index, index_scale,
-                                                forcing_basis)
-            return ev.scan_solve(mass, state, forcing, y0)[:, 0]
+            constants = _moved(start, index, index_scale, delta)
+            return ev.scan_solve(*ev.unpack(constants, forcing_basis[:n_stage]))[:, 0]
 
         @response.defjvp
         def response_jvp(primals, tangents):
             delta, start, index, index_scale, forcing_basis = primals
-            mass, state, forcing, y0, stages = parts(*primals)
-            # Column j of the directions: constant index[j] moved by index_scale[j].
-            directions = ((index[:, None] == jnp.arange(start.size)[None, :])
-                          * index_scale[:, None])[:, None, :]  # (max_free, 1, constants)
-            x, jacobian = ev.scan_jvp(
-                mass, state, forcing, y0, directions[..., -2:], d_mass=directions[..., 0],
-                d_state=directions[..., 1:1 + n_state],
-                d_forcing=jnp.einsum("qpk,sk->sqp", directions[..., 1 + n_state:-2], stages))
-            return x[:, 0], jacobian[:, :, 0] @ tangents[0]
+            # Row j of the directions: constant index[j] moved by index_scale[j].
+            directions = (index[:, None] == jnp.arange(start.size)[None, :]) * index_scale[:, None]
+            x, jacobian = ev.constant_jacobian(_moved(start, index, index_scale, delta),
+                                               directions, forcing_basis[:n_stage])
+            return x, jacobian @ tangents[0]
 
         return response
+
+
+def _moved(start, index, index_scale, delta):
+    """The flat constant vector ``start`` with constant ``index[j]`` moved by
+    ``index_scale[j]·delta[j]`` (the solver's scaled step)."""
+    return start.at[index].add(index_scale * delta)

@@ -1,9 +1,13 @@
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
+import sympy as sp
 from scipy.integrate import solve_ivp
 
 from gpjax import Measurement, PopulationEvaluator, Symbols, objective_parts
-from gpjax._evaluator import DIVERGED, NONPOSITIVE_MASS, OK, PENALTY, Population
+from gpjax._evaluator import (DIVERGED, NONPOSITIVE_MASS, OK, PENALTY, Population, _amplitude,
+                              _dft_matrix)
 
 S = Symbols("x", "t", ("u",))
 
@@ -20,7 +24,7 @@ def _random_models(evaluator, rng, count):
     """Stable models: m > 0, stiffness k1 > 0, k3 >= 0, damping c1 >= 0, an input gain."""
     columns = {str(f): i for i, f in enumerate(evaluator.state_features)}
     u = evaluator.forcing_index(S.u[0])
-    one = evaluator.forcing_index(np.float64(1.0) * 0 + __import__("sympy").Integer(1))
+    one = evaluator.forcing_index(sp.Integer(1))
     pop = evaluator.empty(count)
     for i in range(count):
         pop.mass[i] = rng.uniform(0.5, 2.0)
@@ -155,9 +159,6 @@ def test_initial_condition_fit_recovers_a_models_own_start():
 
 
 def test_dft_matrix_and_fft_amplitudes_agree():
-    import jax.numpy as jnp
-
-    from gpjax._evaluator import _amplitude, _dft_matrix
     signal = np.random.default_rng(4).standard_normal((4000, 3))
     by_matrix = _amplitude(jnp.asarray(_dft_matrix(4000, 400)), signal, 400)
     by_fft = _amplitude(jnp.asarray(_dft_matrix(4000, 600)), signal, 400)
@@ -168,9 +169,6 @@ def test_dft_matrix_and_fft_amplitudes_agree():
 def test_variational_scan_equals_forward_mode_autodiff_of_the_solve():
     """scan_jvp's sensitivities = jax.jvp of scan_solve, for directions in every kind of
     constant (mass, polynomial and extra state features, forcing, initial state)."""
-    import jax
-    import jax.numpy as jnp
-    import sympy as sp
     measurement = _measurement()
     extra = (sp.tanh(20 * S.x_dot), sp.cos(9 * S.t) * S.x)
     evaluator = PopulationEvaluator(measurement, S, max_degree=3, batch=6,

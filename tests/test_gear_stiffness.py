@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import os
 import warnings
 
 import numpy as np
@@ -77,7 +78,6 @@ def test_contact_ratio_agrees_with_roll_angle_formula(pair):
 
 
 def test_paper_contact_ratio_is_plausible():
-    assert 1.5 < PAPER.geometry.contact_ratio < 1.7
     assert PAPER.geometry.contact_ratio == pytest.approx(1.6124, abs=1e-4)
 
 
@@ -295,7 +295,11 @@ def _ross():
             from ross.gear_element import GearElementTVMS, Mesh
             from ross.materials import Material
     except (ImportError, ValueError) as err:  # not installed, or broken by its plotly version
-        pytest.skip(f"ross-rotordynamics unavailable: {type(err).__name__}")
+        if os.environ.get("CI"):
+            pytest.fail(f"ross-rotordynamics unavailable on CI ({type(err).__name__}); "
+                        'install the cross-check extra: pip install -e ".[crosscheck]"')
+        pytest.skip(f"ross-rotordynamics unavailable: {type(err).__name__}; "
+                    'pip install -e ".[crosscheck]"')
     return GearElementTVMS, Mesh, Material
 
 

@@ -1,5 +1,8 @@
+import jax
+import jax.numpy as jnp
 import numpy as np
 import pytest
+import sympy as sp
 
 from gpjax import Measurement, PopulationEvaluator, Symbols
 from gpjax._refine import Refiner
@@ -74,9 +77,6 @@ def test_bad_horizons_are_refused(refiner, horizons):
 def test_refiner_jacobian_equals_autodiff_of_the_simulated_response(refiner):
     """The custom derivative rule (variational equations) gives the Jacobian that forward
     mode through the plain scan gives, free forcing coefficient and initial state included."""
-    import jax
-    import jax.numpy as jnp
-    import sympy as sp
     evaluator = refiner.evaluator
     one = evaluator.forcing_index(sp.Integer(1))
     pop = _models(evaluator, np.full(1, 0.1), np.random.default_rng(5))
