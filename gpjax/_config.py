@@ -12,6 +12,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+from ._data import INPUT_INTERPOLATIONS
 from ._errors import ConfigError, read_user_file
 
 #: Function-set names and their arity. ``div`` is protected: a/b is 1 where |b| < 1e-12.
@@ -60,6 +61,9 @@ class GPConfig:
             it competes (Lamarckian), and refine_top only matters as 0 (no refinement).
         refine_iterations: maximum Levenberg–Marquardt steps per refinement.
         substeps: fixed RK4 steps per sample interval.
+        input_interpolation: how inputs are reconstructed between samples at the RK4 stage
+            times, ``"linear"`` or ``"bandlimited"`` (for inputs with content near the
+            Nyquist frequency; :func:`gpjax._data.between_samples`).
         initial_conditions: ``(x0, x_dot0)`` at the first sample, or ``None`` to estimate
             them from the data (eq. 13).
         selection_tolerance: the reported model is the simplest one whose objective is within
@@ -100,6 +104,7 @@ class GPConfig:
     refine_top: int = 5
     refine_iterations: int = 10
     substeps: int = 1
+    input_interpolation: str = "linear"
     initial_conditions: tuple[float, float] | None = None
     selection_tolerance: float = 0.05
     local_search: int = 3
@@ -202,9 +207,9 @@ def _convert(name: str, value: Any, source: str) -> Any:
         if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
             raise ConfigError(f"{source}: {name} must be a list of names, got {value!r}")
         return tuple(value)
-    if name == "coefficients":
+    if name in ("coefficients", "input_interpolation"):
         if not isinstance(value, str):
-            raise ConfigError(f"{source}: coefficients must be a string, got {value!r}")
+            raise ConfigError(f"{source}: {name} must be a string, got {value!r}")
         return value
     if name == "named_constants":
         if not isinstance(value, dict):
@@ -301,6 +306,9 @@ def _validate(c: GPConfig) -> None:
     need(c.refine_top >= 0, f"refine_top must be >= 0, got {c.refine_top}")
     need(c.refine_iterations >= 1, f"refine_iterations must be at least 1, got {c.refine_iterations}")
     need(1 <= c.substeps <= 64, f"substeps must be between 1 and 64, got {c.substeps}")
+    need(c.input_interpolation in INPUT_INTERPOLATIONS,
+         f"input_interpolation must be one of {', '.join(INPUT_INTERPOLATIONS)}, got "
+         f"{c.input_interpolation!r}")
     if c.initial_conditions is not None:
         need(all(math.isfinite(v) for v in c.initial_conditions),
              f"initial_conditions must be finite, got {c.initial_conditions}")

@@ -9,15 +9,17 @@ Each round:
 2. **Parameters of each effect.** Every effect of the library (:mod:`gpjax._effects`)
    has its nonlinear parameters searched on a grid from the data (candidate frequencies:
    the input's strongest spectral lines and any the user gives) and, in the first round,
-   polished by Nelder–Mead, to maximise the fraction of the weak-form equation-error
-   residual energy its regressors explain once the model's own regressors are projected
-   out (cheap and linear); they stay frozen for the rest of the diagnosis. If more than
-   ``shortlist`` effects apply, the best by that fraction go on.
+   by Nelder–Mead from the best grid point (the best three for a dead zone's two
+   parameters), to maximise the fraction of the
+   weak-form equation-error residual energy its regressors explain once the model's own
+   regressors are projected out (cheap and linear); they stay frozen for the rest of the
+   diagnosis. If more than ``shortlist`` effects apply, the best by that fraction go on.
 3. **Refit.** Each effect is added to the model on its own and all constants are
    refitted — weak-form least squares for the start, then optimistix
    Levenberg–Marquardt on the simulated response (:class:`gpjax._refine.Refiner`) — on
-   the *estimation* part of the record (the first ``1 − holdout``), and the refit is
-   simulated over the whole record from its fitted initial state.
+   the *estimation* part of the record (the first ``1 − holdout``), fitted over its first
+   25 %, then all of it (a start that diverges is refitted over 10, 25, 50 and 100 %),
+   and the refit is simulated over the whole record from its fitted initial state.
 4. **Evidence: held-out output error, with one step of look-ahead.** (Simulation mode.)
    The equation error weighs a missing force by its size, the simulated response by what
    it does to the response (a force near resonance counts ~Q times more than a static
@@ -63,7 +65,7 @@ import sympy as sp
 from scipy.optimize import minimize
 
 from ._canonical import Symbols
-from ._data import Measurement
+from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._effects import Context, Effect, Terms, effects
 from ._equation_error import savgol_window, smoothed_derivatives
 from ._errors import ModelFileError, UserInputError
@@ -74,6 +76,12 @@ from ._refine import Refiner
 
 #: Strongest spectral lines of each input offered to frequency-dependent effects.
 INPUT_LINES = 6
+#: Continuation of the refit when a start and its refinement both diverge (fractions of the
+#: estimation part fitted in turn).
+CAREFUL_HORIZONS = (0.1, 0.25, 0.5, 1.0)
+#: Best grid points polished by Nelder–Mead for effects of two or more nonlinear
+#: parameters (one start for one parameter, whose grid is dense).
+POLISH_STARTS = 3
 
 
 @dataclasses.dataclass(frozen=True)
@@ -108,9 +116,11 @@ class Fit:
     criterion: float
     force: np.ndarray | None = None
 
-    def model(self, symbols: Symbols, provenance: dict) -> Model:
+    def model(self, symbols: Symbols, provenance: dict, *,
+              input_interpolation: str = "linear") -> Model:
         """The fit as a :class:`Model` (feature texts as sympy prints them)."""
         return Model(symbols=symbols, mass=float(self.mass),
+                     input_interpolation=input_interpolation,
                      state={str(f): float(c) for f, c in zip(self.structure.state, self.state)},
                      forcing={str(f): float(g)
                               for f, g in zip(self.structure.forcing, self.forcing)},
@@ -142,26 +152,38 @@ class Diagnosis:
 
     Attributes:
         mode: ``"simulation"`` or ``"equation_error"`` (see the module docstring).
-        before, after: the starting and the final fits.
-        steps: one dict per accepted effect (effect, evidence, term, coefficient, …).
+        steps: one dict per accepted effect (effect, evidence, term, coefficient, …), with
+            the errors of the loop's fits (fitted on the estimation part).
         rankings: per round, every effect's evidence (best first).
-        fits: the accepted fits in order, starting with the refitted starting model.
+        fits: the loop's accepted fits in order, starting with the refitted starting model,
+            fitted on the estimation part (the held-out part decided).
+        refits: the same structures refitted on the whole record once chosen (the held-out
+            part has done its work); ``before`` and ``after`` are the first and the last.
         frequencies: candidate frequencies in Hz offered to frequency effects.
         n_train: samples of the estimation part; the rest is held out.
         measurement, symbols: the data and its names.
     """
 
     mode: str
-    before: Fit
-    after: Fit
     steps: list[dict]
     rankings: list[list[dict]]
     fits: list[Fit]
+    refits: list[Fit]
     frequencies: tuple[float, ...]
     n_train: int
     measurement: Measurement
     symbols: Symbols
     settings: dict
+
+    @property
+    def before(self) -> Fit:
+        """The starting structure refitted on the whole record."""
+        return self.refits[0]
+
+    @property
+    def after(self) -> Fit:
+        """The final structure refitted on the whole record."""
+        return self.refits[-1]
 
     @property
     def effects_added(self) -> list[str]:
@@ -170,7 +192,14 @@ class Diagnosis:
     def model(self) -> Model:
         """The final model."""
         return self.after.model(self.symbols, {"diagnosis": self.effects_added,
-                                               "mode": self.mode})
+                                               "mode": self.mode},
+                                input_interpolation=self.settings["input_interpolation"])
+
+    def models(self) -> list[Model]:
+        """The starting model and the model after each accepted step, in order, each
+        refitted on the whole record."""
+        return [fit.model(self.symbols, {}, input_interpolation=self.settings[
+            "input_interpolation"]) for fit in self.refits]
 
     def to_json(self) -> dict:
         return {"mode": self.mode, "criterion": _CRITERION[self.mode],
@@ -333,23 +362,25 @@ def input_lines(measurement: Measurement, *, count: int = INPUT_LINES) -> list[f
 def rank_effects(weak: WeakForm, structure: Structure, context: Context,
                  library: dict[str, Effect], u0: sp.Symbol | None, *,
                  polish: bool = True) -> list[Candidate]:
-    """Every applicable effect with its best grid parameters (polished by Nelder–Mead if
-    ``polish``), ranked by the fraction of the equation-error residual it explains."""
+    """Every applicable effect with its best parameters, ranked by the fraction of the
+    equation-error residual it explains: the best grid point, or if ``polish`` the best
+    grid point(s) (:data:`POLISH_STARTS`) polished by Nelder–Mead."""
     ranked = []
     present = set(structure.state + structure.parametric + structure.forcing)
     for effect in library.values():
-        best = None
+        scored = []
         for parameters in effect.grid(context):
             terms = effect.build(context, parameters)
             if terms is None or set(terms.state + terms.parametric + terms.forcing) <= present:
                 continue
-            score = explained_fraction(weak, structure, terms, u0)
-            if best is None or score > best[0]:
-                best = (score, parameters, terms)
-        if best is None:
+            scored.append((explained_fraction(weak, structure, terms, u0), parameters, terms))
+        if not scored:
             continue
-        score, parameters, terms = (_polish(effect, context, best, weak, structure, u0)
-                                    if polish else best)
+        scored.sort(key=lambda item: -item[0])
+        starts = scored[:POLISH_STARTS if polish and len(effect.parameters) > 1 else 1]
+        score, parameters, terms = max(
+            (_polish(effect, context, start, weak, structure, u0) if polish else start
+             for start in starts), key=lambda item: item[0])
         evidence = f"explains {100 * score:.1f} % of the equation-error residual energy"
         if "frequency" in parameters:
             evidence += f" with a line at {parameters['frequency']:.6g} Hz"
@@ -391,10 +422,12 @@ def _polish(effect: Effect, context: Context, best, weak, structure, u0):
 
 # --- fitting ------------------------------------------------------------------------------
 class _Problem:
-    """Data, split and settings shared by all fits of one diagnosis."""
+    """Data, split and settings shared by all fits of one diagnosis (``holdout`` = 0: fits
+    on the whole record, with criterion 0)."""
 
     def __init__(self, measurement: Measurement, symbols: Symbols, *, holdout: float,
-                 iterations: int, substeps: int, batch: int):
+                 iterations: int, substeps: int, batch: int,
+                 input_interpolation: str = "linear"):
         self.measurement, self.symbols = measurement, symbols
         self.n_train = int(round((1.0 - holdout) * measurement.n_samples))
         self.train = measurement.segment(0, self.n_train)
@@ -409,6 +442,7 @@ class _Problem:
         self.u0 = symbols.u[0] if symbols.u else None
         self.y0 = (float(self.derivatives.x[0]), float(self.derivatives.x_dot[0]))
         self.iterations, self.substeps, self.batch = iterations, substeps, batch
+        self.input_interpolation = input_interpolation
         self.train_x_dot = train_derivatives.x_dot
         self.pool_lhs: tuple[sp.Expr, ...] = ()
         self.pool_forcing: tuple[sp.Expr, ...] = ()
@@ -455,35 +489,65 @@ class _Problem:
 
     def fit_simulation(self, structures: list[Structure]) -> list[Fit]:
         """Least-squares start, Levenberg–Marquardt refinement on the estimation part,
-        simulation of the whole record; the better of start and refinement is kept."""
-        starts = self.fit_equation_error(structures)
+        simulation of the whole record; the best of start and refinement is kept. If both
+        diverge for some structure, two more starts are refined along a finer continuation:
+        the same start, and the structure's coefficients from a least-squares fit of the
+        structure with every effect's terms (which removes the bias a missing effect puts
+        into the structure's own coefficients)."""
         simulator = self._simulator_for(structures)
-        train_ev, count = simulator.train, len(structures)
-        population = train_ev.empty(count)
-        fixed = np.full(count, -1)
-        for i, (s, fit) in enumerate(zip(structures, starts)):
-            population.mass[i] = fit.mass
-            for f, c in zip(s.state + s.parametric, np.concatenate([fit.state, fit.parametric])):
-                population.state[i, train_ev.state_index(f)] = c
-            for g, value in zip(s.forcing, fit.forcing):
-                population.forcing[i, train_ev.forcing_index(g)] = value
-            population.y0[i] = self.y0
-            if self.u0 is not None and self.u0 in s.forcing:
-                fixed[i] = train_ev.forcing_index(self.u0)
-        refined = simulator.refiner.refine(population, fixed).population
-        both = _stack(population, refined)
-        responses, scores = simulator.full.simulate(both)
-        fits = []
+        count, fixed = len(structures), self._fixed_forcing(structures, simulator.train)
+        population = self._starts(structures, structures, simulator.train)
+        options = [population, simulator.refiner.refine(population, fixed).population]
+        responses, scores = simulator.full.simulate(_stack(*options))
+        if not all(self._chosen(responses, scores, i, count, len(options))[1] for i in
+                   range(count)):
+            pooled = [s.plus(Terms(state=tuple(f for f in self.pool_lhs
+                                               if f not in s.state + s.parametric),
+                                   forcing=self.pool_forcing)) for s in structures]
+            retry = _stack(population, self._starts(structures, pooled, simulator.train))
+            refined = simulator.careful_refiner.refine(retry, np.concatenate([fixed, fixed]))
+            options += [_rows(refined.population, slice(0, count)),
+                        _rows(refined.population, slice(count, 2 * count))]
+            responses, scores = simulator.full.simulate(_stack(*options))
+        fits, every = [], _stack(*options)
         for i, s in enumerate(structures):
-            options = []
-            for j in (i, count + i):
-                residual = self.measurement.response[: self.n_train] - responses[j, : self.n_train]
-                train_rms = float(np.sqrt(np.mean(residual ** 2)))
-                ok = scores.status[j] == 0 and np.isfinite(train_rms)
-                options.append((train_rms if ok else math.inf, j))
-            j = min(options)[1]
-            fits.append(self._simulated_fit(s, both, j, responses[j], train_ev, scores.status[j]))
+            j, _ = self._chosen(responses, scores, i, count, len(options))
+            fits.append(self._simulated_fit(s, every, j, responses[j], simulator.train,
+                                            scores.status[j]))
         return fits
+
+    def _starts(self, structures: list[Structure], fitted: list[Structure], ev):
+        """Populations of ``structures`` with their coefficients from the weak-form least
+        squares of ``fitted`` (each a superset of its structure; extra terms dropped)."""
+        population = ev.empty(len(structures))
+        for i, (s, fit) in enumerate(zip(structures, self.fit_equation_error(fitted))):
+            lhs = dict(zip(fit.structure.state + fit.structure.parametric,
+                           np.concatenate([fit.state, fit.parametric])))
+            forcing = dict(zip(fit.structure.forcing, fit.forcing))
+            population.mass[i] = fit.mass
+            for f in s.state + s.parametric:
+                population.state[i, ev.state_index(f)] = lhs[f]
+            for g in s.forcing:
+                population.forcing[i, ev.forcing_index(g)] = forcing[g]
+            population.y0[i] = self.y0
+        return population
+
+    def _fixed_forcing(self, structures: list[Structure], ev) -> np.ndarray:
+        """Per structure, the forcing column held at 1 (the first input) or −1."""
+        return np.array([ev.forcing_index(self.u0) if self.u0 is not None
+                         and self.u0 in s.forcing else -1 for s in structures])
+
+    def _chosen(self, responses, scores, i: int, count: int, n_options: int):
+        """(row, whether it simulates) of structure ``i``'s best option: the lowest RMS on
+        the estimation part among rows i, count + i, … that simulate."""
+        options = []
+        for j in range(i, n_options * count, count):
+            residual = self.measurement.response[: self.n_train] - responses[j, : self.n_train]
+            train_rms = float(np.sqrt(np.mean(residual ** 2)))
+            ok = scores.status[j] == 0 and np.isfinite(train_rms)
+            options.append((train_rms if ok else math.inf, j))
+        value, j = min(options)
+        return j, math.isfinite(value)
 
     def _simulator_for(self, structures: list[Structure]) -> "_Simulator":
         """The compiled evaluators and refiner, rebuilt only when a feature is new to them."""
@@ -512,7 +576,7 @@ class _Problem:
         fit.metrics = simulation_metrics(self.measurement.response, simulated, self.n_train,
                                          self.n_bins)
         holdout = self.measurement.response[self.n_train:] - simulated[self.n_train:]
-        fit.criterion = float(np.mean(holdout ** 2))
+        fit.criterion = float(np.mean(holdout ** 2)) if holdout.size else 0.0
         return fit
 
 
@@ -527,7 +591,8 @@ class _Simulator:
         extra = tuple(f for f, p in zip(lhs, powers) if p is None)
         degree = max([3] + [p[1] for p in powers if p is not None])
         settings = dict(max_degree=degree, substeps=problem.substeps, n_bins=1,
-                        extra_state_features=extra)
+                        extra_state_features=extra,
+                        input_interpolation=problem.input_interpolation)
         self.train = PopulationEvaluator(problem.train, problem.symbols, batch=problem.batch,
                                          **settings)
         self.full = PopulationEvaluator(problem.measurement, problem.symbols,
@@ -537,7 +602,19 @@ class _Simulator:
                 ev.forcing_index(g)
         self.refiner = Refiner(self.train, iterations=problem.iterations, batch=problem.batch,
                                max_free=3 + len(lhs) + len(forcing))
+        self._careful_refiner: Refiner | None = None
         self._jacobian = None
+
+    @property
+    def careful_refiner(self) -> Refiner:
+        """A refiner with a finer continuation (horizons 10, 25, 50, 100 % of the record),
+        compiled on first use: for starts whose simulation diverges over the record."""
+        if self._careful_refiner is None:
+            self._careful_refiner = Refiner(self.train, iterations=self.refiner.iterations,
+                                            batch=self.refiner.batch,
+                                            max_free=self.refiner.max_free,
+                                            horizons=CAREFUL_HORIZONS)
+        return self._careful_refiner
 
     def jacobian(self, fit: Fit) -> np.ndarray:
         """Sensitivities of the simulated response over the whole record to the parameter
@@ -566,7 +643,8 @@ def rank_by_output_error(problem: _Problem, candidates: list[Candidate], results
                          min_gain: float) -> list[int]:
     """Order (indices, best first) of the candidates whose refits are ``results``, ranked
     on the held-out output error with one step of look-ahead (module docstring, 4.); the
-    candidates' evidence is rewritten to say so."""
+    candidates' evidence is rewritten to say so. While the leader owes its place to a
+    predicted pair, that pair is refitted and its prediction replaced by the refit."""
     charge = [(1.0 - min_gain) ** -_complexity(c) for c in candidates]
     alone = [r.criterion * k for r, k in zip(results, charge)]
     pairs: dict[tuple[int, int], float] = {}
@@ -578,23 +656,36 @@ def rank_by_output_error(problem: _Problem, candidates: list[Candidate], results
             if j != i:
                 key = (min(i, j), max(i, j))
                 pairs[key] = min(pairs.get(key, math.inf), predict(other.terms))
-    best = [(value, None, None) for value in alone]  # (score, partner, pair prediction)
-    for (i, j), value in pairs.items():
-        charged = value * charge[i] * charge[j]
-        for a, b in ((i, j), (j, i)):
-            if charged < best[a][0]:
-                best[a] = (charged, b, value)
+    refitted: set[tuple[int, int]] = set()
+    while True:
+        best = [(value, None, None) for value in alone]  # (score, partner, pair error)
+        for (i, j), value in pairs.items():
+            charged = value * charge[i] * charge[j]
+            for a, b in ((i, j), (j, i)):
+                if charged < best[a][0]:
+                    best[a] = (charged, b, value)
+        order = sorted(range(len(candidates)), key=lambda i: (best[i][0], alone[i]))
+        leader, partner = order[0], best[order[0]][1]
+        key = None if partner is None else (min(leader, partner), max(leader, partner))
+        if key is None or key in refitted:
+            break
+        pair = results[leader].structure.plus(candidates[partner].terms)
+        criterion = problem.fit_simulation([pair])[0].criterion
+        pairs[key] = criterion if math.isfinite(criterion) else math.inf
+        refitted.add(key)
     for i, c in enumerate(candidates):
         score, partner, pair = best[i]
         evidence = f"held-out RMS {math.sqrt(results[i].criterion):.4g} refitted alone"
+        verified = partner is not None and (min(i, partner), max(i, partner)) in refitted
         if partner is not None:
-            evidence += (f", {math.sqrt(pair):.4g} predicted with "
-                         f"{candidates[partner].effect.name} (Gauss–Newton step)")
+            how = "refitted" if verified else "predicted (Gauss–Newton step)"
+            evidence += f", {math.sqrt(pair):.4g} {how} with {candidates[partner].effect.name}"
         candidates[i] = dataclasses.replace(c, evidence=evidence, predicted={
             "score": score, "holdout_rms_alone": math.sqrt(results[i].criterion),
             "partner": None if partner is None else candidates[partner].effect.name,
-            "holdout_rms_with_partner": None if pair is None else math.sqrt(pair)})
-    return sorted(range(len(candidates)), key=lambda i: (best[i][0], alone[i]))
+            "holdout_rms_with_partner": None if pair is None else math.sqrt(pair),
+            "pair_refitted": verified})
+    return order
 
 
 def _gauss_newton(problem: _Problem, fit: Fit):
@@ -655,12 +746,16 @@ def _power(feature: sp.Expr, symbols: Symbols):
     return None
 
 
-def _stack(a, b):
+def _stack(*populations):
     from ._evaluator import Population
-    return Population(mass=np.concatenate([a.mass, b.mass]),
-                      state=np.concatenate([a.state, b.state]),
-                      forcing=np.concatenate([a.forcing, b.forcing]),
-                      y0=np.concatenate([a.y0, b.y0]))
+    return Population(*(np.concatenate([getattr(p, name) for p in populations])
+                        for name in ("mass", "state", "forcing", "y0")))
+
+
+def _rows(population, rows: slice):
+    from ._evaluator import Population
+    return Population(*(getattr(population, name)[rows]
+                        for name in ("mass", "state", "forcing", "y0")))
 
 
 # --- the loop ------------------------------------------------------------------------------
@@ -674,7 +769,8 @@ def structure_of(model: Model) -> Structure:
 def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effect] | None = None,
              frequencies: tuple[float, ...] = (), holdout: float = 0.25, max_steps: int = 4,
              shortlist: int = 4, min_gain: float = 0.02, iterations: int = 20,
-             substeps: int = 1, mode: str = "auto") -> Diagnosis:
+             substeps: int = 1, input_interpolation: str | None = None,
+             mode: str = "auto") -> Diagnosis:
     """Add missing effects to ``model`` while held-out error improves (module docstring).
 
     Args:
@@ -691,6 +787,10 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             must bring.
         iterations: Levenberg–Marquardt steps per refit.
         substeps: RK4 steps per sample interval.
+        input_interpolation: inputs between samples in the simulation, ``"linear"`` or
+            ``"bandlimited"`` (:func:`gpjax._data.between_samples`; for inputs with content
+            near the Nyquist frequency); default: the starting model's. The final model
+            records it.
         mode: ``"auto"``, ``"simulation"`` or ``"equation_error"``.
 
     Raises:
@@ -709,12 +809,17 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         raise UserInputError(f"holdout must lie in [0.05, 0.5], got {holdout}; use e.g. 0.25")
     if mode not in ("auto", "simulation", "equation_error"):
         raise UserInputError(f"mode {mode!r} is unknown; use auto, simulation or equation_error")
+    input_interpolation = input_interpolation or model.input_interpolation
+    if input_interpolation not in INPUT_INTERPOLATIONS:
+        raise UserInputError(f"input interpolation {input_interpolation!r} is unknown; use "
+                             f"{' or '.join(INPUT_INTERPOLATIONS)}")
     if max_steps < 0 or shortlist < 1 or min_gain < 0 or iterations < 1 or substeps < 1:
         raise UserInputError("max_steps >= 0, shortlist >= 1, min_gain >= 0, iterations >= 1 "
                              "and substeps >= 1 are required; fix the setting")
     library = effects() if library is None else dict(library)
     problem = _Problem(measurement, symbols, holdout=holdout, iterations=iterations,
-                       substeps=substeps, batch=shortlist + 1)
+                       substeps=substeps, batch=shortlist + 1,
+                       input_interpolation=input_interpolation)
     lines = tuple(dict.fromkeys([*map(float, frequencies), *input_lines(problem.train)]))
     structure = structure_of(model)
     chosen_mode = "equation_error" if mode == "equation_error" else "simulation"
@@ -762,20 +867,15 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         structure, current = results[best].structure, results[best]
         fits.append(current)
     settings = {"holdout": holdout, "max_steps": max_steps, "shortlist": shortlist,
-                "min_gain": min_gain, "iterations": iterations, "substeps": substeps}
-    return Diagnosis(mode=chosen_mode, before=fits[0], after=current, steps=steps,
-                     rankings=rankings, fits=fits, frequencies=lines, n_train=problem.n_train,
+                "min_gain": min_gain, "iterations": iterations, "substeps": substeps,
+                "input_interpolation": input_interpolation}
+    whole = _Problem(measurement, symbols, holdout=0.0, iterations=iterations,
+                     substeps=substeps, batch=len(fits), input_interpolation=input_interpolation)
+    whole.pool_lhs, whole.pool_forcing = problem.pool_lhs, problem.pool_forcing
+    refits = _fit(whole, chosen_mode, [fit.structure for fit in fits])
+    return Diagnosis(mode=chosen_mode, steps=steps, rankings=rankings, fits=fits,
+                     refits=refits, frequencies=lines, n_train=problem.n_train,
                      measurement=measurement, symbols=symbols, settings=settings)
-
-
-def refit(measurement: Measurement, models: list[Model], *, holdout: float = 0.25,
-          iterations: int = 20, substeps: int = 1) -> list[Fit]:
-    """All constants of each model refitted on ``measurement`` as in a diagnosis round:
-    weak-form least squares, then Levenberg–Marquardt on the simulated response over the
-    first ``1 − holdout`` of the record; simulated over the whole record."""
-    problem = _Problem(measurement, models[0].symbols, holdout=holdout, iterations=iterations,
-                       substeps=substeps, batch=len(models))
-    return problem.fit_simulation([structure_of(m) for m in models])
 
 
 def _fit(problem: _Problem, mode: str, structures: list[Structure]) -> list[Fit]:
@@ -861,10 +961,20 @@ def report_markdown(diagnosis: Diagnosis) -> str:
     unit = "response units" if d.mode == "simulation" else "force units (equation error)"
     lines = [f"# Diagnosis of {d.symbols.response}", "",
              f"Mode: **{d.mode}** — {_CRITERION[d.mode]}.", "",
-             f"Starting model: `{d.fits[0].model(d.symbols, {}).sympy()}`", "",
+             f"Inputs between samples in the simulation: "
+             f"{d.settings['input_interpolation']} interpolation.", "",
+             f"Starting model: `{d.before.model(d.symbols, {}).sympy()}`", "",
              f"Final model: `{d.model().sympy()}`", "",
              f"Effects added: {', '.join(d.effects_added) or 'none'}", "",
              f"RMS in {unit}; f = f_time + f_freq (eqs. 7–9); spectral error = f_freq.", "",
+             f"Whole record (the starting and the final structure refitted on all of it once "
+             f"chosen): RMS {_number(d.before.metrics.get('rms'))} → "
+             f"{_number(d.after.metrics.get('rms'))}, f {_number(d.before.metrics.get('objective'))}"
+             f" → {_number(d.after.metrics.get('objective'))}, spectral error "
+             f"{_number(d.before.metrics.get('spectral_error'))} → "
+             f"{_number(d.after.metrics.get('spectral_error'))}.", "",
+             f"Steps: fitted on the first {d.n_train} of {d.measurement.n_samples} samples; "
+             "the held-out rest decided.", "",
              "| effect | evidence | term | coefficient | RMS before | RMS after | f before | "
              "f after | spectral before | spectral after | held-out RMS before | after |",
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
@@ -914,7 +1024,7 @@ def _figures(d: Diagnosis) -> dict[str, bytes]:
     for label, fit in (("before", d.before), ("after", d.after)):
         if fit.simulated is not None:
             axes[0].plot(time, m.response - fit.simulated, lw=0.7, label=label)
-    axes[0].axvline(time[d.n_train - 1], color="k", ls=":", label="held out →")
+    axes[0].axvline(time[d.n_train - 1], color="k", ls=":", label="held out in the selection →")
     axes[0].set_ylabel(f"{m.response_name} measured − simulated")
     axes[0].legend(loc="upper right")
     for label, fit in (("before", d.before), ("after", d.after)):

@@ -93,6 +93,11 @@ class Effect:
         return {p.name: _scaled_bounds(p, context) for p in self.parameters}
 
 
+#: Least share of the samples inside a backlash dead zone, and outside it: a narrower zone
+#: is a kink, and one the motion never enters (or never leaves) is a constant force plus a
+#: stiffness change (or nothing), which simpler effects describe.
+MIN_DEAD_ZONE_SHARE = 0.1
+
 _REGISTRY: dict[str, Effect] = {}
 
 
@@ -161,16 +166,21 @@ def _mesh(context: Context, parameters: dict) -> Terms:
 def _backlash_grid(context: Context) -> list[dict]:
     x = context.x
     spread = float(np.std(x)) or 1.0
-    centres = sorted(map(float, np.quantile(x, [0.25, 0.5, 0.75])))
+    centres = list(map(float, np.quantile(x, np.linspace(0.1, 0.9, 9))))
     if np.min(x) < 0 < np.max(x):
         centres.append(0.0)
-    return [{"centre": c, "half_width": w * spread}
-            for c in centres for w in (0.15, 0.3, 0.6, 1.0)]
+    return [{"centre": c, "half_width": float(w) * spread}
+            for c in centres for w in np.geomspace(0.05, 1.5, 7)]
 
 
-def _backlash(context: Context, parameters: dict) -> Terms:
-    return Terms(state=(dead_zone(context.symbols.x, parameters["centre"],
-                                  parameters["half_width"]),))
+def _backlash(context: Context, parameters: dict) -> Terms | None:
+    """The dead-zone term, or ``None`` if the measured motion does not exercise the dead
+    zone (less than :data:`MIN_DEAD_ZONE_SHARE` of the samples inside it, or outside it)."""
+    c, b = parameters["centre"], parameters["half_width"]
+    inside = float(np.mean(np.abs(context.x - c) < b))
+    if not MIN_DEAD_ZONE_SHARE <= inside <= 1.0 - MIN_DEAD_ZONE_SHARE:
+        return None
+    return Terms(state=(dead_zone(context.symbols.x, c, b),))
 
 
 def _input_grid(context: Context) -> list[dict]:
@@ -207,7 +217,7 @@ for _effect in (
     Effect("backlash", "clearance: no restoring force inside a dead zone of half width b "
            "around c", "k·dz(x; c, b)", "residual force only at large |x − c|; stiffness "
            "that changes with amplitude", (Parameter("centre", "x", 0.0, 0.0),
-                                            Parameter("half_width", "x std", 0.1, 3.0)),
+                                            Parameter("half_width", "x std", 0.03, 3.0)),
            _backlash_grid, _backlash),
     Effect("input_gain", "an input acting on the system that the model leaves out (its "
            "scale is fitted)", "g·u", "residual force correlated with an input", (),

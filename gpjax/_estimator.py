@@ -161,6 +161,7 @@ class Identifier:
         return Model(
             symbols=fitness.symbols, mass=record.mass, state=dict(record.state),
             forcing=dict(record.forcing), initial_conditions=record.y0,
+            input_interpolation=self.config.input_interpolation,
             metrics={"rms": record.rms, "f_time": record.f_time, "f_freq": record.f_freq,
                      "objective": record.objective, "n_bins": fitness.evaluator.n_bins},
             provenance={"seed": seed, "generations": state.generation,

@@ -36,7 +36,7 @@ import sympy as sp
 from jax.sharding import AxisType, PartitionSpec
 
 from ._canonical import Symbols
-from ._data import Measurement
+from ._data import Measurement, between_samples
 
 jax.config.update("jax_enable_x64", True)
 
@@ -136,16 +136,19 @@ class PopulationEvaluator:
             :meth:`scan_jvp`) before scoring; otherwise the given y0 is used as is.
         integrator: ``"scan"`` or ``"diffrax"`` (see the module docstring).
         devices: devices a batch is split over; default all of ``jax.devices()``.
+        input_interpolation: how inputs are reconstructed at the RK4 stage times between
+            samples, ``"linear"`` or ``"bandlimited"`` (:func:`gpjax._data.between_samples`).
 
     Raises:
-        ValueError: for an unknown integrator.
+        ValueError: for an unknown integrator or input interpolation.
     """
 
     def __init__(self, measurement: Measurement, symbols: Symbols, *, max_degree: int = 4,
                  substeps: int = 1, n_bins: int | None = None, w_time: float = 1.0,
                  w_freq: float = 1.0, extra_state_features: tuple[sp.Expr, ...] = (),
                  batch: int = 500, fit_initial_conditions: bool = False,
-                 integrator: str = "scan", devices: list | None = None):
+                 integrator: str = "scan", devices: list | None = None,
+                 input_interpolation: str = "linear"):
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
         self.measurement = measurement
@@ -167,7 +170,8 @@ class PopulationEvaluator:
         self.n_steps = (n - 1) * substeps
         self.stage_times = measurement.time[0] + 0.5 * self.h * np.arange(2 * self.n_steps + 1)
         self.stage_times[-1] = measurement.time[-1]
-        self._stage_inputs = {name: np.interp(self.stage_times, measurement.time, values)
+        self.input_interpolation = input_interpolation
+        self._stage_inputs = {name: between_samples(values, 2 * substeps, input_interpolation)
                               for name, values in measurement.inputs.items()}
         self.n_bins = n_bins if n_bins is not None else default_n_bins(measurement.response)
         self.n_bins = min(self.n_bins, n // 2 + 1)

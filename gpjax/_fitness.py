@@ -93,7 +93,8 @@ class Fitness:
             measurement, self.symbols, max_degree=config.max_degree, substeps=config.substeps,
             n_bins=config.n_bins, w_time=config.w_time, w_freq=config.w_freq,
             batch=min(config.population, 512),
-            fit_initial_conditions=config.initial_conditions is None)
+            fit_initial_conditions=config.initial_conditions is None,
+            input_interpolation=config.input_interpolation)
         cutoff_hz = self.evaluator.n_bins / (measurement.n_samples * measurement.dt)
         self.derivatives = smoothed_derivatives(measurement, cutoff_hz)
         self.equation_error = EquationError(measurement, self.symbols, self.derivatives)

@@ -23,7 +23,7 @@ import numpy as np
 import sympy as sp
 
 from ._canonical import Symbols, check_structure
-from ._data import Measurement
+from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._errors import ModelFileError, read_user_file
 from ._evaluator import Population, PopulationEvaluator, default_n_bins
 from ._expressions import parse_expression
@@ -47,6 +47,9 @@ class Model:
         provenance: free-form facts about the run (seed, generations, tree, …).
         parametric: feature text -> coefficient of declared time-varying terms g(t)·h(x)
             or g(t)·h(x') (see the module docstring); on the left-hand side like ``state``.
+        input_interpolation: how inputs are reconstructed between samples when simulating,
+            ``"linear"`` or ``"bandlimited"`` (:func:`gpjax._data.between_samples`); the
+            constants were fitted with it (file: ``simulation.input_interpolation``).
     """
 
     symbols: Symbols
@@ -57,6 +60,7 @@ class Model:
     metrics: dict[str, float] = dataclasses.field(default_factory=dict)
     provenance: dict = dataclasses.field(default_factory=dict)
     parametric: dict[str, float] = dataclasses.field(default_factory=dict)
+    input_interpolation: str = "linear"
 
     # --- symbolic views -----------------------------------------------------------------
     def _feature(self, text: str) -> sp.Expr:
@@ -141,7 +145,8 @@ class Model:
         extra += [self._feature(text) for text in self.parametric]
         return PopulationEvaluator(measurement, self.symbols, max_degree=degree,
                                    substeps=substeps, extra_state_features=tuple(extra), batch=1,
-                                   n_bins=min(default_n_bins(measurement.response), 256))
+                                   n_bins=min(default_n_bins(measurement.response), 256),
+                                   input_interpolation=self.input_interpolation)
 
     def population(self, evaluator: PopulationEvaluator, y0: tuple[float, float]) -> Population:
         for text in self.forcing:
@@ -178,6 +183,7 @@ class Model:
                 "response": ic[0], "response_dot": ic[1]},
             "metrics": dict(self.metrics),
             "canonical": canonical,
+            "simulation": {"input_interpolation": self.input_interpolation},
             "provenance": self.provenance,
         }
 
@@ -254,11 +260,17 @@ class Model:
         if not isinstance(metrics, dict):
             fail('"metrics" must be an object')
         provenance = data.get("provenance") or {}
+        simulation = data.get("simulation") or {}
+        interpolation = simulation.get("input_interpolation", "linear") if isinstance(
+            simulation, dict) else None
+        if interpolation not in INPUT_INTERPOLATIONS:
+            fail(f'"simulation" must be {{"input_interpolation": one of '
+                 f'{list(INPUT_INTERPOLATIONS)}}}, got {simulation!r}')
         return cls(symbols=symbols, mass=mass, state=state, forcing=forcing,
                    initial_conditions=initial,
                    metrics={k: v for k, v in metrics.items() if isinstance(v, (int, float))},
                    provenance=provenance if isinstance(provenance, dict) else {},
-                   parametric=parametric)
+                   parametric=parametric, input_interpolation=interpolation)
 
     @classmethod
     def load(cls, path: str | Path) -> "Model":

@@ -12,6 +12,7 @@ import sys
 from pathlib import Path
 
 from ._config import GPConfig
+from ._data import INPUT_INTERPOLATIONS
 from ._errors import UserInputError
 
 EXIT_USER_ERROR = 2
@@ -70,6 +71,12 @@ def _diagnose_options(parser) -> None:
                         help="fraction of the record held out at its end (default 0.25)")
     parser.add_argument("--max-steps", type=_non_negative, default=4, dest="max_steps",
                         help="most effects added (default 4)")
+    parser.add_argument("--input-interpolation", choices=INPUT_INTERPOLATIONS,
+                        dest="input_interpolation",
+                        help="inputs between samples in the simulation: linear, or "
+                        "bandlimited for inputs with content near the Nyquist frequency "
+                        "(fit: the GP's too, default the config's; diagnose: default the "
+                        "model's)")
 
 
 def _positive_float(text: str) -> float:
@@ -93,7 +100,8 @@ def _non_negative(text: str) -> int:
 
 
 def _config(args, base: GPConfig) -> GPConfig:
-    overrides = {k: getattr(args, k) for k in ("population", "generations")
+    overrides = {k: getattr(args, k) for k in ("population", "generations",
+                                               "input_interpolation")
                  if getattr(args, k, None) is not None}
     return base.replace(**overrides) if overrides else base
 
@@ -169,7 +177,8 @@ def _run_diagnosis(args, measurement, model, out: Path) -> None:
     from ._diagnose import diagnose, write_report
 
     result = diagnose(measurement, model, frequencies=tuple(args.frequencies),
-                      holdout=args.holdout, max_steps=args.max_steps)
+                      holdout=args.holdout, max_steps=args.max_steps,
+                      input_interpolation=args.input_interpolation)
     write_report(result, out)
     before, after = result.before.metrics, result.after.metrics
     print(f"Diagnosis ({result.mode}): effects added: {', '.join(result.effects_added) or 'none'}")

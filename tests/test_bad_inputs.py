@@ -237,6 +237,8 @@ CLI_CASES = [
     config_case("config-coefficients-magic", 'coefficients = "magic"\n',
                 ["coefficients must be one of", "least_squares", "'magic'"]),
     config_case("config-substeps-zero", "substeps = 0\n", ["substeps must be between 1 and 64"]),
+    config_case("config-input-interpolation-unknown", 'input_interpolation = "cubic"\n',
+                ["input_interpolation must be one of", "bandlimited", "'cubic'"]),
     config_case("config-init-depth-beyond-max-depth", "max_depth = 3\ninit_depth = [2, 5]\n",
                 ["init_depth", "max_depth"]),
     # --- command-line arguments -----------------------------------------------------------
@@ -250,6 +252,8 @@ CLI_CASES = [
          {"data.csv": VALID_CSV}, ["seed"]),
     case("unknown-flag", (*FIT, *SMALL, "--frobnicate"), {"data.csv": VALID_CSV},
          ["unrecognized arguments: --frobnicate", "--help"]),
+    case("input-interpolation-unknown", (*FIT, *SMALL, "--input-interpolation", "sinc"),
+         {"data.csv": VALID_CSV}, ["--input-interpolation", "invalid choice", "'sinc'"]),
     case("missing-time-flag", ("fit", "data.csv", "--response", "x", *SMALL),
          {"data.csv": VALID_CSV}, ["required: --time", "gpjax fit --help"]),
     case("no-subcommand", (), {}, ["required", "gpjax --help"]),
@@ -486,6 +490,10 @@ MODEL_CASES = [
           ["forcing"]),
     mcase("constant-in-state-terms", with_feature("1"), ["terms"]),
     mcase("acceleration-in-state-terms", with_feature("phi_ddot"), ["terms"]),
+    mcase("simulation-interpolation-unknown", dict(model_json(), simulation={
+        "input_interpolation": "spline"}), ['"simulation"', "bandlimited", "spline"]),
+    mcase("simulation-not-an-object", dict(model_json(), simulation="bandlimited"),
+          ['"simulation" must be']),
     mcase("input-named-like-a-derivative",
           dict(model_json(forcing=[]), variables={"time": "t", "response": "phi",
                                                    "inputs": ["phi_dot"]}),

@@ -1,5 +1,6 @@
 """Gear-pair physics: the bundled example (eqs. 13–14), mesh stiffness (eqs. 15–20), the
-2-DOF gear-pair model (eqs. 21–23) and the linear eq. 23 fit (the paper's Fig. 12)."""
+2-DOF gear-pair model (eqs. 21–23), the linear eq. 23 fit (the paper's Fig. 12) and gear
+data with an effect the model does not declare (the diagnosis checks)."""
 
 from ._example import (PAPER_TRUTH, GearExample, Torque, generate_gear_example,
                        load_bundled_example, write_example)
@@ -9,6 +10,8 @@ from ._stiffness import (KUANG_YANG_COEFFICIENTS, ContactPoints, GearPair, MeshG
                          contact_points, hertz_stiffness, iso6336_stiffness,
                          kuang_yang_coefficients, mesh_cycle_angles, mesh_stiffness,
                          pair_stiffness, stiffness_report, torsional_stiffness)
+from ._undeclared import (EFFECTS, NOISE_PHI, UndeclaredEffectCase,
+                          undeclared_effect_case)
 from ._two_dof import (OneDofResponse, TwoDofGearPair, TwoDofResponse, mesh_stiffness_signal,
                        reduction_error, reduction_scenarios, simulate_one_dof,
                        simulate_two_dof)
@@ -21,4 +24,5 @@ __all__ = [
     "mesh_stiffness", "pair_stiffness", "stiffness_report", "torsional_stiffness",
     "OneDofResponse", "TwoDofGearPair", "TwoDofResponse", "mesh_stiffness_signal",
     "reduction_error", "reduction_scenarios", "simulate_one_dof", "simulate_two_dof",
+    "EFFECTS", "NOISE_PHI", "UndeclaredEffectCase", "undeclared_effect_case",
 ]

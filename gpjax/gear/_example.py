@@ -22,6 +22,7 @@ import dataclasses
 import json
 from importlib import resources
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 from scipy.integrate import solve_ivp
@@ -81,7 +82,9 @@ def generate_gear_example(*, seed: int = 0, noise_phi: float = 2e-5, noise_torqu
                           sample_rate: float = SAMPLE_RATE, revolutions: float = 1.0,
                           phi0: float = PAPER_PHI0, phi_dot0: float = PAPER_PHI_DOT0,
                           t0: float = PAPER_T0, time_name: str = "t",
-                          response_name: str = "phi", input_name: str = "T") -> GearExample:
+                          response_name: str = "phi", input_name: str = "T",
+                          extra_force: Callable[[float, float, float], float] | None = None,
+                          ) -> GearExample:
     """Simulate eq. 14 driven by ``torque`` and add measurement noise.
 
     Args:
@@ -94,6 +97,8 @@ def generate_gear_example(*, seed: int = 0, noise_phi: float = 2e-5, noise_torqu
         revolutions: length of the record in pinion revolutions.
         phi0, phi_dot0, t0: initial conditions (eq. 13).
         time_name, response_name, input_name: column names of the measurement.
+        extra_force: ``(t, φ, φ') -> N·m``, a further force on the left-hand side of
+            eq. 14 (an effect the model does not declare; see ``tests/test_diagnose.py``).
     """
     truth = dict(PAPER_TRUTH if truth is None else truth)
     j, k1, k2 = truth["J"], truth["K1"], truth["K2"]
@@ -101,7 +106,8 @@ def generate_gear_example(*, seed: int = 0, noise_phi: float = 2e-5, noise_torqu
     time = t0 + np.arange(n) / sample_rate
 
     def field(t, y):
-        return [y[1], (torque(t) - k1 * y[0] - k2 * y[0] ** 2) / j]
+        extra = 0.0 if extra_force is None else extra_force(t, y[0], y[1])
+        return [y[1], (torque(t) - k1 * y[0] - k2 * y[0] ** 2 - extra) / j]
 
     solution = solve_ivp(field, (time[0], time[-1]), [phi0, phi_dot0], method="DOP853",
                          t_eval=time, rtol=1e-12, atol=1e-15, max_step=0.25 / sample_rate)
