@@ -20,9 +20,7 @@ import json
 import time
 from pathlib import Path
 
-import numpy as np
-
-from gpjax import diagnose, simulate_model
+from gpjax import diagnose
 from gpjax.gear import EFFECTS, NOISE_PHI, undeclared_effect_case
 
 CASES = ("21:0.7", "22:1.4", "23:1.0", "24:1.2")
@@ -35,10 +33,7 @@ def run(name: str, seed: int, strength: float) -> dict:
     result = diagnose(case.measurement, case.start, frequencies=(285.0,))
     seconds = time.perf_counter() - began
     first = result.steps[0] if result.steps else None
-    truth = case.truth_model()
-    reference, _ = simulate_model(truth, case.measurement,
-                                  initial_conditions=truth.initial_conditions)
-    truth_sigma = float(np.sqrt(np.mean((case.measurement.response - reference) ** 2))) / NOISE_PHI
+    truth_sigma = case.truth_rms() / NOISE_PHI
     row = {"effect": name, "seed": seed, "strength": strength,
            "added": result.effects_added, "named_first": result.effects_added[:1] == [name],
            "rms_before_sigma": (first["rms_before"] if first else

@@ -435,9 +435,11 @@ class _Problem:
         cutoff = default_n_bins(self.train.response) / (self.n_train * measurement.dt)
         window = savgol_window(self.train, cutoff)
         self.derivatives = smoothed_derivatives(measurement, cutoff)
-        train_derivatives = smoothed_derivatives(self.train, cutoff)
-        self.weak = WeakForm(self.train, symbols, train_derivatives.x_dot, window)
+        train_derivatives = (self.derivatives if self.n_train == measurement.n_samples
+                             else smoothed_derivatives(self.train, cutoff))
         self.weak_full = WeakForm(measurement, symbols, self.derivatives.x_dot, window)
+        self.weak = (self.weak_full if self.n_train == measurement.n_samples
+                     else WeakForm(self.train, symbols, train_derivatives.x_dot, window))
         self.holdout_rows = self.weak_full.centres - self.weak_full.half_width >= self.n_train
         self.u0 = symbols.u[0] if symbols.u else None
         self.y0 = (float(self.derivatives.x[0]), float(self.derivatives.x_dot[0]))
@@ -498,7 +500,8 @@ class _Problem:
         count, fixed = len(structures), self._fixed_forcing(structures, simulator.train)
         population = self._starts(structures, structures, simulator.train)
         options = [population, simulator.refiner.refine(population, fixed).population]
-        responses, scores = simulator.full.simulate(_stack(*options))
+        every = _stack(*options)
+        responses, scores = simulator.full.simulate(every)
         if not all(self._chosen(responses, scores, i, count, len(options))[1] for i in
                    range(count)):
             pooled = [s.plus(Terms(state=tuple(f for f in self.pool_lhs
@@ -508,8 +511,9 @@ class _Problem:
             refined = simulator.careful_refiner.refine(retry, np.concatenate([fixed, fixed]))
             options += [_rows(refined.population, slice(0, count)),
                         _rows(refined.population, slice(count, 2 * count))]
-            responses, scores = simulator.full.simulate(_stack(*options))
-        fits, every = [], _stack(*options)
+            every = _stack(*options)
+            responses, scores = simulator.full.simulate(every)
+        fits = []
         for i, s in enumerate(structures):
             j, _ = self._chosen(responses, scores, i, count, len(options))
             fits.append(self._simulated_fit(s, every, j, responses[j], simulator.train,
@@ -595,8 +599,9 @@ class _Simulator:
                         input_interpolation=problem.input_interpolation)
         self.train = PopulationEvaluator(problem.train, problem.symbols, batch=problem.batch,
                                          **settings)
-        self.full = PopulationEvaluator(problem.measurement, problem.symbols,
-                                        batch=2 * problem.batch, **settings)
+        self.full = self.train if problem.n_train == problem.measurement.n_samples else (
+            PopulationEvaluator(problem.measurement, problem.symbols, batch=2 * problem.batch,
+                                **settings))
         for ev in (self.train, self.full):
             for g in forcing:
                 ev.forcing_index(g)

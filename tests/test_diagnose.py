@@ -79,7 +79,7 @@ def test_cases_are_reproducible_and_carry_their_truth():
 @pytest.mark.parametrize("name", LIBRARY)
 def test_truth_model_reproduces_its_case_to_the_noise(name):
     case = undeclared_effect_case(name, seed=21, strength=0.7)
-    assert _truth_rms(case) <= 1.8 * NOISE
+    assert case.truth_rms() <= 1.8 * NOISE
     assert case.truth_model().equation() is not None
 
 
@@ -97,15 +97,6 @@ def test_equation_error_names_the_missing_effect_first(name):
 
 
 # --- simulation mode: the acceptance criteria -------------------------------------------
-def _truth_rms(case) -> float:
-    """RMS error of the generating model (true constants and initial state) simulated by
-    the same engine on the measured, noisy input."""
-    truth = case.truth_model()
-    response, _ = simulate_model(truth, case.measurement,
-                                 initial_conditions=truth.initial_conditions)
-    return float(np.sqrt(np.mean((case.measurement.response - response) ** 2)))
-
-
 def _check_recovers(name: str, seed: int, strength: float):
     """Named first; the final RMS at most 1.5σ, or at most the generating model's own RMS
     where that is larger (near a resonance the noisy measured torque alone moves the true
@@ -114,7 +105,7 @@ def _check_recovers(name: str, seed: int, strength: float):
     result = diagnose(case.measurement, case.start, frequencies=(285.0,))
     assert result.mode == "simulation"
     assert result.effects_added[:1] == [name], (result.effects_added, result.rankings[0][:3])
-    limit = max(1.5 * NOISE, _truth_rms(case))
+    limit = max(1.5 * NOISE, case.truth_rms())
     assert result.after.metrics["rms"] <= limit, (result.after.metrics, limit)
     assert result.steps[0]["rms_before"] > 3 * NOISE  # the effect was visible
     return result

@@ -22,7 +22,7 @@ import sympy as sp
 from .._canonical import Symbols
 from .._data import Measurement
 from .._effects import dead_zone
-from .._model import Model
+from .._model import Model, simulate_model
 from ._example import PAPER_PHI0, PAPER_PHI_DOT0, PAPER_TRUTH, Torque, generate_gear_example
 
 #: The effects of the library, in its order.
@@ -69,6 +69,14 @@ class UndeclaredEffectCase:
             state[str(feature)] = t["k"]
         return Model(symbols=self.start.symbols, mass=t["J"], state=state, forcing=forcing,
                      parametric=parametric, initial_conditions=(PAPER_PHI0, PAPER_PHI_DOT0))
+
+    def truth_rms(self) -> float:
+        """RMS error (deg) of :meth:`truth_model` simulated by gpjax's engine on the
+        measured, noisy torque: the yardstick where the engine cannot reach the noise."""
+        truth = self.truth_model()
+        response, _ = simulate_model(truth, self.measurement,
+                                     initial_conditions=truth.initial_conditions)
+        return float(np.sqrt(np.mean((self.measurement.response - response) ** 2)))
 
 
 def undeclared_effect_case(name: str, *, seed: int, strength: float = 1.0
