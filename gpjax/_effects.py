@@ -78,6 +78,9 @@ class Effect:
         parameters: nonlinear parameters with bounds (empty if none).
         grid: context -> list of parameter dicts to try (``[{}]`` for none).
         build: (context, parameters) -> :class:`Terms`, or ``None`` if not applicable.
+        sign: +1 if the physical effect has a positive coefficient on the left-hand side
+            (m·x'' + … = forcing; a loss: damping, friction), −1 if negative, 0 if either;
+            a fit of the other sign is flagged in the report as not the effect named.
     """
 
     name: str
@@ -87,6 +90,7 @@ class Effect:
     parameters: tuple[Parameter, ...]
     grid: Callable[[Context], list[dict]]
     build: Callable[[Context, dict], Terms | None]
+    sign: int = 0
 
     def bounds(self, context: Context) -> dict[str, tuple[float, float]]:
         """Bounds of the numeric parameters, scaled to the data where the unit says so."""
@@ -196,11 +200,11 @@ def _input(context: Context, parameters: dict) -> Terms | None:
 for _effect in (
     Effect("viscous_damping", "energy loss proportional to velocity (oil film, material "
            "damping)", "c·x'", "residual force in phase with x'; decay of free oscillation",
-           (), _none, _state(lambda s: s.x_dot)),
+           (), _none, _state(lambda s: s.x_dot), sign=1),
     Effect("coulomb_friction", "dry friction of constant magnitude opposing motion, smoothed "
            "by tanh(x'/ε)", "F·tanh(x'/ε)", "square-wave residual force switching with the "
            "sign of x'; odd harmonics", (Parameter("smoothing", "x_dot std", 1e-4, 1.0),),
-           _friction_grid, _friction),
+           _friction_grid, _friction, sign=1),
     Effect("quadratic_stiffness", "asymmetric (hardening on one side) stiffness, e.g. tooth "
            "contact", "k·x²", "residual at twice the response frequency and a mean shift",
            (), _none, _state(lambda s: s.x ** 2)),

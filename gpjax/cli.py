@@ -174,7 +174,7 @@ def _diagnose(args) -> int:
 
 
 def _run_diagnosis(args, measurement, model, out: Path) -> None:
-    from ._diagnose import diagnose, write_report
+    from ._diagnose import diagnose, sign_cautions, write_report
 
     result = diagnose(measurement, model, frequencies=tuple(args.frequencies),
                       holdout=args.holdout, max_steps=args.max_steps,
@@ -183,6 +183,8 @@ def _run_diagnosis(args, measurement, model, out: Path) -> None:
     before, after = result.before.metrics, result.after.metrics
     print(f"Diagnosis ({result.mode}): effects added: {', '.join(result.effects_added) or 'none'}")
     print(f"  RMS {before['rms']:.4g} -> {after['rms']:.4g}; model: {result.model().sympy()}")
+    for caution in sign_cautions(result):
+        print(f"  caution: {caution}")
     print(f"Report in {out}/ (report.md, report.json, model.json, figures)")
 
 

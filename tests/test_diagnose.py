@@ -11,7 +11,7 @@ from scipy.integrate import solve_ivp
 
 from gpjax import Model, ModelFileError, Symbols, simulate_model
 from gpjax._data import Measurement
-from gpjax._diagnose import diagnose, write_report
+from gpjax._diagnose import diagnose, report_markdown, write_report
 from gpjax._effects import Effect, Terms, effects, register_effect
 from gpjax.gear import EFFECTS, NOISE_PHI, undeclared_effect_case
 
@@ -176,6 +176,32 @@ def test_drifting_system_is_diagnosed_on_the_equation_error():
     assert result.mode == "equation_error"
     assert result.effects_added[0] == "coulomb_friction"
     assert result.after.metrics["rms"] < 0.2 * result.before.metrics["rms"]
+    assert result.steps[0]["sign_as_meant"] is True
+    assert "Caution" not in report_markdown(result)
+
+
+def test_friction_of_the_wrong_sign_is_flagged_not_passed_off_as_friction():
+    """x'' + 2.5·x' + (4π)²·x + F·tanh(x'/0.05) = u with F = −1: a force along the velocity."""
+    rng = np.random.default_rng(0)
+    time = np.arange(2000) / 200.0
+    u = 20 * np.sin(2 * np.pi * 1.3 * time) + 12 * np.sin(2 * np.pi * 3.1 * time + 1.0)
+
+    def field(t, y):
+        force = np.interp(t, time, u) + 1.0 * np.tanh(y[1] / 0.05)
+        return [y[1], force - 2.5 * y[1] - (4 * np.pi) ** 2 * y[0]]
+
+    x = solve_ivp(field, (0, time[-1]), [0.0, 0.0], t_eval=time, rtol=1e-10, atol=1e-12,
+                  max_step=1 / 200.0).y[0]
+    data = Measurement(time=time, response=x + 1e-4 * rng.standard_normal(x.size),
+                       inputs={"u": u}, time_name="t", response_name="x")
+    model = Model(symbols=Symbols("x", "t", ("u",)), mass=1.0, state={"x": 1.0, "x_dot": 1.0},
+                  forcing={"u": 1.0})
+    result = diagnose(data, model, max_steps=1)
+    step = result.steps[0]
+    assert step["effect"] == "coulomb_friction"
+    assert step["coefficient"] == pytest.approx(-1.0, rel=0.1)
+    assert step["sign_as_meant"] is False
+    assert "**Caution:** coulomb_friction was fitted with coefficient -" in report_markdown(result)
 
 
 # --- command line -----------------------------------------------------------------------
