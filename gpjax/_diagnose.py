@@ -195,15 +195,16 @@ class Diagnosis:
 
     def model(self) -> Model:
         """The final model."""
-        return self.after.model(self.symbols, {"diagnosis": self.effects_added,
-                                               "mode": self.mode},
-                                input_interpolation=self.settings["input_interpolation"])
+        return self._as_model(self.after, {"diagnosis": self.effects_added, "mode": self.mode})
 
     def models(self) -> list[Model]:
         """The starting model and the model after each accepted step, in order, each
         refitted on the whole record."""
-        return [fit.model(self.symbols, {}, input_interpolation=self.settings[
-            "input_interpolation"]) for fit in self.refits]
+        return [self._as_model(fit, {}) for fit in self.refits]
+
+    def _as_model(self, fit: Fit, provenance: dict) -> Model:
+        return fit.model(self.symbols, provenance,
+                         input_interpolation=self.settings["input_interpolation"])
 
     def to_json(self) -> dict:
         return {"mode": self.mode, "criterion": _CRITERION[self.mode],
@@ -516,8 +517,8 @@ class _Problem:
         options = [population, simulator.refiner.refine(population, fixed).population]
         every = _stack(*options)
         responses, scores = simulator.full.simulate(every)
-        if not all(self._chosen(responses, scores, i, count, len(options))[1] for i in
-                   range(count)):
+        chosen = [self._chosen(responses, scores, i, count, len(options)) for i in range(count)]
+        if not all(simulates for _, simulates in chosen):
             pooled = [s.plus(Terms(state=tuple(f for f in self.pool_lhs
                                                if f not in s.state + s.parametric),
                                    forcing=self.pool_forcing)) for s in structures]
@@ -527,12 +528,10 @@ class _Problem:
                         _rows(refined.population, slice(count, 2 * count))]
             every = _stack(*options)
             responses, scores = simulator.full.simulate(every)
-        fits = []
-        for i, s in enumerate(structures):
-            j, _ = self._chosen(responses, scores, i, count, len(options))
-            fits.append(self._simulated_fit(s, every, j, responses[j], simulator.train,
-                                            scores.status[j]))
-        return fits
+            chosen = [self._chosen(responses, scores, i, count, len(options))
+                      for i in range(count)]
+        return [self._simulated_fit(s, every, j, responses[j], simulator.train, scores.status[j])
+                for s, (j, _) in zip(structures, chosen)]
 
     def _starts(self, structures: list[Structure], fitted: list[Structure], ev):
         """Populations of ``structures`` with their coefficients from the weak-form least
@@ -664,7 +663,7 @@ def rank_by_output_error(problem: _Problem, candidates: list[Candidate], results
     on the held-out output error with one step of look-ahead (module docstring, 4.); the
     candidates' evidence is rewritten to say so. While the leader owes its place to a
     predicted pair, that pair is refitted and its prediction replaced by the refit."""
-    charge = [(1.0 - min_gain) ** -_complexity(c) for c in candidates]
+    charge = [_charge(c, min_gain) for c in candidates]
     alone = [r.criterion * k for r, k in zip(results, charge)]
     pairs: dict[tuple[int, int], float] = {}
     for i, fit in enumerate(results):
@@ -876,8 +875,7 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         # held-out error charged (1 − min_gain) per added parameter must beat the current
         # model's by more than its sampling error; simulation: the best-ranked such
         # candidate, equation error: the lowest
-        penalised = [r.criterion / (1.0 - min_gain) ** _complexity(c)
-                     for r, c in zip(results, shortlisted)]
+        penalised = [r.criterion * _charge(c, min_gain) for r, c in zip(results, shortlisted)]
         required = current.criterion * (1.0 - problem.sampling_error(chosen_mode))
         passing = [i for i, value in enumerate(penalised) if value < required]
         if not passing:
@@ -905,11 +903,12 @@ def _fit(problem: _Problem, mode: str, structures: list[Structure]) -> list[Fit]
     return problem.fit_simulation(structures)
 
 
-def _complexity(candidate: Candidate) -> int:
-    """Coefficients plus nonlinear parameters an effect adds."""
+def _charge(candidate: Candidate, min_gain: float) -> float:
+    """(1 − min_gain)^−p, p = the coefficients plus nonlinear parameters the effect adds:
+    the factor on its held-out mean square for the parameters it spends."""
     terms = candidate.terms
-    return len(terms.state + terms.parametric + terms.forcing) + len(
-        candidate.effect.parameters)
+    added = len(terms.state + terms.parametric + terms.forcing) + len(candidate.effect.parameters)
+    return (1.0 - min_gain) ** -added
 
 
 def _frozen(candidate: Candidate) -> Effect:

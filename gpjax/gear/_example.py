@@ -98,7 +98,7 @@ def generate_gear_example(*, seed: int = 0, noise_phi: float = 2e-5, noise_torqu
         phi0, phi_dot0, t0: initial conditions (eq. 13).
         time_name, response_name, input_name: column names of the measurement.
         extra_force: ``(t, φ, φ') -> N·m``, a further force on the left-hand side of
-            eq. 14 (an effect the model does not declare; see ``tests/test_diagnose.py``).
+            eq. 14 (an effect the model does not declare; see :mod:`gpjax.gear._undeclared`).
     """
     truth = dict(PAPER_TRUTH if truth is None else truth)
     j, k1, k2 = truth["J"], truth["K1"], truth["K2"]

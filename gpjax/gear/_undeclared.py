@@ -125,6 +125,7 @@ def _effect_force(name: str, rng: np.random.Generator, strength: float
         return (lambda t, x, v: f0), {"F0": f0}
     if name == "backlash":
         k, c, b = strength * draw(600, 1200), 0.0123 + draw(-5e-4, 5e-4), draw(4e-4, 1e-3)
-        return (lambda t, x, v: k * ((x - c) + 0.5 * (abs(x - c - b) - abs(x - c + b)))), {
-            "k": k, "centre": c, "half_width": b}
+        phi = sp.Symbol("phi")
+        zone = sp.lambdify(phi, dead_zone(phi, c, b), "numpy")  # the library's own term
+        return (lambda t, x, v: k * zone(x)), {"k": k, "centre": c, "half_width": b}
     return None, {}  # quadratic_stiffness, input_gain, control: eq. 14 itself
