@@ -12,6 +12,7 @@ import tomllib
 from pathlib import Path
 from typing import Any
 
+from ._convergence import MAX_SUBSTEPS
 from ._data import INPUT_INTERPOLATIONS
 from ._errors import ConfigError, read_user_file
 
@@ -60,7 +61,13 @@ class GPConfig:
             In tree mode every new candidate is refined from its tree's constants before
             it competes (Lamarckian), and refine_top only matters as 0 (no refinement).
         refine_iterations: maximum Levenberg–Marquardt steps per refinement.
-        substeps: fixed RK4 steps per sample interval.
+        substeps: fixed RK4 steps per sample interval, or ``"auto"``: chosen from the data's
+            bandwidth for the search, then raised (and the reported model refitted) until
+            the reported model's RK4 response agrees with an adaptive high-order reference
+            solve to ``convergence_tolerance`` (:mod:`gpjax._convergence`). A number is
+            used as given, and the check is still made and reported.
+        convergence_tolerance: the largest RMS difference between the reported model's RK4
+            and reference responses, as a fraction of its RMS residual (default 1 %).
         input_interpolation: how inputs are reconstructed between samples at the RK4 stage
             times, ``"linear"`` or ``"bandlimited"`` (for inputs with content near the
             Nyquist frequency; :func:`gpjax._data.between_samples`).
@@ -103,7 +110,8 @@ class GPConfig:
     coefficients: str = "least_squares"
     refine_top: int = 5
     refine_iterations: int = 10
-    substeps: int = 1
+    substeps: int | str = "auto"
+    convergence_tolerance: float = 0.01
     input_interpolation: str = "linear"
     initial_conditions: tuple[float, float] | None = None
     selection_tolerance: float = 0.05
@@ -181,10 +189,9 @@ def _plain(value: Any) -> Any:
 
 
 _INT_FIELDS = {"population", "generations", "max_depth", "max_size", "max_degree",
-               "tournament_size", "n_bins", "refine_top", "refine_iterations", "substeps",
-               "local_search"}
+               "tournament_size", "n_bins", "refine_top", "refine_iterations", "local_search"}
 _FLOAT_FIELDS = {"epsilon", "p_crossover", "p_mutation", "p_perturbation", "p_reproduction",
-                 "w_time", "w_freq", "selection_tolerance"}
+                 "w_time", "w_freq", "selection_tolerance", "convergence_tolerance"}
 
 
 def _number(name: str, value: Any, source: str, *, integer: bool) -> float | int:
@@ -207,6 +214,10 @@ def _convert(name: str, value: Any, source: str) -> Any:
         if not isinstance(value, (list, tuple)) or not all(isinstance(v, str) for v in value):
             raise ConfigError(f"{source}: {name} must be a list of names, got {value!r}")
         return tuple(value)
+    if name == "substeps":
+        if value == "auto":
+            return value
+        return _number(name, value, source, integer=True)
     if name in ("coefficients", "input_interpolation"):
         if not isinstance(value, str):
             raise ConfigError(f"{source}: {name} must be a string, got {value!r}")
@@ -305,7 +316,12 @@ def _validate(c: GPConfig) -> None:
          f"coefficients must be one of {', '.join(COEFFICIENT_MODES)}, got {c.coefficients!r}")
     need(c.refine_top >= 0, f"refine_top must be >= 0, got {c.refine_top}")
     need(c.refine_iterations >= 1, f"refine_iterations must be at least 1, got {c.refine_iterations}")
-    need(1 <= c.substeps <= 64, f"substeps must be between 1 and 64, got {c.substeps}")
+    need(c.substeps == "auto" or (isinstance(c.substeps, int) and not isinstance(c.substeps, bool)
+                                  and 1 <= c.substeps <= MAX_SUBSTEPS),
+         f"substeps must be \"auto\" or an integer between 1 and {MAX_SUBSTEPS}, got "
+         f"{c.substeps!r}")
+    need(0 < c.convergence_tolerance < 1,
+         f"convergence_tolerance must be in (0, 1), got {c.convergence_tolerance}")
     need(c.input_interpolation in INPUT_INTERPOLATIONS,
          f"input_interpolation must be one of {', '.join(INPUT_INTERPOLATIONS)}, got "
          f"{c.input_interpolation!r}")

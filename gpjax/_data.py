@@ -14,7 +14,8 @@ import math
 from pathlib import Path
 
 import numpy as np
-from scipy.signal import resample_poly
+from scipy.interpolate import CubicSpline
+from scipy.signal import firwin, resample_poly
 
 from ._errors import DataError
 
@@ -25,6 +26,10 @@ SAMPLING_TOLERANCE = 1e-3
 MAX_MAGNITUDE = 1e100
 #: How inputs are reconstructed between samples (see :func:`between_samples`).
 INPUT_INTERPOLATIONS = ("linear", "bandlimited")
+#: Points per sample interval of the band-limited reconstruction (:func:`bandlimited_spline`).
+BANDLIMITED_FACTOR = 16
+#: Samples on either side that one band-limited value between samples draws on.
+BANDLIMITED_REACH = 32
 
 
 @dataclasses.dataclass(frozen=True)
@@ -63,7 +68,7 @@ class Measurement:
         if any(name.endswith("_dot") or name.endswith("_ddot") for name in names):
             raise DataError("column names must not end in _dot or _ddot (reserved for derivatives); "
                             "rename the column")
-        _check_time(time)
+        check_time(time)
         if n < MIN_SAMPLES:
             raise DataError(f"only {n} samples; gpjax needs at least {MIN_SAMPLES}")
         if np.ptp(response) == 0:
@@ -108,11 +113,10 @@ def between_samples(values: np.ndarray, factor: int, method: str = "linear") -> 
     pass through the samples, which stay at indices 0, factor, 2·factor, …
 
     ``"linear"`` joins the samples by straight lines. ``"bandlimited"`` reconstructs the
-    signal between them as band-limited (polyphase FIR with a Kaiser-windowed sinc,
-    :func:`scipy.signal.resample_poly`, the ends extended by a fitted line): for an input
-    with content near the Nyquist frequency, where half-way between samples linear
+    signal between them as band-limited (:func:`bandlimited_spline`): for an input with
+    content near the Nyquist frequency, where half-way between samples linear
     interpolation keeps only cos(π·f/fs) of a component at f. It is non-causal — a value
-    between two samples uses about ten samples on either side.
+    between two samples uses :data:`BANDLIMITED_REACH` samples on either side.
 
     Raises:
         ValueError: ``factor`` < 1 or an unknown ``method``.
@@ -127,9 +131,36 @@ def between_samples(values: np.ndarray, factor: int, method: str = "linear") -> 
     n = (values.size - 1) * factor + 1
     if method == "linear":
         return np.interp(np.arange(n) / factor, np.arange(values.size), values)
-    out = resample_poly(values, factor, 1, padtype="line")[:n]
+    if BANDLIMITED_FACTOR % factor == 0:
+        return _bandlimited_grid(values)[:: BANDLIMITED_FACTOR // factor]
+    out = bandlimited_spline(values)(np.arange(n) / factor)
     out[::factor] = values
     return out
+
+
+def _bandlimited_grid(values: np.ndarray) -> np.ndarray:
+    """``values`` at :data:`BANDLIMITED_FACTOR` times the sample rate, band-limited:
+    polyphase FIR (:func:`scipy.signal.resample_poly`, the ends extended by a fitted line)
+    with a Kaiser-windowed sinc (β = 10) spanning ±32 samples, which reproduces a tone
+    up to 0.9 × Nyquist within 1e-5 of its amplitude (scipy's default ±10-sample, β = 5
+    filter: 3e-3, whose images a fine integrator would see), passing through the samples."""
+    n = (values.size - 1) * BANDLIMITED_FACTOR + 1
+    taps = firwin(2 * BANDLIMITED_FACTOR * BANDLIMITED_REACH + 1, 1.0 / BANDLIMITED_FACTOR,
+                  window=("kaiser", 10.0))
+    out = resample_poly(values, BANDLIMITED_FACTOR, 1, window=taps, padtype="line")[:n]
+    out[::BANDLIMITED_FACTOR] = values
+    return out
+
+
+def bandlimited_spline(values: np.ndarray) -> CubicSpline:
+    """The band-limited reconstruction of ``values`` as a function of the sample index
+    (0 … N − 1, fractional between samples): :func:`_bandlimited_grid` joined by a cubic
+    spline. This one function is the ``"bandlimited"`` input: the RK4 stage values
+    (:func:`between_samples`) and the reference solve (:mod:`gpjax._reference`) both
+    evaluate it; the spline's own error is ~(π/16)⁴/384 ≈ 4e-6 of a component at the
+    Nyquist frequency."""
+    fine = _bandlimited_grid(np.asarray(values, dtype=np.float64))
+    return CubicSpline(np.arange(fine.size) / BANDLIMITED_FACTOR, fine)
 
 
 def _as_vector(values, name: str) -> np.ndarray:
@@ -150,7 +181,8 @@ def _as_vector(values, name: str) -> np.ndarray:
     return array
 
 
-def _check_time(time: np.ndarray) -> None:
+def check_time(time: np.ndarray) -> None:
+    """Refuse a time axis that is not strictly increasing and uniform (DataError)."""
     steps = np.diff(time)
     if steps.size and np.any(steps <= 0):
         i = int(np.argmax(steps <= 0))
@@ -179,6 +211,20 @@ def load_csv(path: str | Path, *, time: str, response: str,
         DataError: missing file or column, non-numeric cell, NaN/inf, fewer than 20 rows,
             time not strictly increasing or not uniform.
     """
+    data = read_columns(path, [time, response, *inputs])
+    return Measurement(
+        time=data[time], response=data[response],
+        inputs={name: data[name] for name in inputs}, time_name=time, response_name=response)
+
+
+def read_columns(path: str | Path, wanted: list[str], *,
+                 optional: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """Columns of a CSV file with a header row, by name (``optional`` ones only if present).
+
+    Raises:
+        DataError: missing file or wanted column, a column named twice, non-numeric cell,
+            NaN/inf, fewer than 20 rows.
+    """
     path = Path(path)
     try:
         with open(path, newline="", encoding="utf-8-sig") as handle:
@@ -195,12 +241,12 @@ def load_csv(path: str | Path, *, time: str, response: str,
     header = [cell.strip() for cell in rows[0]]
     while header and header[-1] == "":
         header.pop()
-    wanted = [time, response, *inputs]
     if len(set(wanted)) != len(wanted):
         raise DataError(f"the same column is named twice in {wanted}; name each column once")
     if len(header) == 1 and any(sep in header[0] for sep in ";\t|"):
         raise DataError(f"{path} does not look comma-separated (header {header[0]!r}); "
                         "convert it to a comma-separated file")
+    wanted = wanted + [name for name in optional if name in header and name not in wanted]
     for name in wanted:
         if header.count(name) > 1:
             raise DataError(f"column {name!r} appears {header.count(name)} times in the header of "
@@ -226,10 +272,7 @@ def load_csv(path: str | Path, *, time: str, response: str,
             data[name].append(value)
     if len(rows) - 1 < MIN_SAMPLES:
         raise DataError(f"{path} has {len(rows) - 1} data rows; gpjax needs at least {MIN_SAMPLES}")
-    return Measurement(
-        time=np.array(data[time]), response=np.array(data[response]),
-        inputs={name: np.array(data[name]) for name in inputs},
-        time_name=time, response_name=response)
+    return {name: np.array(values) for name, values in data.items()}
 
 
 def _is_number(text: str) -> bool:

@@ -7,19 +7,23 @@ generation, so ``fit(..., resume=True)`` continues a killed run exactly).
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import signal
 import threading
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 from ._config import GPConfig
+from ._convergence import MAX_SUBSTEPS, Convergence, check_model, initial_substeps, next_substeps
 from ._data import Measurement
 from ._errors import UserInputError
 from ._evolve import Evolution, RunState
+from ._evaluator import OK
 from ._fitness import Fitness, Record
 from ._model import Model, simulate_model
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
@@ -47,7 +51,9 @@ class Identifier:
     After :meth:`fit`: ``model_`` (the reported :class:`Model`), ``equations_`` (the Pareto
     table of complexity vs objective, one dict per row), ``history_`` (per generation),
     ``stopped_by`` (``"epsilon"``, ``"generations"`` or ``"interrupted"``), timings in
-    ``timings_``.
+    ``timings_``, and ``convergence_``: each check of the reported model's RK4 integration
+    against the reference solve (:class:`~gpjax._convergence.Convergence`), the last one
+    passed unless a fixed ``substeps`` was too coarse (then a warning says so).
     """
 
     def __init__(self, config: GPConfig | None = None, **overrides):
@@ -59,6 +65,9 @@ class Identifier:
         self.stopped_by = ""
         self.timings_: dict[str, float] = {}
         self.measurement_: Measurement | None = None
+        self.convergence_: list[Convergence] = []
+        self._front: list[Record] = []
+        self._chosen: Record | None = None
 
     # --- fitting ----------------------------------------------------------------------
     def fit(self, measurement: Measurement, *, seed: int = 0, out: str | Path | None = None,
@@ -79,7 +88,9 @@ class Identifier:
             raise UserInputError(f"seed must be a non-negative integer, got {seed!r}")
         began = time.perf_counter()
         out = Path(out) if out is not None else None
-        fitness = Fitness(measurement, self.config)
+        substeps = (initial_substeps(measurement) if self.config.substeps == "auto"
+                    else self.config.substeps)
+        fitness = Fitness(measurement, self.config, substeps=substeps)
         evolution = Evolution(fitness, self.config)
         fingerprint = data_fingerprint(measurement)
         if resume:
@@ -114,9 +125,13 @@ class Identifier:
                            "epsilon" if last.best_objective <= self.config.epsilon
                            else "generations")
         self._select(fitness, seed, state)
-        self.timings_ = {"total_s": time.perf_counter() - began,
-                         "compile_s": (fitness.evaluator.compile_seconds
-                                       + fitness.refiner.compile_seconds),
+        compile_s = fitness.evaluator.compile_seconds + fitness.refiner.compile_seconds
+        converging = time.perf_counter()
+        fitness = self._converge(fitness, seed, state)
+        if fitness is not evolution.fitness:
+            compile_s += fitness.evaluator.compile_seconds + fitness.refiner.compile_seconds
+        self.timings_ = {"total_s": time.perf_counter() - began, "compile_s": compile_s,
+                         "convergence_s": time.perf_counter() - converging,
                          "generations": state.generation}
         if out is not None:
             self._write(out, fitness)
@@ -140,8 +155,40 @@ class Identifier:
             raise UserInputError(f"{out / CHECKPOINT} is damaged ({err}); start the run afresh "
                                  "without --resume") from None
 
+    def _converge(self, fitness: Fitness, seed: int, state: RunState) -> Fitness:
+        """Check the reported model's integration against the reference solve; with
+        ``substeps="auto"``, refit the Pareto front and the reported model at more RK4
+        steps until it passes (:mod:`gpjax._convergence`). Returns the fitness in use."""
+        tolerance = self.config.convergence_tolerance
+        while True:
+            check = check_model(self.model_, self.measurement_, tolerance=tolerance)
+            self.convergence_.append(check)
+            if (check.converged or self.config.substeps != "auto"
+                    or check.substeps >= MAX_SUBSTEPS):
+                break
+            # The structures were ranked at the coarser step (the ranking, unlike the
+            # constants, barely moves); the front and the reported model are refitted.
+            carried = {r.key: r for r in self._front + [self._chosen]}
+            fitness = Fitness(self.measurement_, self.config, substeps=next_substeps(check))
+            adopted = {r.key: r for r in fitness.adopt(list(carried.values()))}
+            chosen = adopted[self._chosen.key]
+            if not (chosen.valid and chosen.status == OK):
+                break
+            self._report(fitness, pareto_front([r for r in adopted.values()
+                                                if r.status == OK]), chosen, seed, state)
+        self.model_ = dataclasses.replace(
+            self.model_, convergence=check.to_json(),
+            metrics=self.model_.metrics | {"rms_reference": check.rms_reference})
+        if not check.converged:
+            warnings.warn(f"the reported model's RK4 response differs from the reference "
+                          f"solve by {check.ratio:.1%} of its RMS residual at "
+                          f"{check.substeps} steps per sample (tolerance "
+                          f"{tolerance:.1%}); use substeps = \"auto\" or more substeps",
+                          stacklevel=3)
+        return fitness
+
     def _select(self, fitness: Fitness, seed: int, state: RunState) -> None:
-        valid = [r for r in fitness.records.values() if r.valid and r.status == 0]
+        valid = [r for r in fitness.records.values() if r.valid and r.status == OK]
         if not valid:
             raise UserInputError(
                 "no candidate model could be simulated (all invalid or diverged); check that "
@@ -150,9 +197,15 @@ class Identifier:
         fitness.refine(front)
         best = min(valid, key=lambda r: (r.objective, r.n_terms))
         chosen, _ = simplify(fitness, best, self.config.selection_tolerance)
-        front = pareto_front([r for r in fitness.records.values() if r.valid and r.status == 0])
+        self._report(fitness, pareto_front([r for r in fitness.records.values()
+                                            if r.valid and r.status == OK]), chosen, seed, state)
+
+    def _report(self, fitness: Fitness, front: list[Record], chosen: Record, seed: int,
+                state: RunState) -> None:
+        """Set the equations table (``front``, with ``chosen`` marked), history and model."""
         if chosen.key not in {r.key for r in front}:
             front = sorted(front + [chosen], key=lambda r: (r.n_terms, r.objective))
+        self._front, self._chosen = front, chosen
         self.equations_ = [_row(r, fitness, chosen) for r in front]
         self.history_ = [dict(vars(h)) for h in state.history]
         self.model_ = self._to_model(chosen, fitness, seed, state)
@@ -162,6 +215,7 @@ class Identifier:
             symbols=fitness.symbols, mass=record.mass, state=dict(record.state),
             forcing=dict(record.forcing), initial_conditions=record.y0,
             input_interpolation=self.config.input_interpolation,
+            substeps=fitness.evaluator.substeps,
             metrics={"rms": record.rms, "f_time": record.f_time, "f_freq": record.f_freq,
                      "objective": record.objective, "n_bins": fitness.evaluator.n_bins},
             provenance={"seed": seed, "generations": state.generation,
@@ -188,8 +242,11 @@ class Identifier:
             raise UserInputError("this Identifier has no model yet; call fit() or load() first")
         return self.model_
 
-    def simulate(self, measurement: Measurement | None = None) -> np.ndarray:
-        """The model's response on ``measurement`` (default: the fitting data).
+    def simulate(self, measurement: Measurement | None = None, *,
+                 solver: str = "reference") -> np.ndarray:
+        """The model's response on ``measurement`` (default: the fitting data), by the
+        reference solve (adaptive diffrax Dopri8) or ``solver="rk4"`` (the run's own
+        fixed-step integrator; see :meth:`Model.simulate`).
 
         On the fitting data the fitted initial conditions are used; on other data they
         are estimated from its first samples (eq. 13).
@@ -198,12 +255,14 @@ class Identifier:
         if measurement is None:
             if self.measurement_ is None:
                 raise UserInputError("no data to simulate on; pass a Measurement")
-            return simulate_model(model, self.measurement_,
-                                  initial_conditions=model.initial_conditions)[0]
-        return simulate_model(model, measurement)[0]
+            return model.simulate(self.measurement_, initial_conditions=model.initial_conditions,
+                                  solver=solver)
+        return model.simulate(measurement, solver=solver)
 
     def score(self, measurement: Measurement | None = None) -> float:
-        """Coefficient of determination R² of the simulated response (1 is perfect)."""
+        """Coefficient of determination R² of the response simulated by the reference
+        solve (1 is perfect); its RMS error is ``model_.metrics["rms_reference"]`` on the
+        fitting data."""
         data = measurement or self.measurement_
         simulated = self.simulate(measurement)
         residual = np.sum((data.response - simulated) ** 2)
@@ -222,6 +281,13 @@ class Identifier:
         lines = [f"{self.model_}",
                  f"  RMS {m.get('rms', float('nan')):.4g}   f = {m.get('objective', float('nan')):.4g}"
                  f"   stopped by {self.stopped_by or 'n/a'}"]
+        check = self.model_.convergence
+        if check:
+            lines.append(f"  RMS by the reference solve (diffrax Dopri8) "
+                         f"{check['rms_reference']:.4g}; RK4 at {check['substeps']} step(s) "
+                         f"per sample differs by {check['ratio']:.2%} of it "
+                         f"({'converged' if check['converged'] else 'NOT converged'}, "
+                         f"tolerance {check['tolerance']:.0%})")
         if self.equations_:
             lines.append("  complexity  objective     equation")
             for row in self.equations_:

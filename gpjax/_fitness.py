@@ -82,15 +82,19 @@ class Fitness:
     Args:
         measurement: the data.
         config: the run's settings.
+        substeps: RK4 steps per sample interval (default: the config's, which must then
+            be a number rather than ``"auto"``).
     """
 
-    def __init__(self, measurement: Measurement, config: GPConfig):
+    def __init__(self, measurement: Measurement, config: GPConfig, *,
+                 substeps: int | None = None):
         self.measurement = measurement
         self.config = config
         self.symbols = Symbols(measurement.response_name, measurement.time_name,
                                measurement.input_names)
         self.evaluator = PopulationEvaluator(
-            measurement, self.symbols, max_degree=config.max_degree, substeps=config.substeps,
+            measurement, self.symbols, max_degree=config.max_degree,
+            substeps=substeps or config.substeps,
             n_bins=config.n_bins, w_time=config.w_time, w_freq=config.w_freq,
             batch=min(config.population, 512),
             fit_initial_conditions=config.initial_conditions is None,
@@ -204,6 +208,17 @@ class Fitness:
     def _score_records(self, records: list[Record]) -> None:
         scores = self.evaluator.score(self.population(records))
         _store(records, scores)
+
+    def adopt(self, records: list[Record]) -> list[Record]:
+        """Copies of ``records`` (from a run at another step count) scored, refined and
+        cached here; returns the copies."""
+        copies = [dataclasses.replace(Record.from_json(r.to_json()), refined=False)
+                  for r in records if r.valid]
+        self._score_records(copies)
+        for record in copies:
+            self.records[record.key] = record
+        self.refine(copies)
+        return copies
 
     def refine(self, records: list[Record]) -> None:
         """Refine the constants of ``records`` (in place) on the simulated response."""

@@ -23,10 +23,12 @@ import numpy as np
 import sympy as sp
 
 from ._canonical import Symbols, check_structure
+from ._convergence import MAX_SUBSTEPS
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._errors import ModelFileError, read_user_file
 from ._evaluator import Population, PopulationEvaluator, default_n_bins
 from ._expressions import parse_expression
+from ._reference import ReferenceSolver, measurement_scale, reference_response
 
 FORMAT = "gpjax-model"
 VERSION = 1
@@ -50,6 +52,11 @@ class Model:
         input_interpolation: how inputs are reconstructed between samples when simulating,
             ``"linear"`` or ``"bandlimited"`` (:func:`gpjax._data.between_samples`); the
             constants were fitted with it (file: ``simulation.input_interpolation``).
+        substeps: RK4 steps per sample interval the constants were fitted with (file:
+            ``simulation.integrator``).
+        convergence: the check of that integration against the reference solve
+            (:meth:`gpjax._convergence.Convergence.to_json`), or ``None`` if not checked
+            (file: ``simulation.convergence``).
     """
 
     symbols: Symbols
@@ -61,6 +68,8 @@ class Model:
     provenance: dict = dataclasses.field(default_factory=dict)
     parametric: dict[str, float] = dataclasses.field(default_factory=dict)
     input_interpolation: str = "linear"
+    substeps: int = 1
+    convergence: dict | None = None
 
     # --- symbolic views -----------------------------------------------------------------
     def _feature(self, text: str) -> sp.Expr:
@@ -130,8 +139,10 @@ class Model:
         return f"{self.equation()}   with {constants}"
 
     # --- simulation ---------------------------------------------------------------------
-    def evaluator(self, measurement: Measurement, *, substeps: int = 1) -> PopulationEvaluator:
-        """An evaluator on ``measurement`` whose basis holds this model's features."""
+    def evaluator(self, measurement: Measurement, *,
+                  substeps: int | None = None) -> PopulationEvaluator:
+        """An RK4 evaluator on ``measurement`` whose basis holds this model's features
+        (``substeps`` default: the model's)."""
         polynomial, extra, degree = [], [], 1
         for text in self.state:
             feature = self._feature(text)
@@ -144,7 +155,8 @@ class Model:
                 extra.append(feature)
         extra += [self._feature(text) for text in self.parametric]
         return PopulationEvaluator(measurement, self.symbols, max_degree=degree,
-                                   substeps=substeps, extra_state_features=tuple(extra), batch=1,
+                                   substeps=substeps or self.substeps,
+                                   extra_state_features=tuple(extra), batch=1,
                                    n_bins=min(default_n_bins(measurement.response), 256),
                                    input_interpolation=self.input_interpolation)
 
@@ -159,6 +171,49 @@ class Model:
             pop.forcing[0, evaluator.forcing_index(self._feature(text))] = value
         pop.y0[0] = y0
         return pop
+
+    def simulate(self, measurement: Measurement, *,
+                 initial_conditions: tuple[float, float] | None = None,
+                 solver: str = "reference") -> np.ndarray:
+        """The response (N,) on ``measurement``'s time grid and inputs.
+
+        Args:
+            measurement: time grid and inputs (names as the model's).
+            initial_conditions: (x, x') at the first sample; default: estimated from the
+                measurement's first samples (eq. 13).
+            solver: ``"reference"`` (adaptive diffrax Dopri8, :mod:`gpjax._reference`) or
+                ``"rk4"`` (the fixed-step integrator the model was fitted with).
+
+        Raises:
+            ModelFileError: the measurement's inputs differ from the model's.
+            ValueError: an unknown solver.
+        """
+        if solver not in ("reference", "rk4"):
+            raise ValueError(f"solver must be 'reference' or 'rk4', got {solver!r}")
+        if solver == "rk4":
+            return simulate_model(self, measurement, initial_conditions=initial_conditions)[0]
+        _check_inputs(self, measurement)
+        y0 = initial_conditions or estimate_initial_conditions(measurement)
+        return reference_response(self, measurement.time, measurement.inputs, y0,
+                                  scale=measurement_scale(measurement))[0]
+
+    def simulate_inputs(self, time: np.ndarray, inputs: dict[str, np.ndarray],
+                        initial_conditions: tuple[float, float]) -> np.ndarray:
+        """The response (N,) to ``inputs`` (name -> (N,)) at uniform sample ``time`` (s)
+        from ``initial_conditions`` (x, x'), by the reference solve; NaN if it fails.
+
+        Raises:
+            ModelFileError: an input of the model is missing.
+        """
+        missing = [u for u in self.symbols.inputs if u not in inputs]
+        if missing:
+            raise ModelFileError(f"input {missing[0]!r} of the model is not given; pass every "
+                                 f"input of {list(self.symbols.inputs)}")
+        scale = (abs(initial_conditions[0]), abs(initial_conditions[1]))
+        return reference_response(self, np.asarray(time, dtype=np.float64),
+                                  {u: np.asarray(inputs[u], dtype=np.float64)
+                                   for u in self.symbols.inputs},
+                                  initial_conditions, scale=scale)[0]
 
     # --- JSON ---------------------------------------------------------------------------
     def to_json(self) -> dict:
@@ -183,7 +238,10 @@ class Model:
                 "response": ic[0], "response_dot": ic[1]},
             "metrics": dict(self.metrics),
             "canonical": canonical,
-            "simulation": {"input_interpolation": self.input_interpolation},
+            "simulation": {"input_interpolation": self.input_interpolation,
+                           "integrator": {"method": "rk4", "substeps": self.substeps},
+                           "reference_solver": ReferenceSolver().to_json(),
+                           **({"convergence": self.convergence} if self.convergence else {})},
             "provenance": self.provenance,
         }
 
@@ -266,11 +324,21 @@ class Model:
         if interpolation not in INPUT_INTERPOLATIONS:
             fail(f'"simulation" must be {{"input_interpolation": one of '
                  f'{list(INPUT_INTERPOLATIONS)}}}, got {simulation!r}')
+        integrator = simulation.get("integrator") or {"method": "rk4", "substeps": 1}
+        substeps = integrator.get("substeps") if isinstance(integrator, dict) else None
+        if (not isinstance(integrator, dict) or integrator.get("method", "rk4") != "rk4"
+                or isinstance(substeps, bool) or not isinstance(substeps, int)
+                or not 1 <= substeps <= MAX_SUBSTEPS):
+            fail(f'"simulation.integrator" must be {{"method": "rk4", "substeps": 1 … '
+                 f'{MAX_SUBSTEPS}}}, got {integrator!r}')
+        convergence = simulation.get("convergence")
         return cls(symbols=symbols, mass=mass, state=state, forcing=forcing,
                    initial_conditions=initial,
                    metrics={k: v for k, v in metrics.items() if isinstance(v, (int, float))},
                    provenance=provenance if isinstance(provenance, dict) else {},
-                   parametric=parametric, input_interpolation=interpolation)
+                   parametric=parametric, input_interpolation=interpolation,
+                   substeps=substeps,
+                   convergence=convergence if isinstance(convergence, dict) else None)
 
     @classmethod
     def load(cls, path: str | Path) -> "Model":
@@ -332,16 +400,21 @@ def estimate_initial_conditions(measurement: Measurement) -> tuple[float, float]
     return float(d.x[0]), float(d.x_dot[0])
 
 
+def _check_inputs(model: Model, measurement: Measurement) -> None:
+    if tuple(measurement.input_names) != tuple(model.symbols.inputs):
+        raise ModelFileError(f"the model's inputs {list(model.symbols.inputs)} differ from the "
+                             f"data's {list(measurement.input_names)}; pass the same --input columns")
+
+
 def simulate_model(model: Model, measurement: Measurement, *,
                    initial_conditions: tuple[float, float] | None = None):
-    """Simulate ``model`` on ``measurement``'s time grid and inputs.
+    """Simulate ``model`` by its fixed-step RK4 (``model.substeps``) on ``measurement``'s
+    time grid and inputs.
 
     Returns (response (N,), scores). Initial conditions: the argument, else estimated from
     the measurement (eq. 13).
     """
-    if tuple(measurement.input_names) != tuple(model.symbols.inputs):
-        raise ModelFileError(f"the model's inputs {list(model.symbols.inputs)} differ from the "
-                             f"data's {list(measurement.input_names)}; pass the same --input columns")
+    _check_inputs(model, measurement)
     y0 = initial_conditions or estimate_initial_conditions(measurement)
     evaluator = model.evaluator(measurement)
     responses, scores = evaluator.simulate(model.population(evaluator, y0))

@@ -1,4 +1,4 @@
-"""Command line: ``gpjax demo``, ``gpjax fit``, ``gpjax diagnose``.
+"""Command line: ``gpjax demo``, ``gpjax fit``, ``gpjax diagnose``, ``gpjax simulate``.
 
 User errors (bad file, column, configuration, model file) print one line,
 ``gpjax: error: <problem>; <fix>``, exit with status 2 and leave no output behind.
@@ -60,6 +60,15 @@ def _parser() -> argparse.ArgumentParser:
     diagnose.add_argument("--out", default="gpjax-diagnose",
                           help="report folder (default: gpjax-diagnose)")
     _diagnose_options(diagnose)
+    simulate = commands.add_parser("simulate", help="simulate a saved model on new input "
+                                   "with the reference solver (adaptive diffrax Dopri8)")
+    simulate.add_argument("model", help="model.json")
+    simulate.add_argument("data", help="CSV file with the model's time and input columns "
+                          "(and its response column, unless --initial is given)")
+    simulate.add_argument("--out", required=True, help="CSV file to write (time, response)")
+    simulate.add_argument("--initial", nargs=2, type=_finite_float, metavar=("X0", "V0"),
+                          help="response and its derivative at the first sample (default: "
+                          "estimated from the data's first samples, eq. 13)")
     return parser
 
 
@@ -86,6 +95,16 @@ def _positive_float(text: str) -> float:
         raise argparse.ArgumentTypeError(f"invalid number: {text!r}") from None
     if not (value > 0 and value < float("inf")):
         raise argparse.ArgumentTypeError(f"must be a positive finite number, got {text}")
+    return value
+
+
+def _finite_float(text: str) -> float:
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"invalid number: {text!r}") from None
+    if value != value or value in (float("inf"), float("-inf")):
+        raise argparse.ArgumentTypeError(f"must be a finite number, got {text}")
     return value
 
 
@@ -188,6 +207,43 @@ def _run_diagnosis(args, measurement, model, out: Path) -> None:
     print(f"Report in {out}/ (report.md, report.json, model.json, figures)")
 
 
+def _simulate(args) -> int:
+    import numpy as np
+
+    from ._data import Measurement, check_time, read_columns
+    from ._model import Model
+    from ._report import write_text_atomic
+
+    out = Path(args.out)
+    if out.is_dir():
+        raise UserInputError(f"--out {out} is a folder; give a CSV file name")
+    model = Model.load(args.model)
+    names = model.symbols
+    data = read_columns(args.data, [names.time, *names.inputs], optional=(names.response,))
+    check_time(data[names.time])
+    if names.response in data:
+        measurement = Measurement(time=data[names.time], response=data[names.response],
+                                  inputs={u: data[u] for u in names.inputs},
+                                  time_name=names.time, response_name=names.response)
+        response = model.simulate(measurement, initial_conditions=args.initial
+                                  and tuple(args.initial))
+    elif args.initial is None:
+        raise UserInputError(f"{args.data} has no column {names.response!r} to estimate the "
+                             "initial state from; give --initial X0 V0")
+    else:
+        response = model.simulate_inputs(data[names.time], {u: data[u] for u in names.inputs},
+                                         tuple(args.initial))
+    if not np.all(np.isfinite(response)):
+        raise UserInputError("the model diverged on this input (the reference solve failed); "
+                             "check the input's units and the initial state")
+    lines = [f"{names.time},{names.response}"] + [
+        f"{t!r},{x!r}" for t, x in zip(map(float, data[names.time]), map(float, response))]
+    write_text_atomic(out, "\n".join(lines) + "\n")
+    print(f"Simulated {model.sympy()} on {len(response)} samples (reference solve); "
+          f"wrote {out}")
+    return 0
+
+
 def _run(config, measurement, seed, out: Path, *, resume: bool):
     from ._estimator import Identifier
 
@@ -206,7 +262,8 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gpjax`` console script; returns the exit status."""
     try:
         args = _parser().parse_args(argv)
-        handler = {"demo": _demo, "fit": _fit, "diagnose": _diagnose}[args.command]
+        handler = {"demo": _demo, "fit": _fit, "diagnose": _diagnose,
+                   "simulate": _simulate}[args.command]
         return handler(args)
     except UserInputError as err:
         message = " ".join(str(err).split("\n"))  # one line, whatever a name holds

@@ -74,8 +74,9 @@ def test_model_file_records_the_interpolation_and_simulation_uses_it(tmp_path):
                   forcing={"u": 1.0}, input_interpolation="bandlimited")
     model.save(tmp_path / "model.json")
     again = Model.load(tmp_path / "model.json")
-    assert again == model and again.to_json()["simulation"] == {
-        "input_interpolation": "bandlimited"}
+    simulation = again.to_json()["simulation"]
+    assert again == model and simulation["input_interpolation"] == "bandlimited"
+    assert simulation["integrator"] == {"method": "rk4", "substeps": 1}
     written_by_hand = {key: model.to_json()[key] for key in ("variables", "canonical")}
     assert Model.from_json(written_by_hand).input_interpolation == "linear"
     band, _ = simulate_model(again, record, initial_conditions=(0.0, 0.0))

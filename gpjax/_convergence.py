@@ -1,0 +1,107 @@
+"""Converged integration: RK4 steps per sample chosen so the model does not depend on them.
+
+A model fitted with too coarse an integrator has constants that compensate the
+integrator's error: the ODE it names is another system. The fixed-step RK4 of the run is
+therefore checked on the reported model against the reference solve
+(:mod:`gpjax._reference`, adaptive 8th order, tight tolerances): the RMS difference of the
+two simulated responses must stay below ``tolerance`` (default 1 %) of the RMS residual
+of the model against the data. Otherwise the step count grows and the model is refitted.
+
+* **Start** (:func:`initial_substeps`): from the data's bandwidth. The highest frequency
+  f_max below which :data:`BANDWIDTH_FRACTION` of the input's and the response's AC
+  power lies must satisfy ω·h ≤ :data:`STEP_PHASE` (ω = 2π·f_max, h = Δt / substeps),
+  where RK4's relative local error, ~(ωh)⁵/120, is 3e-4.
+* **Growth** (:func:`next_substeps`): RK4's global error falls as h⁴, so a measured
+  ratio r at s substeps needs s·(r / (tolerance/2))^(1/4) — half the tolerance as margin.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+
+from ._data import Measurement
+
+#: Fraction of the AC power of the input and the response that sets the bandwidth.
+BANDWIDTH_FRACTION = 0.999
+#: Largest ω·h at the top of the band for the starting step.
+STEP_PHASE = 0.5
+#: Most RK4 steps per sample interval.
+MAX_SUBSTEPS = 64
+
+
+@dataclasses.dataclass(frozen=True)
+class Convergence:
+    """Outcome of one check of a model's integration (responses in the data's units).
+
+    Attributes:
+        substeps: RK4 steps per sample interval checked.
+        rms_rk4: RMS residual of the RK4 response against the data.
+        rms_reference: RMS residual of the reference response against the data.
+        difference_rms: RMS difference between the RK4 and the reference responses.
+        ratio: ``difference_rms / rms_reference`` (inf if the reference solve failed).
+        tolerance: the largest ratio accepted.
+    """
+
+    substeps: int
+    rms_rk4: float
+    rms_reference: float
+    difference_rms: float
+    ratio: float
+    tolerance: float
+
+    @property
+    def converged(self) -> bool:
+        return self.ratio < self.tolerance
+
+    def to_json(self) -> dict:
+        return dataclasses.asdict(self) | {"converged": self.converged}
+
+
+def bandwidth_hz(measurement: Measurement) -> float:
+    """Highest frequency (Hz) below which :data:`BANDWIDTH_FRACTION` of the AC power of
+    the response and of every input lies."""
+    highest = 0.0
+    frequency = np.fft.rfftfreq(measurement.n_samples, measurement.dt)
+    for values in (measurement.response, *measurement.inputs.values()):
+        power = np.abs(np.fft.rfft(values - np.mean(values))) ** 2
+        total = power.sum()
+        if total > 0:
+            index = int(np.searchsorted(np.cumsum(power) / total, BANDWIDTH_FRACTION))
+            highest = max(highest, float(frequency[min(index, frequency.size - 1)]))
+    return highest
+
+
+def initial_substeps(measurement: Measurement) -> int:
+    """RK4 steps per sample interval for the search (see the module docstring)."""
+    phase = 2 * math.pi * bandwidth_hz(measurement) * measurement.dt
+    return int(min(MAX_SUBSTEPS, max(1, math.ceil(phase / STEP_PHASE))))
+
+
+def next_substeps(check: Convergence) -> int:
+    """The step count a failed check asks for (≥ 2× the last, at most MAX_SUBSTEPS)."""
+    if not math.isfinite(check.ratio):
+        wanted = 4 * check.substeps
+    else:
+        wanted = math.ceil(check.substeps * (check.ratio / (0.5 * check.tolerance)) ** 0.25)
+    return int(min(MAX_SUBSTEPS, max(2 * check.substeps, wanted)))
+
+
+def check_model(model, measurement: Measurement, *, tolerance: float) -> Convergence:
+    """Simulate ``model`` (its fitted initial state, its ``substeps``) by RK4 and by the
+    reference solve and compare them (see :class:`Convergence`)."""
+    y0 = model.initial_conditions
+    rk4 = model.simulate(measurement, initial_conditions=y0, solver="rk4")
+    reference = model.simulate(measurement, initial_conditions=y0)
+    ok = bool(np.all(np.isfinite(reference)))
+    measured = measurement.response
+    rms_rk4 = float(np.sqrt(np.mean((measured - rk4) ** 2)))
+    if not ok:
+        return Convergence(model.substeps, rms_rk4, math.inf, math.inf, math.inf, tolerance)
+    rms_reference = float(np.sqrt(np.mean((measured - reference) ** 2)))
+    difference = float(np.sqrt(np.mean((rk4 - reference) ** 2)))
+    ratio = difference / rms_reference if rms_reference > 0 else (0.0 if difference == 0
+                                                                  else math.inf)
+    return Convergence(model.substeps, rms_rk4, rms_reference, difference, ratio, tolerance)

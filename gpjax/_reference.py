@@ -1,0 +1,172 @@
+"""Reference solve: a model integrated by a high-order adaptive diffrax method.
+
+The run's own integrator is fixed-step RK4 (fast, batched over a population). Whether a
+reported model means the same under *any* accurate solver is checked here, independently:
+the model's equation is lambdified from sympy to one JAX right-hand side and integrated by
+diffrax's 8th-order Dormand–Prince method (``Dopri8``) under PID step-size control with
+tight tolerances, the inputs given as functions of continuous time:
+
+* ``linear``: straight lines between samples (the solver steps exactly to every sample,
+  where the input has a kink);
+* ``hold``: each sample's value until the next (the solver steps to just before and just
+  after every sample, where the input jumps);
+* ``bandlimited``: the cubic spline of :func:`gpjax._data.bandlimited_spline`, the same
+  function the RK4 stage values are taken from.
+
+The state is scaled by the response's and its derivative's spread, so one absolute
+tolerance serves both. A solve that fails (a model that blows up, or more steps than
+allowed) is returned as data (``ok`` false, NaN response), never raised.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import lru_cache
+
+import diffrax
+import equinox as eqx
+import jax
+import jax.numpy as jnp
+import numpy as np
+import sympy as sp
+
+from ._data import BANDLIMITED_FACTOR, Measurement, bandlimited_spline
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class ReferenceSolver:
+    """Settings of the reference solve (diffrax ``Dopri8`` + ``PIDController``).
+
+    Attributes:
+        rtol: relative tolerance.
+        atol: absolute tolerance on the state scaled to unit spread.
+        max_steps_per_sample: step budget per sample interval (the solve fails beyond it).
+
+    Raises:
+        ValueError: a non-positive setting.
+    """
+
+    rtol: float = 1e-10
+    atol: float = 1e-10
+    max_steps_per_sample: int = 64
+
+    def __post_init__(self):
+        if not (self.rtol > 0 and self.atol > 0 and self.max_steps_per_sample >= 1):
+            raise ValueError(f"reference solver settings must be positive, got {self}")
+
+    def to_json(self) -> dict:
+        return {"method": "diffrax.Dopri8", "controller": "PID", "rtol": self.rtol,
+                "atol": self.atol}
+
+
+class _Hold(eqx.Module):
+    """Piecewise-constant inputs: each sample's value until the next sample time."""
+
+    ts: jax.Array
+    ys: jax.Array
+
+    def evaluate(self, t):
+        index = jnp.searchsorted(self.ts, t, side="right") - 1
+        return self.ys[jnp.clip(index, 0, self.ys.shape[0] - 1)]
+
+
+def input_path(time: np.ndarray, inputs: list[np.ndarray], method: str):
+    """Inputs sampled at uniform ``time`` (s) as a diffrax-ready path
+    ``path.evaluate(t) -> (K,)``, with the times the solver must step to (``step_ts``) and
+    across (``jump_ts``), per the module docstring: ``(path, step_ts, jump_ts)``.
+
+    Raises:
+        ValueError: an unknown method.
+    """
+    n, dt = time.size, float((time[-1] - time[0]) / (time.size - 1))
+    times = jnp.asarray(time)
+    values = np.stack(inputs, axis=1) if inputs else np.zeros((n, 0))
+    if method == "linear":
+        return diffrax.LinearInterpolation(ts=times, ys=jnp.asarray(values)), times, None
+    if method == "hold":
+        return _Hold(ts=times, ys=jnp.asarray(values)), None, times
+    if method == "bandlimited":
+        splines = [bandlimited_spline(values[:, k]) for k in range(values.shape[1])]
+        fine = np.arange((n - 1) * BANDLIMITED_FACTOR + 1) / BANDLIMITED_FACTOR
+        # scipy's coefficients (highest power first, in units of the sample index) rescaled
+        # to seconds are diffrax's (d, c, b, a); one column per input
+        coeffs = tuple(jnp.asarray(np.stack([s.c[i] for s in splines], axis=-1).reshape(
+            fine.size - 1, len(splines)) / dt ** (3 - i)) for i in range(4))
+        path = diffrax.CubicInterpolation(ts=jnp.asarray(time[0] + fine * dt), coeffs=coeffs)
+        return path, None, None
+    raise ValueError(f"unknown input interpolation {method!r}")
+
+
+def _structure(model) -> tuple[sp.Expr, tuple[sp.Symbol, ...], np.ndarray]:
+    """x'' of a :class:`~gpjax._model.Model` as one sympy expression in x, x', t, the
+    inputs and one symbol per constant, the symbols and their values."""
+    features = [(text, -value) for text, value in (*model.state.items(),
+                                                   *model.parametric.items())]
+    features += list(model.forcing.items())
+    constants = sp.symbols(f"_c0:{len(features) + 1}")
+    force = sum((c * model._feature(text) for c, (text, _) in zip(constants[1:], features)),
+                sp.Integer(0))
+    values = np.array([1.0 / model.mass] + [v for _, v in features])
+    return constants[0] * force, constants, values
+
+
+@lru_cache(maxsize=64)
+def _field(expression: sp.Expr, names: tuple, constants: tuple):
+    """The scaled vector field ``field(t, y, (values, path, scale))`` of one structure;
+    cached, so models of one structure share a compiled solve."""
+    rhs = sp.lambdify((*names, constants), expression, modules="jax")
+    n_inputs = len(names) - 3
+
+    def field(time, y, args):
+        values, path, scale = args
+        position, velocity = y[0] * scale[0], y[1] * scale[1]
+        inputs = path.evaluate(time)
+        acceleration = rhs(position, velocity, time,
+                           *(inputs[k] for k in range(n_inputs)), values)
+        return jnp.stack([velocity, acceleration]) / scale
+    return field
+
+
+def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
+                       initial_conditions: tuple[float, float], *,
+                       scale: tuple[float, float] = (1.0, 1.0),
+                       solver: ReferenceSolver = ReferenceSolver()) -> tuple[np.ndarray, bool]:
+    """A model's response at uniformly spaced sample times by the reference solve.
+
+    Args:
+        model: a :class:`~gpjax._model.Model`.
+        time: sample times (N,) in seconds, uniform.
+        inputs: the model's inputs by name, (N,) each.
+        initial_conditions: (x, x') at the first sample.
+        scale: typical sizes of x and x' (the absolute tolerance applies to x/scale).
+        solver: tolerances.
+
+    Returns:
+        (response (N,), ok); a failed solve gives NaN and ``ok`` false.
+    """
+    symbols = model.symbols
+    expression, constants, values = _structure(model)
+    field = _field(expression, (symbols.x, symbols.x_dot, symbols.t, *symbols.u), constants)
+    path, step_ts, jump_ts = input_path(time, [inputs[name] for name in symbols.inputs],
+                                        model.input_interpolation)
+    scale = jnp.asarray([s if s > 0 else 1.0 for s in scale])
+    controller = diffrax.PIDController(rtol=solver.rtol, atol=solver.atol)
+    if step_ts is not None or jump_ts is not None:
+        controller = diffrax.ClipStepSizeController(controller, step_ts=step_ts,
+                                                    jump_ts=jump_ts)
+    dt = float((time[-1] - time[0]) / (time.size - 1))
+    solution = diffrax.diffeqsolve(
+        diffrax.ODETerm(field), diffrax.Dopri8(), t0=float(time[0]), t1=float(time[-1]),
+        dt0=dt / 4, y0=jnp.asarray(initial_conditions) / scale,
+        args=(jnp.asarray(values), path, scale), saveat=diffrax.SaveAt(ts=jnp.asarray(time)),
+        stepsize_controller=controller, max_steps=solver.max_steps_per_sample * time.size,
+        throw=False)
+    x = np.asarray(solution.ys[:, 0]) * float(scale[0])
+    ok = bool(solution.result == diffrax.RESULTS.successful) and bool(np.all(np.isfinite(x)))
+    return (x if ok else np.full(time.shape, np.nan)), ok
+
+
+def measurement_scale(measurement: Measurement) -> tuple[float, float]:
+    """Typical sizes of x and x' in a measurement: the spreads of the response and of its
+    sample-to-sample rate."""
+    return (float(np.std(measurement.response)),
+            float(np.std(np.diff(measurement.response)) / measurement.dt))
