@@ -24,7 +24,7 @@ SAMPLING_TOLERANCE = 1e-3
 #: Largest magnitude accepted in any column; beyond it squares overflow float64.
 MAX_MAGNITUDE = 1e100
 #: How inputs are reconstructed between samples (see :func:`between_samples`).
-INPUT_INTERPOLATIONS = ("linear", "bandlimited")
+INPUT_INTERPOLATIONS = ("linear", "bandlimited", "hold")
 
 
 @dataclasses.dataclass(frozen=True)
@@ -107,12 +107,15 @@ def between_samples(values: np.ndarray, factor: int, method: str = "linear") -> 
     """``values`` (N,) at ``factor`` times the sample rate: (N − 1)·factor + 1 points that
     pass through the samples, which stay at indices 0, factor, 2·factor, …
 
-    ``"linear"`` joins the samples by straight lines. ``"bandlimited"`` reconstructs the
-    signal between them as band-limited (polyphase FIR with a Kaiser-windowed sinc,
-    :func:`scipy.signal.resample_poly`, the ends extended by a fitted line): for an input
-    with content near the Nyquist frequency, where half-way between samples linear
+    ``"linear"`` joins the samples by straight lines: for smooth inputs sampled well above
+    their bandwidth. ``"bandlimited"`` reconstructs the signal between them as band-limited
+    (polyphase FIR with a Kaiser-windowed sinc, :func:`scipy.signal.resample_poly`, the ends
+    extended by a fitted line): for inputs with content near the Nyquist frequency that were
+    anti-alias filtered (e.g. Silverbox), where half-way between samples linear
     interpolation keeps only cos(π·f/fs) of a component at f. It is non-causal — a value
-    between two samples uses about ten samples on either side.
+    between two samples uses about ten samples on either side. ``"hold"`` holds each sample
+    for one period, u(t) = u_k on [t_k, t_(k+1)) (zero-order hold): for inputs applied by a
+    DAC, where the measured input is the commanded value held for a period.
 
     Raises:
         ValueError: ``factor`` < 1 or an unknown ``method``.
@@ -127,6 +130,8 @@ def between_samples(values: np.ndarray, factor: int, method: str = "linear") -> 
     n = (values.size - 1) * factor + 1
     if method == "linear":
         return np.interp(np.arange(n) / factor, np.arange(values.size), values)
+    if method == "hold":
+        return np.repeat(np.asarray(values, dtype=np.float64), factor)[:n]
     out = resample_poly(values, factor, 1, padtype="line")[:n]
     out[::factor] = values
     return out
