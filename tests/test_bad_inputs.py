@@ -238,7 +238,7 @@ CLI_CASES = [
                 ["coefficients must be one of", "least_squares", "'magic'"]),
     config_case("config-substeps-zero", "substeps = 0\n", ["substeps must be between 1 and 64"]),
     config_case("config-input-interpolation-unknown", 'input_interpolation = "cubic"\n',
-                ["input_interpolation must be one of", "bandlimited", "'cubic'"]),
+                ["input_interpolation must be one of", "bandlimited", "hold", "'cubic'"]),
     config_case("config-init-depth-beyond-max-depth", "max_depth = 3\ninit_depth = [2, 5]\n",
                 ["init_depth", "max_depth"]),
     # --- command-line arguments -----------------------------------------------------------
@@ -253,7 +253,7 @@ CLI_CASES = [
     case("unknown-flag", (*FIT, *SMALL, "--frobnicate"), {"data.csv": VALID_CSV},
          ["unrecognized arguments: --frobnicate", "--help"]),
     case("input-interpolation-unknown", (*FIT, *SMALL, "--input-interpolation", "sinc"),
-         {"data.csv": VALID_CSV}, ["--input-interpolation", "invalid choice", "'sinc'"]),
+         {"data.csv": VALID_CSV}, ["--input-interpolation", "invalid choice", "hold", "'sinc'"]),
     case("missing-time-flag", ("fit", "data.csv", "--response", "x", *SMALL),
          {"data.csv": VALID_CSV}, ["required: --time", "gpjax fit --help"]),
     case("no-subcommand", (), {}, ["required", "gpjax --help"]),
@@ -491,7 +491,7 @@ MODEL_CASES = [
     mcase("constant-in-state-terms", with_feature("1"), ["terms"]),
     mcase("acceleration-in-state-terms", with_feature("phi_ddot"), ["terms"]),
     mcase("simulation-interpolation-unknown", dict(model_json(), simulation={
-        "input_interpolation": "spline"}), ['"simulation"', "bandlimited", "spline"]),
+        "input_interpolation": "spline"}), ['"simulation"', "bandlimited", "hold", "spline"]),
     mcase("simulation-not-an-object", dict(model_json(), simulation="bandlimited"),
           ['"simulation" must be']),
     mcase("input-named-like-a-derivative",
