@@ -69,8 +69,9 @@ class GPConfig:
         convergence_tolerance: the largest RMS difference between the reported model's RK4
             and reference responses, as a fraction of its RMS residual (default 1 %).
         input_interpolation: how inputs are reconstructed between samples at the RK4 stage
-            times, ``"linear"`` or ``"bandlimited"`` (for inputs with content near the
-            Nyquist frequency; :func:`gpjax._data.between_samples`).
+            times: ``"linear"``, ``"bandlimited"`` (for inputs with content near the
+            Nyquist frequency) or ``"hold"`` (for inputs applied by a DAC, each sample held
+            for one period); :func:`gpjax._data.between_samples`.
         initial_conditions: ``(x0, x_dot0)`` at the first sample, or ``None`` to estimate
             them from the data (eq. 13).
         selection_tolerance: the reported model is the simplest one whose objective is within

@@ -25,7 +25,7 @@ SAMPLING_TOLERANCE = 1e-3
 #: Largest magnitude accepted in any column; beyond it squares overflow float64.
 MAX_MAGNITUDE = 1e100
 #: How inputs are reconstructed between samples (see :func:`between_samples`).
-INPUT_INTERPOLATIONS = ("linear", "bandlimited")
+INPUT_INTERPOLATIONS = ("linear", "bandlimited", "hold")
 #: Points per sample interval of the band-limited reconstruction (:func:`bandlimited_spline`).
 BANDLIMITED_FACTOR = 16
 #: Samples on either side that one band-limited value between samples draws on.
@@ -112,11 +112,15 @@ def between_samples(values: np.ndarray, factor: int, method: str = "linear") -> 
     """``values`` (N,) at ``factor`` times the sample rate: (N − 1)·factor + 1 points that
     pass through the samples, which stay at indices 0, factor, 2·factor, …
 
-    ``"linear"`` joins the samples by straight lines. ``"bandlimited"`` reconstructs the
-    signal between them as band-limited (:func:`bandlimited_spline`): for an input with
-    content near the Nyquist frequency, where half-way between samples linear
+    ``"linear"`` joins the samples by straight lines: for smooth inputs sampled well above
+    their bandwidth. ``"bandlimited"`` reconstructs the signal between them as band-limited
+    (:func:`bandlimited_spline`): for inputs with content near the Nyquist frequency that
+    were anti-alias filtered (e.g. Silverbox), where half-way between samples linear
     interpolation keeps only cos(π·f/fs) of a component at f. It is non-causal — a value
-    between two samples uses :data:`BANDLIMITED_REACH` samples on either side.
+    between two samples uses :data:`BANDLIMITED_REACH` samples on either side. ``"hold"``
+    holds each sample for one period, u(t) = u_k on [t_k, t_(k+1)) (zero-order hold): for
+    inputs applied by a DAC, where the measured input is the commanded value held for a
+    period.
 
     Raises:
         ValueError: ``factor`` < 1 or an unknown ``method``.
@@ -131,6 +135,8 @@ def between_samples(values: np.ndarray, factor: int, method: str = "linear") -> 
     n = (values.size - 1) * factor + 1
     if method == "linear":
         return np.interp(np.arange(n) / factor, np.arange(values.size), values)
+    if method == "hold":
+        return np.repeat(np.asarray(values, dtype=np.float64), factor)[:n]
     if BANDLIMITED_FACTOR % factor == 0:
         return _bandlimited_grid(values)[:: BANDLIMITED_FACTOR // factor]
     out = bandlimited_spline(values)(np.arange(n) / factor)

@@ -805,9 +805,10 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             must bring (on top of the held-out error's own sampling error, √(2/n)).
         iterations: Levenberg–Marquardt steps per refit.
         substeps: RK4 steps per sample interval.
-        input_interpolation: inputs between samples in the simulation, ``"linear"`` or
-            ``"bandlimited"`` (:func:`gpjax._data.between_samples`; for inputs with content
-            near the Nyquist frequency); default: the starting model's. The final model
+        input_interpolation: inputs between samples in the simulation, ``"linear"``,
+            ``"bandlimited"`` (for inputs with content near the Nyquist frequency) or
+            ``"hold"`` (for inputs applied by a DAC; :func:`gpjax._data.between_samples`);
+            default: the starting model's. The final model
             records it.
         mode: ``"auto"``, ``"simulation"`` or ``"equation_error"``.
 

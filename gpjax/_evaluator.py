@@ -5,7 +5,8 @@ The population enters as *data*: every model is ``mass·x'' + C·φ(x, x') = G·
 * φ a fixed basis of state features (x, x², …, x^D, x', …, x'^D, plus optional extra
   features compiled in), so the coefficient matrix C (P, F_state) is an array;
 * ψ the forcing features, evaluated once on the host (numpy) at every RK4 stage time and
-  passed in as an array (n_stage, F_forcing), so new forcing features cost no compile.
+  passed in as an array (n_stage, F_forcing), so new forcing features cost no compile
+  (rows: :meth:`PopulationEvaluator.stage_rows`).
 
 One fixed-step RK4 solve integrates the whole population; the same compiled function scores
 every model (eqs. 7–9). A model that blows up is marked ``DIVERGED`` and scored with a large
@@ -54,6 +55,8 @@ DIVERGENCE_RANGES = 100.0
 #: Fraction of the measured response's AC spectral energy the default m bins hold.
 SPECTRAL_ENERGY_FRACTION = 0.99
 INTEGRATORS = ("scan", "diffrax")
+HOLD_WITH_DIFFRAX = ('the "diffrax" integrator cannot simulate "hold" inputs (it looks the '
+                     'forcing up by time alone); use integrator="scan"')
 #: Most (RK4 stage × model) numbers one compiled call holds per array (200 MB in float64).
 STAGE_ELEMENTS_PER_CALL = 25_000_000
 
@@ -137,10 +140,14 @@ class PopulationEvaluator:
         integrator: ``"scan"`` or ``"diffrax"`` (see the module docstring).
         devices: devices a batch is split over; default all of ``jax.devices()``.
         input_interpolation: how inputs are reconstructed at the RK4 stage times between
-            samples, ``"linear"`` or ``"bandlimited"`` (:func:`gpjax._data.between_samples`).
+            samples, ``"linear"``, ``"bandlimited"`` or ``"hold"``
+            (:func:`gpjax._data.between_samples`). With ``"hold"`` the forcing rows are
+            split per step (:meth:`stage_rows`), so RK4 keeps its fourth order across the
+            input's jumps at the sample times.
 
     Raises:
-        ValueError: for an unknown integrator or input interpolation.
+        ValueError: for an unknown integrator or input interpolation, or ``"hold"`` with
+            the ``"diffrax"`` integrator.
     """
 
     def __init__(self, measurement: Measurement, symbols: Symbols, *, max_degree: int = 4,
@@ -151,6 +158,8 @@ class PopulationEvaluator:
                  input_interpolation: str = "linear"):
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
+        if integrator == "diffrax" and input_interpolation == "hold":
+            raise ValueError(HOLD_WITH_DIFFRAX)
         self.measurement = measurement
         self.symbols = symbols
         self.state_features = (polynomial_state_features(symbols, max_degree)
@@ -159,8 +168,11 @@ class PopulationEvaluator:
         self.max_degree = max_degree
         self.substeps = substeps
         self.integrator = integrator
+        self.input_interpolation = input_interpolation
+        #: Whether every RK4 step has its own three forcing rows (see :meth:`stage_rows`).
+        self.split_stages = input_interpolation == "hold"
         self.devices = list(devices) if devices is not None else jax.devices()
-        n_stage = 2 * (measurement.n_samples - 1) * substeps + 1
+        n_stage = self.stage_rows(measurement.n_samples)
         batch = max(1, min(batch, STAGE_ELEMENTS_PER_CALL // n_stage))
         self.batch = -(-batch // len(self.devices)) * len(self.devices)
         self.fit_initial_conditions = fit_initial_conditions
@@ -168,10 +180,13 @@ class PopulationEvaluator:
         n = measurement.n_samples
         self.h = measurement.dt / substeps
         self.n_steps = (n - 1) * substeps
-        self.stage_times = measurement.time[0] + 0.5 * self.h * np.arange(2 * self.n_steps + 1)
+        if self.split_stages:
+            steps = np.arange(self.n_steps)[:, None] + np.array([0.0, 0.5, 1.0])
+            self.stage_times = measurement.time[0] + self.h * steps.ravel()
+        else:
+            self.stage_times = measurement.time[0] + 0.5 * self.h * np.arange(2 * self.n_steps + 1)
         self.stage_times[-1] = measurement.time[-1]
-        self.input_interpolation = input_interpolation
-        self._stage_inputs = {name: between_samples(values, 2 * substeps, input_interpolation)
+        self._stage_inputs = {name: self._at_stages(values)
                               for name, values in measurement.inputs.items()}
         self.n_bins = n_bins if n_bins is not None else default_n_bins(measurement.response)
         self.n_bins = min(self.n_bins, n // 2 + 1)
@@ -196,6 +211,24 @@ class PopulationEvaluator:
                                 out_specs=split, check_vma=False)
         self._run = jax.jit(run)
         self._compiled: set[tuple] = set()
+
+    def stage_rows(self, samples: int) -> int:
+        """Forcing rows that the first ``samples`` samples need (the rows of
+        :attr:`stage_times` and of every forcing matrix).
+
+        Shared layout, 2·(samples − 1)·substeps + 1 rows: t0, t0 + h/2, t0 + h, … with a
+        step's end row the next step's start. Split layout (``"hold"``),
+        3·(samples − 1)·substeps rows: every step's start, middle and end, the end row
+        holding the input's left limit, since a held input jumps at every sample time.
+        """
+        steps = (samples - 1) * self.substeps
+        return 3 * steps if self.split_stages else 2 * steps + 1
+
+    def _at_stages(self, values: np.ndarray) -> np.ndarray:
+        """An input's samples (N,) reconstructed at every forcing row (:meth:`stage_rows`)."""
+        if self.split_stages:  # every stage of a step sees the value held over that step
+            return np.repeat(between_samples(values, self.substeps, "hold")[:-1], 3)
+        return between_samples(values, 2 * self.substeps, self.input_interpolation)
 
     # --- feature bookkeeping ----------------------------------------------------------
     def state_index(self, feature: sp.Expr) -> int | None:
@@ -405,9 +438,9 @@ class PopulationEvaluator:
     def _rk4_scan(self, rates, y0, forces, saved):
         """Classical RK4 over the stage grid in ``lax.scan`` for a tuple of states.
 
-        ``rates(y, force, t)`` gives dy/dt; ``forces`` holds arrays with the stage axis
-        first (t0, t0 + h/2, t0 + h, …); ``saved(y)`` picks what is returned at the sample
-        times, each with the initial value first.
+        ``rates(y, force, t)`` gives dy/dt; ``forces`` holds arrays with the forcing rows
+        first (layout: :meth:`stage_rows`); ``saved(y)`` picks what is returned at the
+        sample times, each with the initial value first.
         """
         h = self.h
         t0 = float(self.stage_times[0])
@@ -427,7 +460,10 @@ class PopulationEvaluator:
                       for a, b1, b2, b3, b4 in zip(y, k1, k2, k3, k4))
             return (y, i + 1), saved(y)
 
-        stages = jax.tree_util.tree_map(lambda f: (f[0:-1:2], f[1::2], f[2::2]), forces)
+        if self.split_stages:
+            stages = jax.tree_util.tree_map(lambda f: (f[0::3], f[1::3], f[2::3]), forces)
+        else:
+            stages = jax.tree_util.tree_map(lambda f: (f[0:-1:2], f[1::2], f[2::2]), forces)
         stages = jax.tree_util.tree_transpose(
             jax.tree_util.tree_structure(forces), jax.tree_util.tree_structure((0, 0, 0)), stages)
         _, path = jax.lax.scan(step, (y0, jnp.zeros((), jnp.int32)), stages)
@@ -439,7 +475,14 @@ class PopulationEvaluator:
 
         ``adjoint=diffrax.ForwardMode()`` makes the solve forward-differentiable (for
         Levenberg–Marquardt); the default suits plain evaluation.
+
+        Raises:
+            ValueError: for ``"hold"`` inputs: the vector field looks the forcing up by time
+                alone, which cannot tell a step's end (the input's left limit) from the next
+                step's start; use the ``"scan"`` integrator.
         """
+        if self.split_stages:
+            raise ValueError(HOLD_WITH_DIFFRAX)
         t0 = float(self.stage_times[0])
         half = 0.5 * self.h
         acceleration = self._acceleration_fn(mass, state)

@@ -50,8 +50,8 @@ class Model:
         parametric: feature text -> coefficient of declared time-varying terms g(t)·h(x)
             or g(t)·h(x') (see the module docstring); on the left-hand side like ``state``.
         input_interpolation: how inputs are reconstructed between samples when simulating,
-            ``"linear"`` or ``"bandlimited"`` (:func:`gpjax._data.between_samples`); the
-            constants were fitted with it (file: ``simulation.input_interpolation``).
+            ``"linear"``, ``"bandlimited"`` or ``"hold"`` (:func:`gpjax._data.between_samples`);
+            the constants were fitted with it (file: ``simulation.input_interpolation``).
         substeps: RK4 steps per sample interval the constants were fitted with (file:
             ``simulation.integrator``).
         convergence: the check of that integration against the reference solve

@@ -178,7 +178,7 @@ class Refiner:
         solve, and materialising J is a matrix product, not one tangent solve per constant.
         """
         ev = self.evaluator
-        n_stage = 2 * (samples - 1) * ev.substeps + 1
+        n_stage = ev.stage_rows(samples)
         if self.jacobian == "autodiff":
             def plain(delta, start, index, index_scale, forcing_basis):
                 constants = _moved(start, index, index_scale, delta)

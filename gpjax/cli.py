@@ -82,8 +82,9 @@ def _diagnose_options(parser) -> None:
                         help="most effects added (default 4)")
     parser.add_argument("--input-interpolation", choices=INPUT_INTERPOLATIONS,
                         dest="input_interpolation",
-                        help="inputs between samples in the simulation: linear, or "
-                        "bandlimited for inputs with content near the Nyquist frequency "
+                        help="inputs between samples in the simulation: linear; "
+                        "bandlimited for inputs with content near the Nyquist frequency; "
+                        "hold for inputs applied by a DAC, each sample held for one period "
                         "(fit: the GP's too, default the config's; diagnose: default the "
                         "model's)")
 

@@ -93,7 +93,7 @@ def test_refiner_jacobian_equals_autodiff_of_the_simulated_response(refiner):
 
     def plain(delta):
         p = start.at[index].add(scale * delta)
-        stages = basis[: 2 * (samples - 1) * evaluator.substeps + 1]
+        stages = basis[: evaluator.stage_rows(samples)]
         return evaluator.scan_solve(p[0:1], p[None, 1:1 + n_state],
                                     (stages @ p[1 + n_state:-2])[:, None], p[None, -2:])[:, 0]
 
