@@ -19,12 +19,12 @@ import sympy as sp
 from ._canonical import CanonicalForm, Symbols, check_tree
 from ._config import GPConfig
 from ._data import Measurement
-from ._equation_error import EquationError, smoothed_derivatives
 from ._evaluator import (INVALID_STRUCTURE, OK, PENALTY, Population, PopulationEvaluator,
                          Scores)
 from ._expressions import parse_expression
 from ._refine import Refiner
 from ._trees import Tree
+from ._weak_form import WeakForm, least_squares, smoothed_derivatives
 
 
 @dataclasses.dataclass
@@ -97,7 +97,8 @@ class Fitness:
             input_interpolation=config.input_interpolation)
         cutoff_hz = self.evaluator.n_bins / (measurement.n_samples * measurement.dt)
         self.derivatives = smoothed_derivatives(measurement, cutoff_hz)
-        self.equation_error = EquationError(measurement, self.symbols, self.derivatives)
+        self.weak_form = WeakForm(measurement, self.symbols, self.derivatives.x_dot,
+                                  self.derivatives.window)
         # Least squares starts refinement inside the basin, where the short-horizon
         # continuation (for poor starts) would only double the compile. Tree constants are
         # poor starts: a wrong stiffness wraps the phase over the full record.
@@ -155,7 +156,7 @@ class Fitness:
         for key, form in forms.items():
             state, forcing = form.structure
             if self.config.coefficients == "least_squares":
-                mass, c, g = self.equation_error.solve(state, forcing)
+                mass, c, g, _ = least_squares(self.weak_form, state, forcing)
             else:
                 mass = form.mass
                 c = np.array([v for _, v in form.state])
