@@ -22,6 +22,7 @@ from ._data import Measurement
 from ._evaluator import (INVALID_STRUCTURE, OK, PENALTY, Population, PopulationEvaluator,
                          Scores)
 from ._expressions import parse_expression
+from ._memory import check_fit_memory
 from ._refine import Refiner
 from ._trees import Tree
 from ._weak_form import WeakForm, least_squares, smoothed_derivatives
@@ -82,9 +83,15 @@ class Fitness:
     Args:
         measurement: the data.
         config: the run's settings.
+
+    Raises:
+        UserInputError: the run's estimated memory (:mod:`gpjax._memory`) exceeds what is
+            available.
     """
 
     def __init__(self, measurement: Measurement, config: GPConfig):
+        check_fit_memory(n_samples=measurement.n_samples, substeps=config.substeps,
+                         population=config.population)
         self.measurement = measurement
         self.config = config
         self.symbols = Symbols(measurement.response_name, measurement.time_name,
