@@ -32,7 +32,7 @@ import optimistix as optx  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
 from gpjax import GPConfig, Identifier, Measurement, PopulationEvaluator, Symbols  # noqa: E402
-from gpjax._equation_error import EquationError, smoothed_derivatives  # noqa: E402
+from gpjax._weak_form import WeakForm, least_squares, smoothed_derivatives  # noqa: E402
 from gpjax._evaluator import Population  # noqa: E402
 from gpjax._refine import LINEAR_SOLVER, Refiner  # noqa: E402
 from gpjax.gear import generate_gear_example, load_bundled_example  # noqa: E402
@@ -104,8 +104,8 @@ def refinement(symbols, truth, measurement, iterations, count):
     single = Refiner(ev, iterations=iterations, batch=count, horizons=(1.0,))
     continuation = Refiner(ev, iterations=iterations, batch=count, horizons=(0.25, 1.0))
     derivatives = smoothed_derivatives(clean, ev.n_bins / (clean.n_samples * clean.dt))
-    mass, (k1, k2), _ = EquationError(clean, symbols, derivatives).solve(
-        (symbols.x, symbols.x ** 2), (symbols.u[0],))
+    weak = WeakForm(clean, symbols, derivatives.x_dot, derivatives.window)
+    mass, (k1, k2), _, _ = least_squares(weak, (symbols.x, symbols.x ** 2), (symbols.u[0],))
     u = ev.forcing_index(symbols.u[0])
     estimate = ev.empty(1)
     estimate.mass[:], estimate.state[0, :2], estimate.forcing[0, u] = mass, (k1, k2), 1.0
@@ -206,7 +206,7 @@ def protocol_child(profiled):
     profiler.runcall(run)
     stats = pstats.Stats(profiler).stats
     parts = {"structure checks (sympy)": ("_canonical.py", "check_tree"),
-             "equation-error least squares": ("_equation_error.py", "solve"),
+             "equation-error least squares": ("_weak_form.py", "least_squares"),
              "population evaluation (compiled)": ("_evaluator.py", "_call"),
              "refinement (compiled)": ("_refine.py", "refine"),
              "final model selection": ("_estimator.py", "_select"),

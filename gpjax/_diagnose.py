@@ -60,7 +60,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from functools import lru_cache
 
 import jax
 import jax.numpy as jnp
@@ -71,12 +70,13 @@ from scipy.optimize import minimize
 from ._canonical import Symbols
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._effects import Context, Effect, Terms, effects
-from ._equation_error import savgol_window, smoothed_derivatives
 from ._errors import ModelFileError, UserInputError
 from ._evaluator import PopulationEvaluator, amplitude_spectrum, default_n_bins
 from ._expressions import parse_expression
 from ._model import Model
 from ._refine import Refiner
+from ._weak_form import (WeakForm, design, evaluate, least_squares, savgol_window,
+                         smoothed_derivatives)
 
 #: Strongest spectral lines of each input offered to frequency-dependent effects.
 INPUT_LINES = 6
@@ -95,6 +95,11 @@ class Structure:
     state: tuple[sp.Expr, ...]
     parametric: tuple[sp.Expr, ...]
     forcing: tuple[sp.Expr, ...]
+
+    @property
+    def lhs(self) -> tuple[sp.Expr, ...]:
+        """State then parametric features (the left-hand side's coefficients, in order)."""
+        return self.state + self.parametric
 
     def plus(self, terms: Terms) -> "Structure":
         """This structure with ``terms`` added (features already present are kept once)."""
@@ -237,100 +242,10 @@ def _summary(fit: Fit) -> dict:
                                             "rms_estimation", "rms_holdout")}
 
 
-# --- weak form by convolution ------------------------------------------------------------
-class WeakForm:
-    """Weak-form integrals ∫ψ_k·f dt for test functions ψ_k = (1 − s²)^4 of half width h.
-
-    Windows are centred every h/2 samples (as :func:`gpjax._equation_error.test_functions`)
-    but evaluated by correlation, so memory stays O(N) on long records.
-    """
-
-    def __init__(self, measurement: Measurement, symbols: Symbols, x_dot: np.ndarray,
-                 half_width: int):
-        self.measurement, self.symbols, self.x_dot = measurement, symbols, x_dot
-        h = max(2, min(half_width, (measurement.n_samples - 1) // 2))
-        self.half_width, self.step = h, max(1, h // 2)
-        s = np.arange(-h, h + 1) / h
-        scale, dt = h * measurement.dt, measurement.dt
-        self._kernels = ((1 - s ** 2) ** 4 * dt, -8 * s * (1 - s ** 2) ** 3 / scale * dt,
-                         (-8 * (1 - s ** 2) ** 3 + 48 * s ** 2 * (1 - s ** 2) ** 2)
-                         / scale ** 2 * dt)
-        self.centres = np.arange(h, measurement.n_samples - h, self.step)
-        self.kernel_area = float(np.sum(self._kernels[0]))
-        self._cache: dict[sp.Expr, np.ndarray] = {}
-
-    def _integrate(self, values: np.ndarray, kernel: int) -> np.ndarray:
-        out = np.correlate(values, self._kernels[kernel], mode="valid")
-        return out[: self.centres.size * self.step: self.step][: self.centres.size]
-
-    def acceleration(self) -> np.ndarray:
-        """∫ψ_k''·x: the inertia column (no derivative of the data needed)."""
-        return self._integrate(self.measurement.response, 2)
-
-    def column(self, feature: sp.Expr) -> np.ndarray:
-        """∫ψ_k·feature(x, x', t, u) for every window (cached)."""
-        if feature not in self._cache:
-            if feature == self.symbols.x_dot:
-                self._cache[feature] = -self._integrate(self.measurement.response, 1)
-            else:
-                self._cache[feature] = self._integrate(
-                    evaluate(feature, self.symbols, self.measurement, self.measurement.response,
-                             self.x_dot), 0)
-        return self._cache[feature]
-
-
-def evaluate(feature: sp.Expr, symbols: Symbols, measurement: Measurement, x: np.ndarray,
-             x_dot: np.ndarray) -> np.ndarray:
-    """A feature's values at the samples, given x and x' (numpy)."""
-    fn = _lambdified(feature, symbols)
-    values = fn(x, x_dot, measurement.time,
-                *(measurement.inputs[name] for name in symbols.inputs))
-    return np.broadcast_to(np.asarray(values, dtype=np.float64), x.shape).copy()
-
-
-@lru_cache(maxsize=4096)
-def _lambdified(feature: sp.Expr, symbols: Symbols):
-    return sp.lambdify((symbols.x, symbols.x_dot, symbols.t, *symbols.u), feature,
-                       modules="numpy")
-
-
-def _design(weak: WeakForm, structure: Structure, u0: sp.Symbol | None):
-    """(matrix, target, normalise) of the weak-form least-squares problem."""
-    acceleration = weak.acceleration()
-    normalise = u0 is not None and u0 in structure.forcing
-    columns = [acceleration] if normalise else []
-    columns += [weak.column(f) for f in structure.state + structure.parametric]
-    columns += [-weak.column(g) for g in structure.forcing if not (normalise and g == u0)]
-    target = weak.column(u0) if normalise else -acceleration
-    matrix = np.stack(columns, axis=1) if columns else np.zeros((target.size, 0))
-    return matrix, target, normalise
-
-
-def least_squares(weak: WeakForm, structure: Structure, u0: sp.Symbol | None):
-    """Weak-form least-squares constants: (mass, state+parametric coefficients, forcing
-    coefficients, solution vector of :func:`_design`'s problem). The first input's
-    coefficient is 1 if present, else the mass is 1."""
-    matrix, target, normalise = _design(weak, structure, u0)
-    solution = np.zeros(0)
-    if matrix.shape[1]:
-        scale = np.linalg.norm(matrix, axis=0)
-        scale[scale == 0] = 1.0
-        solution = np.linalg.lstsq(matrix / scale, target, rcond=None)[0] / scale
-    k = 1 if normalise else 0
-    mass = float(solution[0]) if normalise else 1.0
-    n_lhs = len(structure.state) + len(structure.parametric)
-    lhs = solution[k:k + n_lhs]
-    rest = iter(solution[k + n_lhs:])
-    forcing = np.array([1.0 if normalise and g == u0 else float(next(rest))
-                        for g in structure.forcing])
-    return mass, lhs, forcing, solution
-
-
-def explained_fraction(weak: WeakForm, structure: Structure, terms: Terms,
-                       u0: sp.Symbol | None) -> float:
+def explained_fraction(weak: WeakForm, structure: Structure, terms: Terms) -> float:
     """Fraction of the weak-form equation-error residual energy that ``terms`` explain
     after the structure's own regressors are projected out (0 … 1)."""
-    matrix, target, _ = _design(weak, structure, u0)
+    matrix, target, _ = design(weak, structure.lhs, structure.forcing)
     new = [weak.column(f) for f in terms.state + terms.parametric + terms.forcing]
     new = [c for c in new if np.all(np.isfinite(c))]
     if not new:
@@ -368,7 +283,7 @@ def input_lines(measurement: Measurement, *, count: int = INPUT_LINES) -> list[f
 
 
 def rank_effects(weak: WeakForm, structure: Structure, context: Context,
-                 library: dict[str, Effect], u0: sp.Symbol | None, *,
+                 library: dict[str, Effect], *,
                  polish: bool = True) -> list[Candidate]:
     """Every applicable effect with its best parameters, ranked by the fraction of the
     equation-error residual it explains: the best grid point, or if ``polish`` the best
@@ -381,13 +296,13 @@ def rank_effects(weak: WeakForm, structure: Structure, context: Context,
             terms = effect.build(context, parameters)
             if terms is None or set(terms.state + terms.parametric + terms.forcing) <= present:
                 continue
-            scored.append((explained_fraction(weak, structure, terms, u0), parameters, terms))
+            scored.append((explained_fraction(weak, structure, terms), parameters, terms))
         if not scored:
             continue
         scored.sort(key=lambda item: -item[0])
         starts = scored[:POLISH_STARTS if polish and len(effect.parameters) > 1 else 1]
         score, parameters, terms = max(
-            (_polish(effect, context, start, weak, structure, u0) if polish else start
+            (_polish(effect, context, start, weak, structure) if polish else start
              for start in starts), key=lambda item: item[0])
         evidence = f"explains {100 * score:.1f} % of the equation-error residual energy"
         if "frequency" in parameters:
@@ -397,7 +312,7 @@ def rank_effects(weak: WeakForm, structure: Structure, context: Context,
     return ranked
 
 
-def _polish(effect: Effect, context: Context, best, weak, structure, u0):
+def _polish(effect: Effect, context: Context, best, weak, structure):
     """Nelder–Mead on the numeric parameters (within bounds), maximising the evidence."""
     score, parameters, terms = best
     names = [p.name for p in effect.parameters if isinstance(parameters.get(p.name), float)]
@@ -414,7 +329,7 @@ def _polish(effect: Effect, context: Context, best, weak, structure, u0):
         trial = dict(parameters, **{n: float(np.clip(v, *bounds[n]))
                                     for n, v in zip(names, values)})
         built = effect.build(context, trial)
-        return -explained_fraction(weak, structure, built, u0) if built else 0.0
+        return -explained_fraction(weak, structure, built) if built else 0.0
 
     simplex = np.vstack([start] + [start + np.eye(len(names))[i] * steps[i]
                                    for i in range(len(names))])
@@ -489,10 +404,10 @@ class _Problem:
     def fit_equation_error(self, structures: list[Structure]) -> list[Fit]:
         fits = []
         for structure in structures:
-            mass, lhs, forcing, solution = least_squares(self.weak, structure, self.u0)
+            mass, lhs, forcing, solution = least_squares(self.weak, structure.lhs, structure.forcing)
             n_state = len(structure.state)
             fit = Fit(structure, mass, lhs[:n_state], lhs[n_state:], forcing, self.y0, None, {}, 0.0)
-            matrix, target, _ = _design(self.weak_full, structure, self.u0)
+            matrix, target, _ = design(self.weak_full, structure.lhs, structure.forcing)
             # window residual / ∫ψ: the generalised force averaged over each window
             windowed = (target - matrix @ solution) / self.weak_full.kernel_area
             fit.force = self.generalised_force(fit)
@@ -846,7 +761,7 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
     steps, rankings, fits = [], [], []
     for round_number in range(max_steps + 1):
         context = problem.context(structure, lines)
-        ranked = rank_effects(problem.weak, structure, context, library, problem.u0,
+        ranked = rank_effects(problem.weak, structure, context, library,
                               polish=round_number == 0)
         if round_number == 0:  # parameters found on the starting residual are kept
             library = {c.effect.name: _frozen(c) for c in ranked}

@@ -19,12 +19,13 @@ import sympy as sp
 from ._canonical import CanonicalForm, Symbols, check_tree
 from ._config import GPConfig
 from ._data import Measurement
-from ._equation_error import EquationError, smoothed_derivatives
 from ._evaluator import (INVALID_STRUCTURE, OK, PENALTY, Population, PopulationEvaluator,
                          Scores)
 from ._expressions import parse_expression
+from ._memory import check_fit_memory
 from ._refine import Refiner
 from ._trees import Tree
+from ._weak_form import WeakForm, least_squares, smoothed_derivatives
 
 
 @dataclasses.dataclass
@@ -84,24 +85,32 @@ class Fitness:
         config: the run's settings.
         substeps: RK4 steps per sample interval (default: the config's, which must then
             be a number rather than ``"auto"``).
+
+    Raises:
+        UserInputError: the run's estimated memory (:mod:`gpjax._memory`) exceeds what is
+            available.
     """
 
     def __init__(self, measurement: Measurement, config: GPConfig, *,
                  substeps: int | None = None):
+        substeps = substeps or config.substeps
+        check_fit_memory(n_samples=measurement.n_samples, substeps=substeps,
+                         population=config.population)
         self.measurement = measurement
         self.config = config
         self.symbols = Symbols(measurement.response_name, measurement.time_name,
                                measurement.input_names)
         self.evaluator = PopulationEvaluator(
             measurement, self.symbols, max_degree=config.max_degree,
-            substeps=substeps or config.substeps,
+            substeps=substeps,
             n_bins=config.n_bins, w_time=config.w_time, w_freq=config.w_freq,
             batch=min(config.population, 512),
             fit_initial_conditions=config.initial_conditions is None,
             input_interpolation=config.input_interpolation)
         cutoff_hz = self.evaluator.n_bins / (measurement.n_samples * measurement.dt)
         self.derivatives = smoothed_derivatives(measurement, cutoff_hz)
-        self.equation_error = EquationError(measurement, self.symbols, self.derivatives)
+        self.weak_form = WeakForm(measurement, self.symbols, self.derivatives.x_dot,
+                                  self.derivatives.window)
         # Least squares starts refinement inside the basin, where the short-horizon
         # continuation (for poor starts) would only double the compile. Tree constants are
         # poor starts: a wrong stiffness wraps the phase over the full record.
@@ -159,7 +168,7 @@ class Fitness:
         for key, form in forms.items():
             state, forcing = form.structure
             if self.config.coefficients == "least_squares":
-                mass, c, g = self.equation_error.solve(state, forcing)
+                mass, c, g, _ = least_squares(self.weak_form, state, forcing)
             else:
                 mass = form.mass
                 c = np.array([v for _, v in form.state])

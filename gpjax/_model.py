@@ -393,7 +393,7 @@ def _terms(items, where: str, fail) -> dict[str, float]:
 
 def estimate_initial_conditions(measurement: Measurement) -> tuple[float, float]:
     """(x, x') at the first sample from a Savitzky–Golay fit (eq. 13's robust estimate)."""
-    from ._equation_error import smoothed_derivatives
+    from ._weak_form import smoothed_derivatives
 
     cutoff = default_n_bins(measurement.response) / (measurement.n_samples * measurement.dt)
     d = smoothed_derivatives(measurement, cutoff)

@@ -39,6 +39,8 @@ JACOBIANS = ("variational", "autodiff")
 #: ``lm_floor`` in benchmarks/bench_population.py). Constants are scaled by their start
 #: values, so JᵀJ stays well conditioned.
 LINEAR_SOLVER = lx.Normal(lx.LU())
+#: Default models per compiled refinement call and free constants per model.
+BATCH, MAX_FREE = 8, 8
 
 
 @dataclasses.dataclass(frozen=True)
@@ -72,8 +74,8 @@ class Refiner:
             unknown ``jacobian``.
     """
 
-    def __init__(self, evaluator: PopulationEvaluator, *, iterations: int = 20, batch: int = 8,
-                 max_free: int = 8, horizons: tuple[float, ...] = (0.25, 1.0),
+    def __init__(self, evaluator: PopulationEvaluator, *, iterations: int = 20, batch: int = BATCH,
+                 max_free: int = MAX_FREE, horizons: tuple[float, ...] = (0.25, 1.0),
                  jacobian: str = "variational"):
         if not horizons or any(not 0 < h <= 1 for h in horizons) or list(horizons) != sorted(
                 set(horizons)):

@@ -577,3 +577,26 @@ def test_model_file_huge_power_is_refused_quickly(tmp_path):
     finally:
         signal.setitimer(signal.ITIMER_REAL, 0)
         signal.signal(signal.SIGALRM, previous)
+
+
+# --------------------------------------------------------------------------------------
+# Memory guard, in process (the available memory is patched to a small number)
+# --------------------------------------------------------------------------------------
+
+def test_fit_beyond_available_memory_exits_2_and_writes_nothing(tmp_path, monkeypatch, capsys):
+    import gpjax
+    from gpjax import _memory, cli
+
+    data = Path(gpjax.__file__).parent / "data" / "gear_example.csv"
+    monkeypatch.chdir(tmp_path)
+    monkeypatch.setattr(_memory, "available_bytes", lambda: 10 * 2 ** 20)
+    before = _snapshot(tmp_path)
+    status = cli.main(["fit", str(data), "--time", "t", "--response", "phi", "--input", "T",
+                       "--population", "8", "--generations", "1", "--out", "run"])
+    out, err = capsys.readouterr()
+    assert status == 2 and out == ""
+    assert err.count("\n") == 1 and "Traceback" not in err, err
+    assert re.match(r"gpjax: error: this run needs about [\d.]+ GB of memory but 0\.0 GB are "
+                    r"available .*; shorten the record, or lower population or substeps$",
+                    err.rstrip("\n")), err
+    assert _snapshot(tmp_path) == before and not (tmp_path / "run").exists()

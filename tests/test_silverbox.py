@@ -46,8 +46,7 @@ def test_equation_error_evidence_names_the_offset_then_cubic_stiffness(silverbox
     for model in (LINEAR, with_offset):
         structure = structure_of(model)
         context = problem.context(structure, tuple(input_lines(problem.train)))
-        ranked = rank_effects(problem.weak, structure, context, effects(), problem.u0,
-                              polish=False)
+        ranked = rank_effects(problem.weak, structure, context, effects(), polish=False)
         explained.append({c.effect.name: c.explained for c in ranked})
     assert explained[0]["static_offset"] > 0.95
     assert max(explained[0], key=explained[0].get) in ("static_offset", "backlash")

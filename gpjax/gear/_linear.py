@@ -4,7 +4,7 @@
 gradient methods before turning to genetic programming (Fig. 12). This module fits it the
 same way gpjax refines GP candidates, so the two are compared on equal terms:
 
-1. **Start**: weak-form equation-error least squares (:class:`gpjax._equation_error.EquationError`,
+1. **Start**: weak-form equation-error least squares (:func:`gpjax._weak_form.least_squares`,
    the canonical form integrated against compact test functions; no second derivative of
    the noisy response) gives J and K with T's coefficient fixed to 1; the initial state
    (φ, φ') at the first sample comes from a Savitzky–Golay fit (eq. 13's estimate).
@@ -25,11 +25,11 @@ import numpy as np
 
 from .._canonical import Symbols
 from .._data import Measurement
-from .._equation_error import EquationError, smoothed_derivatives
 from .._errors import ConfigError, DataError
 from .._evaluator import OK, default_n_bins
 from .._model import Model
 from .._refine import Refiner
+from .._weak_form import WeakForm, least_squares, smoothed_derivatives
 
 #: How the fit starts, in words (also stored in the model's provenance).
 START = "weak-form equation-error least squares, Savitzky-Golay initial state"
@@ -83,7 +83,8 @@ def fit_linear_model(measurement: Measurement, *, iterations: int = 60) -> Linea
     x, u = symbols.x, symbols.u[0]
     cutoff_hz = default_n_bins(measurement.response) / (measurement.n_samples * measurement.dt)
     derivatives = smoothed_derivatives(measurement, cutoff_hz)
-    mass, (stiffness,), _ = EquationError(measurement, symbols, derivatives).solve((x,), (u,))
+    weak = WeakForm(measurement, symbols, derivatives.x_dot, derivatives.window)
+    mass, (stiffness,), _, _ = least_squares(weak, (x,), (u,))
     y0 = (float(derivatives.x[0]), float(derivatives.x_dot[0]))
     start = _model(symbols, float(mass), float(stiffness), y0, refined=False)
 
