@@ -68,6 +68,7 @@ import sympy as sp
 from scipy.optimize import minimize
 
 from ._canonical import Symbols
+from ._convergence import MAX_SUBSTEPS, check_model, initial_substeps, next_substeps
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._effects import Context, Effect, Terms, effects
 from ._errors import ModelFileError, UserInputError
@@ -126,10 +127,10 @@ class Fit:
     force: np.ndarray | None = None
 
     def model(self, symbols: Symbols, provenance: dict, *,
-              input_interpolation: str = "linear") -> Model:
+              input_interpolation: str = "linear", substeps: int = 1) -> Model:
         """The fit as a :class:`Model` (feature texts as sympy prints them)."""
         return Model(symbols=symbols, mass=float(self.mass),
-                     input_interpolation=input_interpolation,
+                     input_interpolation=input_interpolation, substeps=substeps,
                      state={str(f): float(c) for f, c in zip(self.structure.state, self.state)},
                      forcing={str(f): float(g)
                               for f, g in zip(self.structure.forcing, self.forcing)},
@@ -183,6 +184,7 @@ class Diagnosis:
     measurement: Measurement
     symbols: Symbols
     settings: dict
+    convergence: dict | None = None
 
     @property
     def before(self) -> Fit:
@@ -199,8 +201,12 @@ class Diagnosis:
         return [step["effect"] for step in self.steps]
 
     def model(self) -> Model:
-        """The final model."""
-        return self._as_model(self.after, {"diagnosis": self.effects_added, "mode": self.mode})
+        """The final model, with its integration check (:attr:`convergence`)."""
+        model = self._as_model(self.after, {"diagnosis": self.effects_added, "mode": self.mode})
+        if self.convergence is None:
+            return model
+        return dataclasses.replace(model, convergence=self.convergence, metrics=model.metrics | {
+            "rms_reference": self.convergence["rms_reference"]})
 
     def models(self) -> list[Model]:
         """The starting model and the model after each accepted step, in order, each
@@ -209,7 +215,8 @@ class Diagnosis:
 
     def _as_model(self, fit: Fit, provenance: dict) -> Model:
         return fit.model(self.symbols, provenance,
-                         input_interpolation=self.settings["input_interpolation"])
+                         input_interpolation=self.settings["input_interpolation"],
+                         substeps=self.settings["substeps"])
 
     def to_json(self) -> dict:
         return {"mode": self.mode, "criterion": _CRITERION[self.mode],
@@ -218,7 +225,7 @@ class Diagnosis:
                 "effects_added": self.effects_added,
                 "before": _summary(self.before), "after": _summary(self.after),
                 "steps": self.steps, "rankings": self.rankings,
-                "model": self.model().to_json()}
+                "convergence": self.convergence, "model": self.model().to_json()}
 
 
 _CRITERION = {
@@ -702,8 +709,8 @@ def structure_of(model: Model) -> Structure:
 def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effect] | None = None,
              frequencies: tuple[float, ...] = (), holdout: float = 0.25, max_steps: int = 4,
              shortlist: int = 4, min_gain: float = 0.02, iterations: int = 20,
-             substeps: int = 1, input_interpolation: str | None = None,
-             mode: str = "auto") -> Diagnosis:
+             substeps: int | str = "auto", convergence_tolerance: float = 0.01,
+             input_interpolation: str | None = None, mode: str = "auto") -> Diagnosis:
     """Add missing effects to ``model`` while held-out error improves (module docstring).
 
     Args:
@@ -719,7 +726,12 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         min_gain: relative fall of the held-out mean-square error each added parameter
             must bring (on top of the held-out error's own sampling error, √(2/n)).
         iterations: Levenberg–Marquardt steps per refit.
-        substeps: RK4 steps per sample interval.
+        substeps: RK4 steps per sample interval, or ``"auto"``: the larger of the data's
+            bandwidth rule and the starting model's, raised (and the chosen structures
+            refitted on the whole record) until the final model's RK4 response agrees with
+            the reference solve to ``convergence_tolerance`` of its RMS residual
+            (:mod:`gpjax._convergence`; simulation mode). The check is reported either way.
+        convergence_tolerance: that agreement, as a fraction of the RMS residual.
         input_interpolation: inputs between samples in the simulation, ``"linear"``,
             ``"bandlimited"`` (for inputs with content near the Nyquist frequency) or
             ``"hold"`` (for inputs applied by a DAC; :func:`gpjax._data.between_samples`);
@@ -747,9 +759,15 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
     if input_interpolation not in INPUT_INTERPOLATIONS:
         raise UserInputError(f"input interpolation {input_interpolation!r} is unknown; use "
                              f"{' or '.join(INPUT_INTERPOLATIONS)}")
-    if max_steps < 0 or shortlist < 1 or min_gain < 0 or iterations < 1 or substeps < 1:
-        raise UserInputError("max_steps >= 0, shortlist >= 1, min_gain >= 0, iterations >= 1 "
-                             "and substeps >= 1 are required; fix the setting")
+    automatic = substeps == "auto"
+    if automatic:
+        substeps = max(initial_substeps(measurement), model.substeps)
+    if (max_steps < 0 or shortlist < 1 or min_gain < 0 or iterations < 1
+            or not isinstance(substeps, int) or not 1 <= substeps <= MAX_SUBSTEPS
+            or not 0 < convergence_tolerance < 1):
+        raise UserInputError(f"max_steps >= 0, shortlist >= 1, min_gain >= 0, iterations >= 1, "
+                             f"substeps \"auto\" or 1 … {MAX_SUBSTEPS} and 0 < "
+                             "convergence_tolerance < 1 are required; fix the setting")
     library = effects() if library is None else dict(library)
     problem = _Problem(measurement, symbols, holdout=holdout, iterations=iterations,
                        substeps=substeps, batch=shortlist + 1,
@@ -802,15 +820,25 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         structure, current = results[best].structure, results[best]
         fits.append(current)
     settings = {"holdout": holdout, "max_steps": max_steps, "shortlist": shortlist,
-                "min_gain": min_gain, "iterations": iterations, "substeps": substeps,
+                "min_gain": min_gain, "iterations": iterations,
                 "input_interpolation": input_interpolation}
-    whole = _Problem(measurement, symbols, holdout=0.0, iterations=iterations,
-                     substeps=substeps, batch=len(fits), input_interpolation=input_interpolation)
-    whole.pool_lhs, whole.pool_forcing = problem.pool_lhs, problem.pool_forcing
-    refits = _fit(whole, chosen_mode, [fit.structure for fit in fits])
-    return Diagnosis(mode=chosen_mode, steps=steps, rankings=rankings, fits=fits,
-                     refits=refits, frequencies=lines, n_train=problem.n_train,
-                     measurement=measurement, symbols=symbols, settings=settings)
+    while True:  # the structures are chosen; refit them on the whole record, converged
+        whole = _Problem(measurement, symbols, holdout=0.0, iterations=iterations,
+                         substeps=substeps, batch=len(fits),
+                         input_interpolation=input_interpolation)
+        whole.pool_lhs, whole.pool_forcing = problem.pool_lhs, problem.pool_forcing
+        refits = _fit(whole, chosen_mode, [fit.structure for fit in fits])
+        result = Diagnosis(mode=chosen_mode, steps=steps, rankings=rankings, fits=fits,
+                           refits=refits, frequencies=lines, n_train=problem.n_train,
+                           measurement=measurement, symbols=symbols,
+                           settings=settings | {"substeps": substeps})
+        if chosen_mode != "simulation":
+            return result
+        check = check_model(result.model(), measurement, tolerance=convergence_tolerance)
+        if check.converged or not automatic or substeps >= MAX_SUBSTEPS:
+            result.convergence = check.to_json()
+            return result
+        substeps = next_substeps(check)
 
 
 def _fit(problem: _Problem, mode: str, structures: list[Structure]) -> list[Fit]:
@@ -911,6 +939,7 @@ def report_markdown(diagnosis: Diagnosis) -> str:
              f" → {_number(d.after.metrics.get('objective'))}, spectral error "
              f"{_number(d.before.metrics.get('spectral_error'))} → "
              f"{_number(d.after.metrics.get('spectral_error'))}.", "",
+             *_convergence_lines(d),
              f"Steps: fitted on the first {d.n_train} of {d.measurement.n_samples} samples; "
              "the held-out rest decided.", "",
              "| effect | evidence | term | coefficient | RMS before | RMS after | f before | "
@@ -933,6 +962,18 @@ def report_markdown(diagnosis: Diagnosis) -> str:
     lines += ["", "Figures: residual_time.png, residual_spectrum.png, measured_vs_simulated.png.",
               ""]
     return "\n".join(lines)
+
+
+def _convergence_lines(d: Diagnosis) -> list[str]:
+    """The final model's integration check, for the report."""
+    c = d.convergence
+    if c is None:
+        return []
+    verdict = "converged" if c["converged"] else "**not converged**"
+    return [f"Integration: RK4 with {c['substeps']} step(s) per sample. Reference solve "
+            f"(adaptive diffrax Dopri8, rtol 1e-10): RMS {_number(c['rms_reference'])}; the "
+            f"two responses differ by {c['ratio']:.2%} of it ({verdict}, tolerance "
+            f"{c['tolerance']:.0%}).", ""]
 
 
 def sign_cautions(diagnosis: Diagnosis) -> list[str]:

@@ -203,6 +203,11 @@ def _run_diagnosis(args, measurement, model, out: Path) -> None:
     before, after = result.before.metrics, result.after.metrics
     print(f"Diagnosis ({result.mode}): effects added: {', '.join(result.effects_added) or 'none'}")
     print(f"  RMS {before['rms']:.4g} -> {after['rms']:.4g}; model: {result.model().sympy()}")
+    if result.convergence:
+        c = result.convergence
+        print(f"  RMS by the reference solve (diffrax Dopri8) {c['rms_reference']:.4g}; RK4 at "
+              f"{c['substeps']} step(s) per sample differs by {c['ratio']:.2%} of it "
+              f"({'converged' if c['converged'] else 'NOT converged'})")
     for caution in sign_cautions(result):
         print(f"  caution: {caution}")
     print(f"Report in {out}/ (report.md, report.json, model.json, figures)")
