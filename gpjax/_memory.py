@@ -1,21 +1,23 @@
 """Memory a fit needs, estimated before it allocates, against what the machine has free.
 
 Model (float64 numbers, 8 bytes each; N samples, S = 2·(N − 1)·substeps + 1 RK4 stage
-times, C = 16 forcing columns — the evaluator's smallest forcing capacity):
+times, C = 16 forcing columns — the evaluator's smallest forcing capacity). The peak is
+what stays for the whole fit plus the larger of one evaluator call and one refiner call
+(they run one after the other):
 
-* evaluator (:class:`gpjax._evaluator.PopulationEvaluator`): the forcing basis, S × C,
-  held once in numpy and once on the device; one compiled call holds
+* always held: ``BASE_BYTES`` (Python, JAX, XLA's compiled code; independent of N), the
+  forcing basis S × C in numpy and on the device, and ``RECORD_ARRAYS`` × N (record,
+  Savitzky–Golay derivatives, weak-form columns — :mod:`gpjax._weak_form` is O(N));
+* one evaluator call (:class:`gpjax._evaluator.PopulationEvaluator`):
   ``EVALUATOR_ARRAYS`` stage arrays of S × B (B = min(population, 512), capped so
   B·S ≤ :data:`gpjax._evaluator.STAGE_ELEMENTS_PER_CALL`) and the responses, N × B;
-* refiner (:class:`gpjax._refine.Refiner`): per model of its batch R, the forcing
-  directions, S × Q (Q = its most free constants), and the Jacobian, N × Q, each held
-  ``REFINER_COPIES`` times (stage slices, tangents, Levenberg–Marquardt's copies);
-* weak form and derivatives (:mod:`gpjax._weak_form`): O(N), ``RECORD_ARRAYS`` × N;
-* ``BASE_BYTES``: Python, JAX and XLA's compiled code, independent of N.
+* one refiner call (:class:`gpjax._refine.Refiner`): per model of its batch R (capped by
+  :func:`gpjax._refine.refine_batch`), the forcing directions, S × Q (Q = its most free
+  constants) and the Jacobian, N × Q, each held ``REFINER_COPIES`` times (stage slices,
+  tangents, Levenberg–Marquardt's copies).
 
-Calibration (``benchmarks/bench_scaling.py``, 2 CPU cores, population 24, substeps 1): the
-estimate lies above the measured peak resident memory of ``gpjax fit`` by the margin
-stated at :data:`BASE_BYTES`.
+Calibration against the peak resident memory of ``gpjax fit`` (population 24,
+substeps 1, ``benchmarks/bench_scaling.py``; 2 CPU cores): see :data:`BASE_BYTES`.
 """
 
 from __future__ import annotations
@@ -24,27 +26,28 @@ import os
 
 from ._errors import UserInputError
 from ._evaluator import STAGE_ELEMENTS_PER_CALL
-from ._refine import BATCH, MAX_FREE
+from ._refine import BATCH, MAX_FREE, refine_batch
 
 FLOAT_BYTES = 8
 FORCING_COLUMNS = 16
-EVALUATOR_ARRAYS = 4
-REFINER_COPIES = 3
-RECORD_ARRAYS = 24
-#: N-independent part; with the factors above the estimate exceeds the measured peak RSS
-#: by 15–30 % (N = 10⁴ … 10⁶, see the module docstring).
+EVALUATOR_ARRAYS = 6
+REFINER_COPIES = 4
+RECORD_ARRAYS = 32
+#: N-independent part. Estimate / measured peak RSS: see benchmarks/bench_scaling.json
+#: (N = 10⁴, 10⁵, 10⁶: the estimate lies 12–18 % above: 766, 1,359, 2,623 MB
+#: against 683, 1,147, 2,334 MB measured).
 BASE_BYTES = 700 * 2 ** 20
 
 
-def fit_bytes(*, n_samples: int, substeps: int, population: int,
-              refine_batch: int = BATCH, max_free: int = MAX_FREE) -> int:
+def fit_bytes(*, n_samples: int, substeps: int, population: int) -> int:
     """Estimated peak memory of a fit, in bytes (see the module docstring)."""
     stages = 2 * (n_samples - 1) * substeps + 1
     batch = max(1, min(population, 512, STAGE_ELEMENTS_PER_CALL // stages))
-    evaluator = 2 * stages * FORCING_COLUMNS + EVALUATOR_ARRAYS * stages * batch \
-        + n_samples * batch
-    refiner = REFINER_COPIES * refine_batch * max_free * (stages + n_samples)
-    return BASE_BYTES + FLOAT_BYTES * (evaluator + refiner + RECORD_ARRAYS * n_samples)
+    models = refine_batch(BATCH, n_samples=n_samples, substeps=substeps, max_free=MAX_FREE)
+    held = 2 * stages * FORCING_COLUMNS + RECORD_ARRAYS * n_samples
+    evaluator = EVALUATOR_ARRAYS * stages * batch + n_samples * batch
+    refiner = REFINER_COPIES * models * MAX_FREE * (stages + n_samples)
+    return BASE_BYTES + FLOAT_BYTES * (held + max(evaluator, refiner))
 
 
 def available_bytes() -> int:

@@ -30,7 +30,7 @@ import lineax as lx
 import numpy as np
 import optimistix as optx
 
-from ._evaluator import Population, PopulationEvaluator
+from ._evaluator import STAGE_ELEMENTS_PER_CALL, Population, PopulationEvaluator
 
 JACOBIANS = ("variational", "autodiff")
 #: The damped Gauss–Newton step solves the normal equations (JᵀJ + λI)·δ = Jᵀr by LU: the
@@ -52,13 +52,22 @@ class Refinement:
     steps: np.ndarray
 
 
+def refine_batch(batch: int, *, n_samples: int, substeps: int, max_free: int) -> int:
+    """``batch`` capped so stages × ``max_free`` × models ≤ ``STAGE_ELEMENTS_PER_CALL``."""
+    stages = 2 * (n_samples - 1) * substeps + 1
+    return max(1, min(batch, STAGE_ELEMENTS_PER_CALL // (stages * max_free)))
+
+
 class Refiner:
     """Compiles the batched Levenberg–Marquardt refinement once per evaluator.
 
     Args:
         evaluator: supplies the simulation and the measured response.
         iterations: maximum Levenberg–Marquardt steps.
-        batch: models refined per compiled call (padded).
+        batch: models refined per compiled call (padded). Capped so one call's forcing
+            directions (stages × ``max_free`` × models) hold at most
+            :data:`gpjax._evaluator.STAGE_ELEMENTS_PER_CALL` numbers (on a 10⁶-sample
+            record one model per call: 2.2 GB peak instead of 5.5 GB for eight).
         max_free: most free constants per model (further ones stay at their start values);
             the width of every Jacobian, so the cost of a step grows with it.
         horizons: increasing fractions of the record fitted in turn, each for up to
@@ -87,7 +96,8 @@ class Refiner:
         self.iterations = iterations
         n = evaluator.measurement.n_samples
         self.horizon_samples = tuple(max(3, min(n, int(round(h * n)))) for h in horizons)
-        self.batch = batch
+        self.batch = refine_batch(batch, n_samples=n, substeps=evaluator.substeps,
+                                  max_free=max_free)
         self.max_free = max_free
         response = evaluator.measurement.response
         self._noise_scale = float(np.std(response)) or 1.0
