@@ -126,7 +126,7 @@ def test_gpjax_simulate_writes_the_reference_response(demo_fit, tmp_path):
     # without the response column the initial state must be given
     inputs_only = tmp_path / "inputs.csv"
     inputs_only.write_text("t,T\n" + "".join(
-        f"{t!r},{u!r}\n" for t, u in zip(measurement.time, measurement.inputs["T"])))
+        f"{float(t)!r},{float(u)!r}\n" for t, u in zip(measurement.time, measurement.inputs["T"])))
     refused = _cli("simulate", "model.json", "inputs.csv", "--out", "sim2.csv", cwd=tmp_path)
     assert refused.returncode == 2 and not (tmp_path / "sim2.csv").exists()
     assert refused.stderr.count("\n") == 1 and "--initial" in refused.stderr
