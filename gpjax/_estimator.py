@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 from ._config import GPConfig
-from ._convergence import MAX_SUBSTEPS, Convergence, check_model, initial_substeps, next_substeps
+from ._convergence import MAX_SUBSTEPS, Convergence, check_model, next_substeps
 from ._data import Measurement
 from ._errors import UserInputError
 from ._evolve import Evolution, RunState
@@ -88,9 +88,7 @@ class Identifier:
             raise UserInputError(f"seed must be a non-negative integer, got {seed!r}")
         began = time.perf_counter()
         out = Path(out) if out is not None else None
-        substeps = (initial_substeps(measurement) if self.config.substeps == "auto"
-                    else self.config.substeps)
-        fitness = Fitness(measurement, self.config, substeps=substeps)
+        fitness = Fitness(measurement, self.config)
         evolution = Evolution(fitness, self.config)
         fingerprint = data_fingerprint(measurement)
         if resume:

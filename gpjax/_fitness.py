@@ -18,6 +18,7 @@ import sympy as sp
 
 from ._canonical import CanonicalForm, Symbols, check_tree
 from ._config import GPConfig
+from ._convergence import initial_substeps
 from ._data import Measurement
 from ._evaluator import (INVALID_STRUCTURE, OK, PENALTY, Population, PopulationEvaluator,
                          Scores)
@@ -83,8 +84,8 @@ class Fitness:
     Args:
         measurement: the data.
         config: the run's settings.
-        substeps: RK4 steps per sample interval (default: the config's, which must then
-            be a number rather than ``"auto"``).
+        substeps: RK4 steps per sample interval (default: the config's; for ``"auto"``,
+            the data's bandwidth rule, :func:`gpjax._convergence.initial_substeps`).
 
     Raises:
         UserInputError: the run's estimated memory (:mod:`gpjax._memory`) exceeds what is
@@ -93,7 +94,9 @@ class Fitness:
 
     def __init__(self, measurement: Measurement, config: GPConfig, *,
                  substeps: int | None = None):
-        substeps = substeps or config.substeps
+        if substeps is None:
+            substeps = (initial_substeps(measurement) if config.substeps == "auto"
+                        else config.substeps)
         check_fit_memory(n_samples=measurement.n_samples, substeps=substeps,
                          population=config.population)
         self.measurement = measurement
