@@ -107,7 +107,10 @@ def run(path: Path, out: Path, population: int) -> dict:
         return result
     with open(out / "history.csv") as handle:
         seconds = [float(row["seconds"]) for row in csv.DictReader(handle)]
-    result.update(generation_s=seconds, equation=done.stdout.strip().splitlines()[0][:200])
+    simulation = json.loads((out / "model.json").read_text())["simulation"]
+    result.update(generation_s=seconds, equation=done.stdout.strip().splitlines()[0][:200],
+                  substeps=simulation["integrator"]["substeps"],
+                  convergence_ratio=simulation["convergence"]["ratio"])
     return result
 
 
@@ -127,11 +130,13 @@ def main() -> None:
                    **run(path, Path(folder) / f"run_{n}", args.population)}
             rows.append(row)
             print(json.dumps(row), flush=True)
-    print("\n| N | peak RSS (MB) | s / generation | total (s) |\n|---:|---:|---:|---:|")
+    print("\n| N | peak RSS (MB) | s / generation | total (s) | RK4 steps / sample | "
+          "RK4 vs reference |\n|---:|---:|---:|---:|---:|---:|")
     for row in rows:
         per_generation = ", ".join(f"{s:.1f}" for s in row.get("generation_s", []))
         print(f"| {row['n_samples']:,} | {row['peak_rss_mb']:.0f} | {per_generation or 'failed'}"
-              f" | {row['wall_s']:.1f} |")
+              f" | {row['wall_s']:.1f} | {row.get('substeps', '')} | "
+              f"{row.get('convergence_ratio', float('nan')):.2%} |")
     with open(args.json, "w") as handle:
         json.dump({"machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
                    "command": " ".join(["python", *sys.argv]), "rows": rows}, handle, indent=1)

@@ -834,7 +834,7 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
                            settings=settings | {"substeps": substeps})
         if chosen_mode != "simulation":
             return result
-        check = check_model(result.model(), measurement, tolerance=convergence_tolerance)
+        check, _ = check_model(result.model(), measurement, tolerance=convergence_tolerance)
         if check.converged or not automatic or substeps >= MAX_SUBSTEPS:
             result.convergence = check.to_json()
             return result

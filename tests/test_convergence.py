@@ -72,15 +72,16 @@ def test_the_step_rule_follows_the_bandwidth_and_the_fourth_order_error():
 
 def test_a_coarse_model_fails_the_check_and_a_fine_one_passes():
     record = _held_record()
-    coarse = check_model(_model("hold", initial_conditions=(0.01, -0.2)), record,
-                         tolerance=0.01)
+    coarse, reference = check_model(_model("hold", initial_conditions=(0.01, -0.2)), record,
+                                    tolerance=0.01)
     # the exact data: the residual is the integrator's error alone, so any step fails 1 %
     assert not coarse.converged and coarse.ratio > 0.5
+    assert np.max(np.abs(reference - record.response)) < 1e-9 * np.ptp(record.response)
     noisy = Measurement(time=record.time, response=record.response + np.random.default_rng(0)
                         .normal(0, 0.02 * np.std(record.response), record.n_samples),
                         inputs=record.inputs, time_name="t", response_name="x")
-    fine = check_model(_model("hold", initial_conditions=(0.01, -0.2), substeps=8), noisy,
-                       tolerance=0.01)
+    fine, _ = check_model(_model("hold", initial_conditions=(0.01, -0.2), substeps=8), noisy,
+                          tolerance=0.01)
     assert fine.converged and fine.ratio < 0.01
 
 
