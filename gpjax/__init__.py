@@ -1,8 +1,8 @@
 """gpjax: derive the Newton–Euler ODE of a dynamic system from its measured response.
 
 Genetic programming (Ciglarič & Kidrič) over expression trees; candidates canonicalised
-with sympy, whole populations integrated in one compiled diffrax solve, constants refined
-with optimistix. Importing the numerical parts enables float64 in JAX.
+with sympy, whole populations integrated by one compiled fixed-step RK4 call, constants
+refined with optimistix, the reported model checked against an adaptive diffrax solve. Importing the numerical parts enables float64 in JAX.
 
 Names are imported on first use, so the command line can reject bad input before JAX,
 diffrax and sympy load.

@@ -1,4 +1,4 @@
-"""Batched simulation and scoring of a whole population in one compiled diffrax solve.
+"""Batched simulation and scoring of a whole population in one compiled RK4 call.
 
 The population enters as *data*: every model is ``mass·x'' + C·φ(x, x') = G·ψ(t, u)`` with
 
