@@ -31,9 +31,10 @@ import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
-from gpjax import GPConfig, Identifier, Measurement, PopulationEvaluator, Symbols  # noqa: E402
+from gpjax import GPConfig, Identifier, Measurement, Symbols  # noqa: E402
+from gpjax.engine import PopulationEvaluator  # noqa: E402
 from gpjax._weak_form import WeakForm, least_squares, smoothed_derivatives  # noqa: E402
-from gpjax._evaluator import Population  # noqa: E402
+from gpjax._coefficients import Population  # noqa: E402
 from gpjax._refine import LINEAR_SOLVER, Refiner  # noqa: E402
 from gpjax.gear import generate_gear_example, load_bundled_example  # noqa: E402
 

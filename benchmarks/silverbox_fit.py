@@ -27,7 +27,8 @@ import sympy as sp
 from scipy.integrate import solve_ivp
 
 from gpjax._data import Measurement, bandlimited_spline
-from gpjax._model import Model, estimate_initial_conditions
+from gpjax._model import Model
+from gpjax._weak_form import estimate_initial_conditions
 from gpjax._silverbox import SEGMENTS, WARMUP, silverbox_segments
 
 #: Published test RMS in mV (multisine, arrow full, arrow no extrapolation), from the data's

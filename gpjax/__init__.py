@@ -2,10 +2,13 @@
 
 Genetic programming (Ciglarič & Kidrič) over expression trees; candidates canonicalised
 with sympy, whole populations integrated by one compiled fixed-step RK4 call, constants
-refined with optimistix, the reported model checked against an adaptive diffrax solve. Importing the numerical parts enables float64 in JAX.
+refined with optimistix, the reported model checked against an adaptive diffrax solve.
 
 Names are imported on first use, so the command line can reject bad input before JAX,
-diffrax and sympy load.
+diffrax and sympy load. ``__all__`` is the user API; the engine underneath is documented in
+:mod:`gpjax.engine`, the Silverbox benchmark tools in :mod:`gpjax.silverbox` and gear
+physics in :mod:`gpjax.gear`. Importing gpjax changes no global state; JAX is switched to
+float64 when gpjax first computes (:func:`gpjax._integrate.enable_float64`).
 """
 
 from importlib import import_module
@@ -13,22 +16,14 @@ from importlib import import_module
 __version__ = "0.1.0"
 
 _EXPORTS = {
-    "CanonicalForm": "_canonical", "StructureCheck": "_canonical", "Symbols": "_canonical",
-    "check_structure": "_canonical", "check_tree": "_canonical", "tree_to_sympy": "_canonical",
-    "GPConfig": "_config",
+    "GPConfig": "_config", "Identifier": "_estimator",
     "Measurement": "_data", "load_csv": "_data",
-    "ConfigError": "_errors", "DataError": "_errors", "ModelFileError": "_errors",
-    "UserInputError": "_errors",
-    "Identifier": "_estimator",
-    "Population": "_evaluator", "PopulationEvaluator": "_evaluator", "Scores": "_evaluator",
-    "objective_parts": "_evaluator",
-    "parse_expression": "_expressions",
-    "Model": "_model", "simulate_model": "_model",
+    "Model": "_model", "Symbols": "_canonical", "check_structure": "_canonical",
     "Diagnosis": "_diagnose", "diagnose": "_diagnose", "write_report": "_diagnose",
     "Effect": "_effects", "Parameter": "_effects", "Terms": "_effects",
     "effects": "_effects", "register_effect": "_effects",
-    "load_silverbox": "_silverbox", "segment_rms": "_silverbox",
-    "silverbox_segments": "_silverbox",
+    "ConfigError": "_errors", "DataError": "_errors", "ModelFileError": "_errors",
+    "UserInputError": "_errors",
 }
 
 __all__ = sorted(_EXPORTS)

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import csv
 import dataclasses
+import hashlib
 import keyword
 import math
 from pathlib import Path
@@ -90,6 +91,14 @@ class Measurement:
     @property
     def input_names(self) -> tuple[str, ...]:
         return tuple(self.inputs)
+
+    def fingerprint(self) -> str:
+        """SHA-256 of the arrays and names (to tell one data set from another)."""
+        digest = hashlib.sha256()
+        for array in (self.time, self.response, *self.inputs.values()):
+            digest.update(np.ascontiguousarray(array, dtype=np.float64).tobytes())
+        digest.update(repr((self.time_name, self.response_name, self.input_names)).encode())
+        return digest.hexdigest()
 
     def segment(self, start: int, stop: int) -> "Measurement":
         """Samples ``start:stop`` (Python slice semantics) as a new measurement."""

@@ -72,7 +72,8 @@ from ._convergence import MAX_SUBSTEPS, check_model, initial_substeps, next_subs
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._effects import Context, Effect, Terms, effects
 from ._errors import ModelFileError, UserInputError
-from ._evaluator import PopulationEvaluator, amplitude_spectrum, default_n_bins
+from ._evaluator import PopulationEvaluator
+from ._objective import amplitude_spectrum, default_n_bins
 from ._expressions import parse_expression
 from ._model import Model
 from ._refine import Refiner
@@ -564,7 +565,7 @@ class _Simulator:
         ev = self.full
         n_state = len(ev.state_features)
         if self._jacobian is None:
-            basis = jnp.asarray(ev._forcing_basis)
+            basis = jnp.asarray(ev.forcing_basis)
             self._jacobian = jax.jit(
                 lambda p: ev.constant_jacobian(p, jnp.eye(p.size), basis)[1])
         p = np.zeros(1 + n_state + ev.forcing_capacity + 2)

@@ -1,14 +1,14 @@
 """The estimator users hold: ``Identifier(config).fit(measurement)``.
 
-Writes (when given a run folder): ``model.json``, ``history.csv``, ``equations.csv``,
-``fit.png``, ``config.json`` and ``checkpoint.json`` (rewritten atomically after every
-generation, so ``fit(..., resume=True)`` continues a killed run exactly).
+Writes (when given a run folder): ``model.json``, ``history.csv``, ``equations.csv`` and
+``equations.json`` (the Pareto table, as text and as model files), ``fit.png``,
+``config.json`` and ``checkpoint.json`` (rewritten atomically after every generation, so
+``fit(..., resume=True)`` continues a killed run exactly).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import signal
 import threading
@@ -25,21 +25,13 @@ from ._errors import UserInputError
 from ._evolve import Evolution, RunState
 from ._evaluator import OK
 from ._fitness import Fitness, Record
-from ._model import Model, simulate_model
+from ._model import Model
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
 from ._select import pareto_front, simplify
 
 CHECKPOINT = "checkpoint.json"
-
-
-def data_fingerprint(measurement: Measurement) -> str:
-    """SHA-256 of the measurement's arrays and names (to refuse resuming on other data)."""
-    digest = hashlib.sha256()
-    for array in (measurement.time, measurement.response, *measurement.inputs.values()):
-        digest.update(np.ascontiguousarray(array, dtype=np.float64).tobytes())
-    digest.update(repr((measurement.time_name, measurement.response_name,
-                        measurement.input_names)).encode())
-    return digest.hexdigest()
+#: Columns of history.csv and equations.csv that hold text, not numbers.
+TEXT_COLUMNS = ("equation", "best_key")
 
 
 class Identifier:
@@ -49,7 +41,8 @@ class Identifier:
         config: run settings (:class:`GPConfig`); keyword overrides are applied on top.
 
     After :meth:`fit`: ``model_`` (the reported :class:`Model`), ``equations_`` (the Pareto
-    table of complexity vs objective, one dict per row), ``history_`` (per generation),
+    table of complexity vs objective, one dict per row; :meth:`sympy` and :meth:`latex`
+    take a row index), ``history_`` (per generation),
     ``stopped_by`` (``"epsilon"``, ``"generations"`` or ``"interrupted"``), timings in
     ``timings_``, and ``convergence_``: each check of the reported model's RK4 integration
     against the reference solve (:class:`~gpjax._convergence.Convergence`), the last one
@@ -66,6 +59,7 @@ class Identifier:
         self.timings_: dict[str, float] = {}
         self.measurement_: Measurement | None = None
         self.convergence_: list[Convergence] = []
+        self._equation_models: list[Model] = []
         self._front: list[Record] = []
         self._chosen: Record | None = None
         self._reference: np.ndarray | None = None
@@ -91,7 +85,7 @@ class Identifier:
         out = Path(out) if out is not None else None
         fitness = Fitness(measurement, self.config)
         evolution = Evolution(fitness, self.config)
-        fingerprint = data_fingerprint(measurement)
+        fingerprint = measurement.fingerprint()
         if resume:
             state, seed = self._load_checkpoint(out, fitness, fingerprint)
         else:
@@ -206,26 +200,30 @@ class Identifier:
         if chosen.key not in {r.key for r in front}:
             front = sorted(front + [chosen], key=lambda r: (r.n_terms, r.objective))
         self._front, self._chosen = front, chosen
-        self.equations_ = [_row(r, fitness, chosen) for r in front]
+        self._equation_models = [self._to_model(r, fitness, seed, state) for r in front]
+        self.equations_ = [_row(r, model, chosen)
+                           for r, model in zip(front, self._equation_models)]
         self.history_ = [dict(vars(h)) for h in state.history]
-        self.model_ = self._to_model(chosen, fitness, seed, state)
+        self.model_ = self._equation_models[[r.key for r in front].index(chosen.key)]
 
     def _to_model(self, record: Record, fitness: Fitness, seed: int, state: RunState) -> Model:
-        return Model(
-            symbols=fitness.symbols, mass=record.mass, state=dict(record.state),
-            forcing=dict(record.forcing), initial_conditions=record.y0,
+        return Model.from_coefficients(
+            fitness.symbols, record.coefficients,
             input_interpolation=self.config.input_interpolation,
             substeps=fitness.evaluator.substeps,
             metrics={"rms": record.rms, "f_time": record.f_time, "f_freq": record.f_freq,
                      "objective": record.objective, "n_bins": fitness.evaluator.n_bins},
             provenance={"seed": seed, "generations": state.generation,
                         "stopped_by": self.stopped_by, "population": self.config.population,
-                        "coefficients": self.config.coefficients})
+                        "coefficients": self.config.coefficients,
+                        "data": fitness.measurement.fingerprint()})
 
     def _write(self, out: Path, fitness: Fitness) -> None:
         self.model_.save(out / "model.json")
         write_text_atomic(out / "history.csv", history_csv(self.history_))
         write_text_atomic(out / "equations.csv", history_csv(self.equations_))
+        write_text_atomic(out / "equations.json", json.dumps(
+            [m.to_json() for m in self._equation_models], indent=1) + "\n")
         write_text_atomic(out / "config.json", json.dumps(self.config.to_dict(), indent=2) + "\n")
         calculated = (self._reference if self._reference.size == self.measurement_.n_samples
                       else self.simulate(solver="rk4"))  # converged: checked on a window
@@ -243,22 +241,40 @@ class Identifier:
             raise UserInputError("this Identifier has no model yet; call fit() or load() first")
         return self.model_
 
-    def simulate(self, measurement: Measurement | None = None, *,
+    def simulate(self, time=None, inputs: dict[str, np.ndarray] | None = None,
+                 x0: tuple[float, float] | None = None, *,
                  solver: str = "reference") -> np.ndarray:
-        """The model's response on ``measurement`` (default: the fitting data), by the
-        reference solve (adaptive diffrax Dopri8) or ``solver="rk4"`` (the run's own
-        fixed-step integrator; see :meth:`Model.simulate`).
+        """The model's response (N,), by the reference solve (adaptive diffrax Dopri8) or
+        ``solver="rk4"`` (the run's fixed-step integrator; :meth:`Model.simulate`).
 
-        On the fitting data the fitted initial conditions are used; on other data they
-        are estimated from its first samples (eq. 13).
+        Args:
+            time: sample times (N,) in seconds, uniform, with ``inputs`` (name -> (N,)) a
+                new excitation; or a :class:`Measurement` (its time and inputs); default:
+                the fitting data.
+            inputs: the model's inputs by name (with ``time`` as an array).
+            x0: (x, x') at the first sample. Default: the fitted initial state on the
+                fitting data and for new inputs; estimated from the first samples
+                (eq. 13) for another Measurement.
+
+        Raises:
+            UserInputError: no model yet, or no data (``load`` without a measurement).
+            ModelFileError: an input of the model is missing.
         """
         model = self._need_model()
-        if measurement is None:
+        if time is None:
             if self.measurement_ is None:
-                raise UserInputError("no data to simulate on; pass a Measurement")
-            return model.simulate(self.measurement_, initial_conditions=model.initial_conditions,
-                                  solver=solver)
-        return model.simulate(measurement, solver=solver)
+                raise UserInputError("no data to simulate on; pass time and inputs or a "
+                                     "Measurement")
+            time = self.measurement_
+            x0 = x0 or model.initial_conditions
+        if isinstance(time, Measurement):
+            return model.simulate(time, initial_conditions=x0, solver=solver)
+        if inputs is None:
+            raise UserInputError("simulate(time, inputs): give the inputs by name with time")
+        x0 = x0 or model.initial_conditions
+        if x0 is None:
+            raise UserInputError("the model has no initial state; pass x0=(x, x')")
+        return model.simulate_inputs(time, inputs, x0)
 
     def score(self, measurement: Measurement | None = None) -> float:
         """Coefficient of determination R² of the response simulated by the reference
@@ -269,11 +285,21 @@ class Identifier:
         residual = np.sum((data.response - simulated) ** 2)
         return float(1.0 - residual / np.sum((data.response - data.response.mean()) ** 2))
 
-    def sympy(self):
-        return self._need_model().sympy()
+    def _equation_model(self, index: int | None) -> Model:
+        if index is None:
+            return self._need_model()
+        if not self._equation_models:
+            raise UserInputError("this Identifier has no equations table; call fit() or "
+                                 "load() a run folder that has equations.json")
+        return self._equation_models[index]
 
-    def latex(self) -> str:
-        return self._need_model().latex()
+    def sympy(self, index: int | None = None):
+        """The reported equation, or row ``index`` of ``equations_``, with its constants."""
+        return self._equation_model(index).sympy()
+
+    def latex(self, index: int | None = None) -> str:
+        """LaTeX of the reported equation, or of row ``index`` of ``equations_``."""
+        return self._equation_model(index).latex()
 
     def __str__(self) -> str:
         if self.model_ is None:
@@ -298,8 +324,18 @@ class Identifier:
         return "\n".join(lines)
 
     @classmethod
-    def load(cls, run_dir: str | Path) -> "Identifier":
-        """Reload a finished run from its folder (model, config, history, equations)."""
+    def load(cls, run_dir: str | Path, measurement: Measurement | None = None) -> "Identifier":
+        """Reload a finished run from its folder (model, config, history, equations), so
+        :meth:`simulate`, :meth:`score`, :meth:`sympy` and :meth:`latex` work again.
+
+        Args:
+            run_dir: the run folder.
+            measurement: the data the run was fitted to, for ``simulate()`` and
+                ``score()`` without arguments.
+
+        Raises:
+            UserInputError: not a run folder, or ``measurement`` is not the run's data.
+        """
         run_dir = Path(run_dir)
         config_path = run_dir / "config.json"
         try:
@@ -314,6 +350,16 @@ class Identifier:
         identifier.stopped_by = identifier.model_.provenance.get("stopped_by", "")
         identifier.history_ = _read_csv(run_dir / "history.csv")
         identifier.equations_ = _read_csv(run_dir / "equations.csv")
+        if (run_dir / "equations.json").is_file():
+            identifier._equation_models = [
+                Model.from_json(item, source=str(run_dir / "equations.json"))
+                for item in json.loads((run_dir / "equations.json").read_text("utf-8"))]
+        if measurement is not None:
+            expected = identifier.model_.provenance.get("data")
+            if expected is not None and measurement.fingerprint() != expected:
+                raise UserInputError(f"the measurement is not the data {run_dir} was fitted "
+                                     "to; pass that data, or simulate new data with simulate()")
+            identifier.measurement_ = measurement
         return identifier
 
 
@@ -343,9 +389,7 @@ class _StopOnInterrupt:
         return False
 
 
-def _row(record: Record, fitness: Fitness, chosen: Record) -> dict:
-    model = Model(symbols=fitness.symbols, mass=record.mass, state=record.state,
-                  forcing=record.forcing)
+def _row(record: Record, model: Model, chosen: Record) -> dict:
     return {"complexity": record.n_terms, "objective": record.objective, "rms": record.rms,
             "f_time": record.f_time, "f_freq": record.f_freq,
             "equation": str(model.sympy()), "selected": record.key == chosen.key}
@@ -360,9 +404,8 @@ def _read_csv(path: Path) -> list[dict]:
         rows = list(csv.DictReader(handle))
     for row in rows:
         for key, value in row.items():
-            try:
-                row[key] = float(value) if key not in ("equation", "best_key", "selected") else (
-                    value == "True" if key == "selected" else value)
-            except ValueError:
-                pass
+            if key == "selected":
+                row[key] = value == "True"
+            elif key not in TEXT_COLUMNS:
+                row[key] = float(value) if value != "" else None  # "": no valid candidate
     return rows

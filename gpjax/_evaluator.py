@@ -16,7 +16,7 @@ Two integrators run the same RK4 tableau on the same stage grid: ``"scan"`` (def
 hand-written step in ``lax.scan`` over (x, x') arrays of shape (P,) with Horner-form
 polynomials, and ``"diffrax"`` (:class:`RK4`, one ``diffeqsolve`` of the (P, 2) state).
 They agree to rounding; the scan step has none of diffrax's per-step bookkeeping and is
-~2× faster on CPU (``benchmarks/bench_population.py`` measures both). When JAX sees more
+~1.4× faster on CPU (``benchmarks/bench_population.py`` measures both; :mod:`gpjax._integrate`). When JAX sees more
 than one device (GPUs, or host devices from
 ``XLA_FLAGS=--xla_force_host_platform_device_count=K`` set before JAX starts) each batch is
 split over them with ``shard_map``; models never interact, so no communication is needed.
@@ -25,8 +25,8 @@ split over them with ``shard_map``; models never interact, so no communication i
 from __future__ import annotations
 
 import dataclasses
+import enum
 import time
-from typing import Callable, ClassVar
 
 import diffrax
 import jax
@@ -37,48 +37,31 @@ import sympy as sp
 from jax.sharding import AxisType, PartitionSpec
 
 from ._canonical import Symbols
+from ._coefficients import FlatLayout, Population, padded_chunks
 from ._data import Measurement, between_samples
+from ._integrate import RK4, enable_float64, rk4_scan
+from ._objective import _amplitude, _dft_matrix, _objective_parts, default_n_bins
 
-jax.config.update("jax_enable_x64", True)
 
-# Per-candidate status codes.
-OK = 0
-INVALID_STRUCTURE = 1
-NONPOSITIVE_MASS = 2
-DIVERGED = 3
-STATUS_NAMES = {OK: "ok", INVALID_STRUCTURE: "invalid structure",
-                NONPOSITIVE_MASS: "non-positive mass", DIVERGED: "diverged"}
+class Status(enum.IntEnum):
+    """Per-candidate outcome of a simulation (failures are data, never raised)."""
+
+    OK = 0
+    INVALID_STRUCTURE = 1
+    NONPOSITIVE_MASS = 2
+    DIVERGED = 3
+
+
+OK, INVALID_STRUCTURE, NONPOSITIVE_MASS, DIVERGED = Status
 #: Objective given to a candidate that is invalid or diverged ("high value by definition").
 PENALTY = 1e12
 #: A simulated response farther than this many measured ranges from the data has diverged.
 DIVERGENCE_RANGES = 100.0
-#: Fraction of the measured response's AC spectral energy the default m bins hold.
-SPECTRAL_ENERGY_FRACTION = 0.99
 INTEGRATORS = ("scan", "diffrax")
 HOLD_WITH_DIFFRAX = ('the "diffrax" integrator cannot simulate "hold" inputs (it looks the '
                      'forcing up by time alone); use integrator="scan"')
 #: Most (RK4 stage × model) numbers one compiled call holds per array (200 MB in float64).
 STAGE_ELEMENTS_PER_CALL = 25_000_000
-
-
-class RK4(diffrax.AbstractERK):
-    """The classical fourth-order Runge–Kutta method, for fixed steps (no error estimate).
-
-    diffrax 0.7 has no RK4 class; this one is built from its Butcher tableau.
-    """
-
-    tableau: ClassVar[diffrax.ButcherTableau] = diffrax.ButcherTableau(
-        c=np.array([0.5, 0.5, 1.0]),
-        b_sol=np.array([1 / 6, 1 / 3, 1 / 3, 1 / 6]),
-        b_error=np.zeros(4),
-        a_lower=(np.array([0.5]), np.array([0.0, 0.5]), np.array([0.0, 0.0, 1.0])),
-    )
-    interpolation_cls: ClassVar[Callable] = (
-        diffrax.ThirdOrderHermitePolynomialInterpolation.from_k)
-
-    def order(self, terms):
-        del terms
-        return 4
 
 
 def polynomial_state_features(symbols: Symbols, max_degree: int) -> list[sp.Expr]:
@@ -87,24 +70,19 @@ def polynomial_state_features(symbols: Symbols, max_degree: int) -> list[sp.Expr
             + [symbols.x_dot ** k for k in range(1, max_degree + 1)])
 
 
-@dataclasses.dataclass(frozen=True)
-class Population:
-    """A batch of models as arrays (P models).
-
-    Attributes:
-        mass: (P,) inertia coefficient m.
-        state: (P, F_state) coefficients of the state basis.
-        forcing: (P, F_forcing) coefficients of the forcing basis.
-        y0: (P, 2) initial response and its derivative at the first sample.
-    """
-
-    mass: np.ndarray
-    state: np.ndarray
-    forcing: np.ndarray
-    y0: np.ndarray
-
-    def __len__(self) -> int:
-        return self.mass.shape[0]
+def split_state_features(features, symbols: Symbols) -> tuple[int, tuple[sp.Expr, ...]]:
+    """(max_degree, extra features) of an evaluator whose basis holds ``features``: the
+    highest power of x or x' among the plain powers, and every other feature (products
+    with functions of time, sign(x'), …) compiled in as an extra feature."""
+    degree, extra = 1, []
+    powers = {symbols.x, symbols.x_dot}
+    for feature in features:
+        base, exponent = feature.as_base_exp()
+        if base in powers and exponent.is_Integer and exponent > 0:
+            degree = max(degree, int(exponent))
+        else:
+            extra.append(feature)
+    return degree, tuple(extra)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -160,6 +138,7 @@ class PopulationEvaluator:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
         if integrator == "diffrax" and input_interpolation == "hold":
             raise ValueError(HOLD_WITH_DIFFRAX)
+        enable_float64()
         self.measurement = measurement
         self.symbols = symbols
         self.state_features = (polynomial_state_features(symbols, max_degree)
@@ -252,6 +231,23 @@ class PopulationEvaluator:
     def forcing_capacity(self) -> int:
         return self._forcing_basis.shape[1]
 
+    @property
+    def forcing_features(self) -> tuple[sp.Expr, ...]:
+        """The forcing features in column order."""
+        return tuple(self._forcing_features)
+
+    @property
+    def forcing_basis(self) -> np.ndarray:
+        """(n_stage, forcing capacity) forcing features at every RK4 stage row (read-only)."""
+        view = self._forcing_basis.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def layout(self) -> FlatLayout:
+        """The flat constant vector of one model on this evaluator's columns."""
+        return FlatLayout(len(self.state_features), self.forcing_capacity)
+
     def forcing_values(self, feature: sp.Expr, times: np.ndarray,
                        inputs: dict[str, np.ndarray]) -> np.ndarray:
         """A forcing feature ψ(t, u) evaluated (numpy) at ``times`` with ``inputs``."""
@@ -283,15 +279,12 @@ class PopulationEvaluator:
                     np.zeros((0, 0)))
         forcing = _pad_columns(population.forcing, self.forcing_capacity)
         parts, paths = [], []
-        for start in range(0, count, self.batch):
-            stop = min(start + self.batch, count)
-            chunk = [_pad_rows(a[start:stop], self.batch, fill)
-                     for a, fill in ((population.mass, 1.0), (population.state, 0.0),
-                                     (forcing, 0.0), (population.y0, 0.0))]
+        for size, chunk in padded_chunks(
+                (population.mass, population.state, forcing, population.y0), self.batch):
             out = self._call(*chunk)
-            parts.append([np.asarray(o)[: stop - start] for o in out[:6]])
+            parts.append([np.asarray(o)[:size] for o in out[:6]])
             if responses:
-                paths.append(np.asarray(out[6])[: stop - start])
+                paths.append(np.asarray(out[6])[:size])
         stacked = [np.concatenate(p) for p in zip(*parts)]
         scores = Scores(objective=stacked[0], f_time=stacked[1], f_freq=stacked[2],
                         rms=stacked[3], status=stacked[4].astype(int), y0=stacked[5])
@@ -415,60 +408,26 @@ class PopulationEvaluator:
         return x, s
 
     def unpack(self, constants, forcing_basis):
-        """One model's flat constant vector — mass, state coefficients, forcing coefficients
-        (the forcing capacity's columns), x0, x0' — as :meth:`scan_solve` arguments for a
-        population of one: mass (1,), state (1, F_state), forcing (n_stage, 1) from the rows
-        of ``forcing_basis`` (which set n_stage), y0 (1, 2)."""
-        n_state = len(self.state_features)
-        return (constants[0:1], constants[None, 1:1 + n_state],
-                (forcing_basis @ constants[1 + n_state:-2])[:, None], constants[None, -2:])
+        """One model's flat constant vector (:attr:`layout`) as :meth:`scan_solve`
+        arguments for a population of one: mass (1,), state (1, F_state), forcing
+        (n_stage, 1) from the rows of ``forcing_basis`` (which set n_stage), y0 (1, 2)."""
+        mass, state, forcing, y0 = self.layout.split(constants)
+        return mass[None], state[None], (forcing_basis @ forcing)[:, None], y0[None]
 
     def constant_jacobian(self, constants, directions, forcing_basis):
         """x of one model (:meth:`unpack`) at the sample times, (N,), and its derivatives
         along ``directions`` (Q, len(constants)) of the flat constant vector, (N, Q), by
         :meth:`scan_jvp`."""
-        n_state = len(self.state_features)
-        d = directions[:, None, :]  # (Q, 1, constants): a population of one
-        x, dx = self.scan_jvp(*self.unpack(constants, forcing_basis), d[..., -2:],
-                              d_mass=d[..., 0], d_state=d[..., 1:1 + n_state],
-                              d_forcing=jnp.einsum("qpk,sk->sqp", d[..., 1 + n_state:-2],
-                                                   forcing_basis))
+        d_mass, d_state, d_forcing, d_y0 = self.layout.split(directions[:, None, :])
+        x, dx = self.scan_jvp(*self.unpack(constants, forcing_basis), d_y0,
+                              d_mass=d_mass, d_state=d_state,
+                              d_forcing=jnp.einsum("qpk,sk->sqp", d_forcing, forcing_basis))
         return x[:, 0], dx[:, :, 0]
 
     def _rk4_scan(self, rates, y0, forces, saved):
-        """Classical RK4 over the stage grid in ``lax.scan`` for a tuple of states.
-
-        ``rates(y, force, t)`` gives dy/dt; ``forces`` holds arrays with the forcing rows
-        first (layout: :meth:`stage_rows`); ``saved(y)`` picks what is returned at the
-        sample times, each with the initial value first.
-        """
-        h = self.h
-        t0 = float(self.stage_times[0])
-
-        def along(y, k, c):
-            return tuple(a + c * b for a, b in zip(y, k))
-
-        def step(carry, stage):
-            y, i = carry
-            f0, f_half, f1 = stage
-            t = t0 + i * h
-            k1 = rates(y, f0, t)
-            k2 = rates(along(y, k1, 0.5 * h), f_half, t + 0.5 * h)
-            k3 = rates(along(y, k2, 0.5 * h), f_half, t + 0.5 * h)
-            k4 = rates(along(y, k3, h), f1, t + h)
-            y = tuple(a + h / 6 * (b1 + 2 * b2 + 2 * b3 + b4)
-                      for a, b1, b2, b3, b4 in zip(y, k1, k2, k3, k4))
-            return (y, i + 1), saved(y)
-
-        if self.split_stages:
-            stages = jax.tree_util.tree_map(lambda f: (f[0::3], f[1::3], f[2::3]), forces)
-        else:
-            stages = jax.tree_util.tree_map(lambda f: (f[0:-1:2], f[1::2], f[2::2]), forces)
-        stages = jax.tree_util.tree_transpose(
-            jax.tree_util.tree_structure(forces), jax.tree_util.tree_structure((0, 0, 0)), stages)
-        _, path = jax.lax.scan(step, (y0, jnp.zeros((), jnp.int32)), stages)
-        return tuple(jnp.concatenate([first[None], p[self.substeps - 1:: self.substeps]])
-                     for first, p in zip(saved(y0), path))
+        """:func:`gpjax._integrate.rk4_scan` on this evaluator's stage grid."""
+        return rk4_scan(rates, y0, forces, saved, h=self.h, t0=float(self.stage_times[0]),
+                        substeps=self.substeps, split_stages=self.split_stages)
 
     def solve(self, mass, state, forcing_matrix, y0, *, adjoint=None):
         """Integrate all models with diffrax; returns x at the sample times, shape (N, P).
@@ -540,97 +499,11 @@ class PopulationEvaluator:
         return out + (x.T,)
 
 
-def objective_parts(measured: jax.Array, calculated: jax.Array, n_bins: int):
-    """f_time (eq. 8), f_freq (eq. 9) and the RMS error along axis 0.
-
-    f_freq compares single-sided amplitude spectra |X_j|·2/N (DC: |X_0|/N) of the first
-    ``n_bins`` DFT bins, j = 0 … m−1, computed as a DFT-matrix product.
-    """
-    dft = jnp.asarray(_dft_matrix(measured.shape[0], n_bins))
-    return _objective_parts(measured, calculated, dft, _amplitude(dft, measured, n_bins), n_bins)
-
-
-def _objective_parts(measured, calculated, dft, amplitude_measured, n_bins):
-    residual = measured - calculated
-    f_time = jnp.sqrt(jnp.sum(residual ** 2, axis=0))
-    rms = f_time / np.sqrt(measured.shape[0])
-    f_freq = jnp.sum(jnp.abs(amplitude_measured - _amplitude(dft, calculated, n_bins)), axis=0)
-    return f_time, f_freq, rms
-
-
-#: Largest DFT matrix (elements, 2m·N) used; above it the amplitudes come from an FFT.
-DFT_MATRIX_LIMIT = 4_000_000
-
-
-def _amplitude(dft, signal, n_bins: int):
-    """(m, P) amplitudes of the first m bins.
-
-    With a DFT matrix: one (2m, N) @ (N, P) product, weighted cos rows over weighted sin
-    rows (4mN flops per model; faster than an FFT on CPU for m = 58, N = 1,334). With
-    ``dft`` of shape (1, m) — the weights only, see :func:`_dft_matrix` — an rfft, whose
-    cost and memory do not grow with m.
-    """
-    if dft.shape[0] == 1:
-        return dft[0, :n_bins, None] * jnp.abs(jnp.fft.rfft(signal, axis=0)[:n_bins])
-    parts = dft @ signal
-    return jnp.hypot(parts[:n_bins], parts[n_bins:])
-
-
-def _dft_matrix(n: int, n_bins: int) -> np.ndarray:
-    """(2m, N) rows w_j·cos(2πjk/N) then w_j·sin(2πjk/N), w = 2/N (DC, Nyquist: 1/N);
-    above :data:`DFT_MATRIX_LIMIT` elements only the weights, shape (1, m)."""
-    if 2 * n_bins * n > DFT_MATRIX_LIMIT:
-        weight = np.full(n_bins, 2.0 / n)
-        weight[0] = 1.0 / n
-        if n % 2 == 0 and n_bins > n // 2:
-            weight[n // 2] = 1.0 / n
-        return weight[None, :]
-    j = np.arange(n_bins)[:, None]
-    k = np.arange(n)[None, :]
-    angle = 2 * np.pi * ((j * k) % n) / n
-    weight = np.full((n_bins, 1), 2.0 / n)
-    weight[0] = 1.0 / n
-    if n % 2 == 0 and n_bins > n // 2:
-        weight[n // 2] = 1.0 / n
-    return np.concatenate([weight * np.cos(angle), weight * np.sin(angle)])
-
-
-def amplitude_spectrum(signal: np.ndarray) -> np.ndarray:
-    """Single-sided amplitude spectrum |X_j|·2/N (DC and Nyquist |X|/N) via numpy's rfft."""
-    n = signal.size
-    amplitude = np.abs(np.fft.rfft(signal)) * 2.0 / n
-    amplitude[0] /= 2.0
-    if n % 2 == 0:
-        amplitude[-1] /= 2.0
-    return amplitude
-
-
-def default_n_bins(response: np.ndarray) -> int:
-    """Smallest m whose bins (DC included) hold 99 % of the response's AC spectral energy.
-
-    Bins above that carry less than 1 % of the oscillation energy, mostly noise, which would
-    add a model-independent floor to f_freq; DC is always included (bin 0).
-    """
-    energy = amplitude_spectrum(response)[1:] ** 2
-    total = energy.sum()
-    if total == 0:
-        return 1
-    count = int(np.searchsorted(np.cumsum(energy) / total, SPECTRAL_ENERGY_FRACTION)) + 1
-    return 1 + count
-
-
 def _capacity(count: int) -> int:
     capacity = 16
     while capacity < count:
         capacity *= 2
     return capacity
-
-
-def _pad_rows(array: np.ndarray, rows: int, fill: float) -> np.ndarray:
-    if array.shape[0] == rows:
-        return array
-    pad = np.full((rows - array.shape[0],) + array.shape[1:], fill)
-    return np.concatenate([array, pad])
 
 
 def _pad_columns(array: np.ndarray, columns: int) -> np.ndarray:

@@ -21,12 +21,14 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from typing import Callable
 
 import numpy as np
+import sympy as sp
 
 from . import _trees
 from ._config import GPConfig
+from ._evaluator import OK
+from ._expressions import parse_expression
 from ._fitness import Fitness, Record, feature_set_key
 from ._operators import Grammar, crossover, initial_population, mutation, perturbation
 
@@ -62,15 +64,16 @@ class RunState:
             "history": [dataclasses.asdict(h) for h in self.history],
             "done": self.done,
             "records": [r.to_json() for r in fitness.records.values() if r.valid],
-            "forcing_features": [str(f) for f in fitness.evaluator._forcing_features],
+            "forcing_features": [str(f) for f in fitness.evaluator.forcing_features],
         }
 
     @classmethod
     def from_json(cls, data: dict, fitness: Fitness) -> "RunState":
+        names = fitness.symbols.names()
         for text in data["forcing_features"]:
-            fitness.evaluator.forcing_index(fitness._feature(text))
+            fitness.evaluator.forcing_index(parse_expression(text, names))
         for item in data["records"]:
-            record = Record.from_json(item)
+            record = Record.from_json(item, names)
             fitness.records[record.key] = record
         return cls(generation=data["generation"],
                    population=[_trees.from_json(t) for t in data["population"]],
@@ -128,7 +131,7 @@ class Evolution:
         population[:] = self._replace(population)
         records = self.fitness.records_for(population)
         objectives = np.array([r.objective for r in records])
-        valid = np.array([r.valid and r.status == 0 for r in records])
+        valid = np.array([r.valid and r.status == OK for r in records])
         best = min(range(len(records)), key=lambda i: _rank_key(records[i], population[i]))
         state.history.append(GenerationStats(
             generation=state.generation, best_objective=float(objectives[best]),
@@ -178,30 +181,32 @@ class Evolution:
         if not self.config.local_search:
             return []
         best = _best_distinct(self.fitness.records_for(trees), self.config.local_search)
-        candidates = [(part, text, self.fitness.feature_tree(text))
-                      for part, texts in self.fitness.basis_features().items() for text in texts]
+        candidates = [(part, feature, self.fitness.feature_tree(feature))
+                      for part, features in self.fitness.basis_features().items()
+                      for feature in features]
         tree_mode = self.config.coefficients == "tree"
         out = []
         for record in best:
-            terms = [(part, self.fitness.feature_tree(text), value)
+            model = record.coefficients
+            terms = [(part, self.fitness.feature_tree(feature), value)
                      for part in ("state", "forcing")
-                     for text, value in getattr(record, part).items()]
+                     for feature, value in getattr(model, part).items()]
             present = {_trees.to_json(t).__repr__() for _, t, _ in terms}
             trees = []
-            for part, text, feature in candidates:
-                if repr(_trees.to_json(feature)) in present:
+            for part, feature, tree in candidates:
+                if repr(_trees.to_json(tree)) in present:
                     continue
-                value = self._new_coefficient(part, text, rng) if tree_mode else 1.0
-                trees.append(_sum_tree(record.mass, terms + [(part, feature, value)]))
+                value = self._new_coefficient(part, feature, rng) if tree_mode else 1.0
+                trees.append(_sum_tree(model.mass, terms + [(part, tree, value)]))
             if tree_mode:
                 trees += [_sum_tree(mass, terms) for mass in self.config.named_constants.values()
-                          if mass != record.mass]
+                          if mass != model.mass]
             out += [tree for tree in trees if self.grammar.within_limits(tree)]
         if tree_mode:
             self._score(out)
         return out
 
-    def _new_coefficient(self, part: str, text: str, rng: np.random.Generator) -> float:
+    def _new_coefficient(self, part: str, feature: sp.Expr, rng: np.random.Generator) -> float:
         """Tree mode: the start value of a term an extension adds.
 
         A state term (a stiffness- or damping-like coefficient) gets an interval constant
@@ -211,7 +216,7 @@ class Evolution:
         So the intervals set the Levenberg–Marquardt start of every added stiffness term.
         """
         inputs = self.fitness.symbols.u
-        if part == "forcing" and inputs and text == str(inputs[0]):
+        if part == "forcing" and inputs and str(feature) == str(inputs[0]):
             return 1.0
         intervals = self.config.interval_constants
         if part == "state" and intervals:
@@ -249,21 +254,12 @@ class Evolution:
         chosen = (first + repeats)[: self.config.population]
         return [candidates[i] for i in chosen]
 
-    def run(self, state: RunState, on_generation: Callable[[RunState], None] | None = None
-            ) -> RunState:
-        """Step until a stop rule holds, calling ``on_generation`` after each generation."""
-        while not state.done:
-            state = self.step(state)
-            if on_generation is not None:
-                on_generation(state)
-        return state
-
 
 def _best_distinct(records: list[Record], count: int) -> list[Record]:
     """The best usable record of each of the ``count`` best distinct feature sets, best
     first (in tree mode the best coefficient variant of each set, not the best variants)."""
     distinct: dict[str, Record] = {}
-    for record in sorted((r for r in records if r.valid and r.status == 0),
+    for record in sorted((r for r in records if r.valid and r.status == OK),
                          key=lambda r: (r.objective, r.n_terms)):
         distinct.setdefault(feature_set_key(record), record)
         if len(distinct) >= count:

@@ -4,25 +4,23 @@ Two caches make repeated individuals free: tree → structure check, and structu
 scored record. With ``coefficients="least_squares"`` the key is the set of features (the
 numbers come from the data); with ``"tree"`` it also holds the tree's coefficients, so one
 feature set has many records (its coefficient variants) and :func:`feature_set_key` names
-the set they share. Records are plain JSON-ready values so a checkpoint can carry the cache
-whole.
+the set they share. A record's constants are one :class:`~gpjax._coefficients.Coefficients`
+(sympy features); they become text only in a checkpoint (:meth:`Record.to_json`).
 """
 
 from __future__ import annotations
 
 import dataclasses
-import math
 
 import numpy as np
 import sympy as sp
 
 from ._canonical import CanonicalForm, Symbols, check_tree
+from ._coefficients import Coefficients, Population, from_population, to_population
 from ._config import GPConfig
 from ._convergence import initial_substeps
 from ._data import Measurement
-from ._evaluator import (INVALID_STRUCTURE, OK, PENALTY, Population, PopulationEvaluator,
-                         Scores)
-from ._expressions import parse_expression
+from ._evaluator import INVALID_STRUCTURE, OK, PENALTY, PopulationEvaluator, Scores
 from ._memory import check_fit_memory
 from ._refine import Refiner
 from ._trees import Tree
@@ -31,15 +29,12 @@ from ._weak_form import WeakForm, least_squares, smoothed_derivatives
 
 @dataclasses.dataclass
 class Record:
-    """A scored model structure (one cache entry). Coefficients map feature text -> value."""
+    """A scored model structure (one cache entry); ``coefficients`` is None when invalid."""
 
     key: str
     valid: bool
     reason: str = ""
-    mass: float = math.nan
-    state: dict[str, float] = dataclasses.field(default_factory=dict)
-    forcing: dict[str, float] = dataclasses.field(default_factory=dict)
-    y0: tuple[float, float] = (math.nan, math.nan)
+    coefficients: Coefficients | None = None
     objective: float = PENALTY
     f_time: float = PENALTY
     f_freq: float = PENALTY
@@ -50,15 +45,19 @@ class Record:
     @property
     def n_terms(self) -> int:
         """Complexity: inertia term + state terms + forcing terms."""
-        return 1 + len(self.state) + len(self.forcing)
+        return self.coefficients.n_terms if self.coefficients is not None else 0
 
     def to_json(self) -> dict:
-        return dataclasses.asdict(self)
+        data = dataclasses.asdict(dataclasses.replace(self, coefficients=None))
+        data["coefficients"] = None if self.coefficients is None else self.coefficients.to_json()
+        return data
 
     @classmethod
-    def from_json(cls, data: dict) -> "Record":
+    def from_json(cls, data: dict, names: set[str]) -> "Record":
+        """Inverse of :meth:`to_json`; ``names`` are the data's symbol names."""
         data = dict(data)
-        data["y0"] = tuple(data["y0"])
+        if data["coefficients"] is not None:
+            data["coefficients"] = Coefficients.from_json(data["coefficients"], names)
         return cls(**data)
 
 
@@ -75,7 +74,7 @@ def structure_key(form: CanonicalForm, with_coefficients: bool) -> str:
 def feature_set_key(record: Record) -> str:
     """The key of a valid record's feature set, without coefficients (``record.key`` itself
     in least-squares mode; in tree mode shared by all coefficient variants of the set)."""
-    return f"m | {', '.join(record.state)} | {', '.join(record.forcing)}"
+    return structure_key(record.coefficients.canonical(), with_coefficients=False)
 
 
 class Fitness:
@@ -169,53 +168,35 @@ class Fitness:
         """Set coefficients of each (key, form), score them in one batch, cache them."""
         rows = []
         for key, form in forms.items():
-            state, forcing = form.structure
+            coefficients = Coefficients.from_canonical(form, self.y0)
             if self.config.coefficients == "least_squares":
+                state, forcing = form.structure
                 mass, c, g, _ = least_squares(self.weak_form, state, forcing)
-            else:
-                mass = form.mass
-                c = np.array([v for _, v in form.state])
-                g = np.array([v for _, v in form.forcing])
-            rows.append(Record(key=key, valid=True, mass=float(mass),
-                               state={str(f): float(v) for f, v in zip(state, c)},
-                               forcing={str(f): float(v) for f, v in zip(forcing, g)},
-                               y0=self.y0))
+                coefficients = coefficients.replace(
+                    mass=float(mass), state=dict(zip(state, map(float, c))),
+                    forcing=dict(zip(forcing, map(float, g))))
+            rows.append(Record(key=key, valid=True, coefficients=coefficients))
         self._score_records(rows)
         for record in rows:
             self.records[record.key] = record
 
     # --- records to arrays and back -------------------------------------------------------
-    def _feature(self, text: str) -> sp.Expr:
-        return parse_expression(text, self.symbols.names())
-
-    def basis_features(self) -> dict[str, list[str]]:
+    def basis_features(self) -> dict[str, list[sp.Expr]]:
         """Features a one-term move may add: x^k and x'^k (k <= max_degree, where the
         configured variables allow them), a constant force and each input."""
         variables = self.config.variables
-        state = [str(symbol ** k) for symbol, role in ((self.symbols.x, "x"),
-                                                        (self.symbols.x_dot, "x_dot"))
+        state = [symbol ** k for symbol, role in ((self.symbols.x, "x"),
+                                                  (self.symbols.x_dot, "x_dot"))
                  if role in variables for k in range(1, self.config.max_degree + 1)]
-        forcing = ["1"] + ([str(u) for u in self.symbols.u] if "u" in variables else [])
+        forcing = [sp.Integer(1)] + (list(self.symbols.u) if "u" in variables else [])
         return {"state": state, "forcing": forcing}
 
-    def feature_tree(self, text: str) -> tuple:
-        """A tree for a feature text (powers of x, x', t and inputs, products, constant)."""
-        return _expression_tree(self._feature(text), self.symbols)
+    def feature_tree(self, feature: sp.Expr) -> tuple:
+        """A tree for a feature (powers of x, x', t and inputs, products, constant)."""
+        return _expression_tree(feature, self.symbols)
 
     def population(self, records: list[Record]) -> Population:
-        ev = self.evaluator
-        for record in records:
-            for text in record.forcing:
-                ev.forcing_index(self._feature(text))
-        pop = ev.empty(len(records))
-        for i, record in enumerate(records):
-            pop.mass[i] = record.mass if math.isfinite(record.mass) else 1.0
-            for text, value in record.state.items():
-                pop.state[i, ev.state_index(self._feature(text))] = value
-            for text, value in record.forcing.items():
-                pop.forcing[i, ev.forcing_index(self._feature(text))] = value
-            pop.y0[i] = record.y0
-        return pop
+        return to_population([r.coefficients for r in records], self.evaluator)
 
     def _score_records(self, records: list[Record]) -> None:
         scores = self.evaluator.score(self.population(records))
@@ -224,8 +205,7 @@ class Fitness:
     def adopt(self, records: list[Record]) -> list[Record]:
         """Copies of ``records`` (from a run at another step count) scored, refined and
         cached here; returns the copies."""
-        copies = [dataclasses.replace(Record.from_json(r.to_json()), refined=False)
-                  for r in records if r.valid]
+        copies = [dataclasses.replace(r, refined=False) for r in records if r.valid]
         self._score_records(copies)
         for record in copies:
             self.records[record.key] = record
@@ -238,24 +218,20 @@ class Fitness:
         if not records:
             return
         population = self.population(records)
-        u0 = str(self.symbols.u[0]) if self.symbols.u else None
-        fixed = np.array([self.evaluator.forcing_index(self.symbols.u[0])
-                          if u0 is not None and u0 in r.forcing else -1 for r in records])
+        u0 = self.symbols.u[0] if self.symbols.u else None
+        fixed = np.array([self.evaluator.forcing_index(u0)
+                          if u0 is not None and u0 in r.coefficients.forcing else -1
+                          for r in records])
         refined = self.refiner.refine(population, fixed)
         scores = self.evaluator.score(refined.population)
-        ev = self.evaluator
+        moved = from_population(refined.population, self.evaluator,
+                                [r.coefficients for r in records])
         for i, record in enumerate(records):
-            if scores.status[i] != OK or scores.objective[i] >= record.objective:
-                record.refined = True  # refinement did not help: keep the start values
-                continue
-            record.mass = float(refined.population.mass[i])
-            record.state = {t: float(refined.population.state[i, ev.state_index(self._feature(t))])
-                            for t in record.state}
-            record.forcing = {t: float(refined.population.forcing[i, ev.forcing_index(
-                self._feature(t))]) for t in record.forcing}
-            record.y0 = (float(refined.population.y0[i, 0]), float(refined.population.y0[i, 1]))
-            _store([record], _row(scores, i))
             record.refined = True
+            if scores.status[i] != OK or scores.objective[i] >= record.objective:
+                continue  # refinement did not help: keep the start values
+            record.coefficients = moved[i]
+            _store([record], _row(scores, i))
 
 
 def _expression_tree(expression: sp.Expr, symbols: Symbols) -> tuple:
@@ -294,4 +270,5 @@ def _store(records: list[Record], scores: Scores) -> None:
         record.rms = float(scores.rms[i])
         record.status = int(scores.status[i])
         if record.status == OK:
-            record.y0 = (float(scores.y0[i, 0]), float(scores.y0[i, 1]))
+            record.coefficients = record.coefficients.replace(
+                y0=(float(scores.y0[i, 0]), float(scores.y0[i, 1])))

@@ -14,21 +14,26 @@ that varies at the mesh frequency. Ordinary ``terms`` keep the rule of eqs. 5–
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import keyword
 import math
+from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
 import sympy as sp
 
 from ._canonical import Symbols, check_structure
+from ._coefficients import Coefficients, Population, to_population
 from ._convergence import MAX_SUBSTEPS
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._errors import ModelFileError, read_user_file
-from ._evaluator import Population, PopulationEvaluator, default_n_bins
+from ._evaluator import PopulationEvaluator, split_state_features
+from ._objective import default_n_bins
 from ._expressions import parse_expression
 from ._reference import ReferenceSolver, measurement_scale, reference_response
+from ._weak_form import estimate_initial_conditions
 
 FORMAT = "gpjax-model"
 VERSION = 1
@@ -71,9 +76,45 @@ class Model:
     substeps: int = 1
     convergence: dict | None = None
 
+    @classmethod
+    def from_coefficients(cls, symbols: Symbols, coefficients: Coefficients,
+                          **fields) -> "Model":
+        """A model of ``coefficients`` (its time-varying left-hand-side terms become
+        ``parametric``; a finite ``y0`` the initial conditions); ``fields`` as the
+        constructor's. Its features are not parsed again."""
+        lhs = coefficients.state.items()
+        y0 = coefficients.y0
+        model = cls(symbols=symbols, mass=coefficients.mass,
+                    state={str(f): v for f, v in lhs if symbols.t not in f.free_symbols},
+                    forcing={str(f): v for f, v in coefficients.forcing.items()},
+                    parametric={str(f): v for f, v in lhs if symbols.t in f.free_symbols},
+                    initial_conditions=tuple(y0) if all(map(math.isfinite, y0)) else None,
+                    **fields)
+        model.__dict__["_features"] = {str(f): f for f in (*coefficients.state,
+                                                           *coefficients.forcing)}
+        return model
+
     # --- symbolic views -----------------------------------------------------------------
+    @functools.cached_property
+    def _features(self) -> dict[str, sp.Expr]:
+        """Every feature text of the model parsed (once) by the whitelist parser."""
+        names = self.symbols.names()
+        return {text: parse_expression(text, names)
+                for text in (*self.state, *self.parametric, *self.forcing)}
+
     def _feature(self, text: str) -> sp.Expr:
-        return parse_expression(text, self.symbols.names())
+        return self._features[text]
+
+    @property
+    def coefficients(self) -> Coefficients:
+        """The constants keyed by sympy feature; ``state`` holds the parametric terms too,
+        ``y0`` the initial conditions (NaN when not set)."""
+        return Coefficients(
+            mass=self.mass,
+            state={self._feature(t): v for t, v in (*self.state.items(),
+                                                     *self.parametric.items())},
+            forcing={self._feature(t): v for t, v in self.forcing.items()},
+            y0=self.initial_conditions or (math.nan, math.nan))
 
     def constant_names(self) -> dict[str, tuple[str, str]]:
         """Constant name -> (part, feature): m; k1, k2 … for x terms; c1 … for x' terms;
@@ -143,34 +184,14 @@ class Model:
                   substeps: int | None = None) -> PopulationEvaluator:
         """An RK4 evaluator on ``measurement`` whose basis holds this model's features
         (``substeps`` default: the model's)."""
-        polynomial, extra, degree = [], [], 1
-        for text in self.state:
-            feature = self._feature(text)
-            symbol = next(iter(feature.free_symbols))
-            if feature.is_polynomial(symbol) and sp.Poly(feature, symbol).is_monomial \
-                    and sp.Poly(feature, symbol).LC() == 1:
-                degree = max(degree, int(sp.degree(feature, symbol)))
-                polynomial.append(feature)
-            else:
-                extra.append(feature)
-        extra += [self._feature(text) for text in self.parametric]
-        return PopulationEvaluator(measurement, self.symbols, max_degree=degree,
-                                   substeps=substeps or self.substeps,
-                                   extra_state_features=tuple(extra), batch=1,
-                                   n_bins=min(default_n_bins(measurement.response), 256),
-                                   input_interpolation=self.input_interpolation)
+        degree, extra = split_state_features(self.coefficients.state, self.symbols)
+        return _evaluator(measurement, self.symbols, max_degree=degree,
+                          substeps=substeps or self.substeps, extra_state_features=extra,
+                          input_interpolation=self.input_interpolation)
 
     def population(self, evaluator: PopulationEvaluator, y0: tuple[float, float]) -> Population:
-        for text in self.forcing:
-            evaluator.forcing_index(self._feature(text))
-        pop = evaluator.empty(1)
-        pop.mass[0] = self.mass
-        for text, value in (*self.state.items(), *self.parametric.items()):
-            pop.state[0, evaluator.state_index(self._feature(text))] = value
-        for text, value in self.forcing.items():
-            pop.forcing[0, evaluator.forcing_index(self._feature(text))] = value
-        pop.y0[0] = y0
-        return pop
+        """This model as a population of one on ``evaluator``, starting from ``y0``."""
+        return to_population([self.coefficients.replace(y0=tuple(y0))], evaluator)
 
     def simulate(self, measurement: Measurement, *,
                  initial_conditions: tuple[float, float] | None = None,
@@ -391,13 +412,25 @@ def _terms(items, where: str, fail) -> dict[str, float]:
     return out
 
 
-def estimate_initial_conditions(measurement: Measurement) -> tuple[float, float]:
-    """(x, x') at the first sample from a Savitzky–Golay fit (eq. 13's robust estimate)."""
-    from ._weak_form import smoothed_derivatives
+#: Evaluators kept for repeated simulations (:func:`_evaluator`), most recent last.
+_EVALUATORS: OrderedDict = OrderedDict()
+EVALUATOR_CACHE_SIZE = 8
 
-    cutoff = default_n_bins(measurement.response) / (measurement.n_samples * measurement.dt)
-    d = smoothed_derivatives(measurement, cutoff)
-    return float(d.x[0]), float(d.x_dot[0])
+
+def _evaluator(measurement: Measurement, symbols: Symbols, **settings) -> PopulationEvaluator:
+    """A one-model RK4 evaluator on ``measurement`` with ``settings``, reused across calls
+    with the same data and settings (its compiled simulation with it)."""
+    key = (measurement.fingerprint(), symbols, tuple(sorted(settings.items())))
+    if key in _EVALUATORS:
+        _EVALUATORS.move_to_end(key)
+        return _EVALUATORS[key]
+    evaluator = PopulationEvaluator(measurement, symbols, batch=1,
+                                    n_bins=min(default_n_bins(measurement.response), 256),
+                                    **settings)
+    _EVALUATORS[key] = evaluator
+    while len(_EVALUATORS) > EVALUATOR_CACHE_SIZE:
+        _EVALUATORS.popitem(last=False)
+    return evaluator
 
 
 def _check_inputs(model: Model, measurement: Measurement) -> None:

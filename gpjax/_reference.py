@@ -30,7 +30,10 @@ import jax.numpy as jnp
 import numpy as np
 import sympy as sp
 
+from ._coefficients import Coefficients
 from ._data import BANDLIMITED_FACTOR, Measurement, bandlimited_spline
+from ._integrate import enable_float64
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class ReferenceSolver:
@@ -96,16 +99,15 @@ def input_path(time: np.ndarray, inputs: list[np.ndarray], method: str):
     raise ValueError(f"unknown input interpolation {method!r}")
 
 
-def _structure(model) -> tuple[sp.Expr, tuple[sp.Symbol, ...], np.ndarray]:
-    """x'' of a :class:`~gpjax._model.Model` as one sympy expression in x, x', t, the
-    inputs and one symbol per constant, the symbols and their values."""
-    features = [(text, -value) for text, value in (*model.state.items(),
-                                                   *model.parametric.items())]
-    features += list(model.forcing.items())
+def _structure(coefficients: Coefficients) -> tuple[sp.Expr, tuple[sp.Symbol, ...],
+                                                      np.ndarray]:
+    """x'' of one equation as one sympy expression in x, x', t, the inputs and one symbol
+    per constant, the symbols and their values."""
+    features = [(f, -value) for f, value in coefficients.state.items()]
+    features += list(coefficients.forcing.items())
     constants = sp.symbols(f"_c0:{len(features) + 1}")
-    force = sum((c * model._feature(text) for c, (text, _) in zip(constants[1:], features)),
-                sp.Integer(0))
-    values = np.array([1.0 / model.mass] + [v for _, v in features])
+    force = sum((c * f for c, (f, _) in zip(constants[1:], features)), sp.Integer(0))
+    values = np.array([1.0 / coefficients.mass] + [v for _, v in features])
     return constants[0] * force, constants, values
 
 
@@ -143,8 +145,9 @@ def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
     Returns:
         (response (N,), ok); a failed solve gives NaN and ``ok`` false.
     """
+    enable_float64()
     symbols = model.symbols
-    expression, constants, values = _structure(model)
+    expression, constants, values = _structure(model.coefficients)
     field = _field(expression, (symbols.x, symbols.x_dot, symbols.t, *symbols.u), constants)
     path, step_ts, jump_ts = input_path(time, [inputs[name] for name in symbols.inputs],
                                         model.input_interpolation)

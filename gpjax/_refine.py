@@ -30,7 +30,8 @@ import lineax as lx
 import numpy as np
 import optimistix as optx
 
-from ._evaluator import STAGE_ELEMENTS_PER_CALL, Population, PopulationEvaluator
+from ._coefficients import Population, padded_chunks
+from ._evaluator import STAGE_ELEMENTS_PER_CALL, PopulationEvaluator
 
 JACOBIANS = ("variational", "autodiff")
 #: The damped Gauss–Newton step solves the normal equations (JᵀJ + λI)·δ = Jᵀr by LU: the
@@ -117,18 +118,14 @@ class Refiner:
         """
         ev = self.evaluator
         count = len(population)
-        n_state = population.state.shape[1]
-        capacity = ev.forcing_capacity
-        forcing = np.zeros((count, capacity))
-        forcing[:, : population.forcing.shape[1]] = population.forcing
-        start = np.concatenate([population.mass[:, None], population.state, forcing,
-                                population.y0], axis=1)
+        layout = ev.layout
+        start = layout.pack(population)
         scale = np.abs(start)
         scale[:, -2:] = self._state_scale
         free = scale > 0
         free[:, -2:] = True
         for i, column in enumerate(np.asarray(fixed_forcing)):
-            free[i, 1 + n_state + column if column >= 0 else 0] = False
+            free[i, layout.forcing_column(column) if column >= 0 else 0] = False
         scale = np.where(scale > 0, scale, 1.0)
         # Only free parameters are differentiated: index (P, width), padded with scale 0.
         index = np.zeros((count, self.max_free), dtype=np.int32)
@@ -138,22 +135,16 @@ class Refiner:
             index[i, : columns.size] = columns
             index_scale[i, : columns.size] = scale[i, columns]
         outputs = []
-        for begin in range(0, count, self.batch):
-            stop = min(begin + self.batch, count)
-            pad = self.batch - (stop - begin)
-            chunk = [np.concatenate([a[begin:stop], np.repeat(a[begin:begin + 1], pad, axis=0)])
-                     for a in (start, index, index_scale)]
+        basis = jnp.asarray(ev.forcing_basis)
+        for size, chunk in padded_chunks((start, index, index_scale), self.batch):
             began = time.perf_counter()
-            out = jax.block_until_ready(
-                self._run(*map(jnp.asarray, chunk), jnp.asarray(ev._forcing_basis)))
-            if capacity not in self._compiled:  # the first call of a shape includes its compile
-                self._compiled.add(capacity)
+            out = jax.block_until_ready(self._run(*map(jnp.asarray, chunk), basis))
+            if layout.width not in self._compiled:  # a shape's first call includes its compile
+                self._compiled.add(layout.width)
                 self.compile_seconds += time.perf_counter() - began
-            outputs.append([np.asarray(o)[: stop - begin] for o in out])
+            outputs.append([np.asarray(o)[:size] for o in out])
         params, ok, steps = (np.concatenate(p) for p in zip(*outputs))
-        refined = Population(mass=params[:, 0], state=params[:, 1:1 + n_state],
-                             forcing=params[:, 1 + n_state:1 + n_state + population.forcing.shape[1]],
-                             y0=params[:, -2:])
+        refined = layout.population(params, population.forcing.shape[1])
         return Refinement(population=refined, succeeded=ok.astype(bool), steps=steps)
 
     def _refine_one(self, start, index, index_scale, forcing_basis):

@@ -1,7 +1,7 @@
 """Run-folder output: atomic file writes, ``history.csv`` and the ``fit.png`` figure.
 
-Plotting uses matplotlib's non-interactive Agg backend and is imported only when a
-figure is drawn, so the core never needs a display.
+Figures are ``matplotlib.figure.Figure`` objects drawn by the Agg canvas, without pyplot:
+no display is needed and a notebook's backend is left as it is (:func:`png_bytes`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._evaluator import amplitude_spectrum
+from ._objective import amplitude_spectrum
 
 
 def write_bytes_atomic(path: Path, data: bytes) -> None:
@@ -51,12 +51,10 @@ def history_csv(rows: list[dict]) -> str:
 def fit_figure(time: np.ndarray, measured: np.ndarray, calculated: np.ndarray, *,
                response_name: str, n_bins: int, title: str) -> bytes:
     """PNG bytes: measured vs calculated response (paper Fig. 10) and their spectra."""
-    import matplotlib
+    from matplotlib.figure import Figure
 
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    figure, (top, bottom) = plt.subplots(2, 1, figsize=(9, 7), constrained_layout=True)
+    figure = Figure(figsize=(9, 7), constrained_layout=True)
+    top, bottom = figure.subplots(2, 1)
     top.plot(time, measured, color="0.55", lw=1.2, label="measured")
     top.plot(time, calculated, color="C3", lw=1.0, ls="--", label="calculated")
     top.set_xlabel("t [s]")
@@ -73,7 +71,15 @@ def fit_figure(time: np.ndarray, measured: np.ndarray, calculated: np.ndarray, *
     bottom.set_xlabel("frequency [Hz]")
     bottom.set_ylabel(f"amplitude of {response_name}")
     bottom.legend(loc="upper right")
+    return png_bytes(figure, dpi=110)
+
+
+def png_bytes(figure, *, dpi: int) -> bytes:
+    """A ``matplotlib.figure.Figure`` rendered to PNG by the Agg canvas (no pyplot, so no
+    backend is switched)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+
+    FigureCanvasAgg(figure)
     buffer = io.BytesIO()
-    figure.savefig(buffer, format="png", dpi=110)
-    plt.close(figure)
+    figure.savefig(buffer, format="png", dpi=dpi)
     return buffer.getvalue()

@@ -13,19 +13,15 @@ from __future__ import annotations
 
 import math
 
+import sympy as sp
+
 from ._canonical import CanonicalForm
+from ._evaluator import OK
 from ._fitness import Fitness, Record, structure_key
 
 
-def _form(fitness: Fitness, mass: float, state: dict[str, float],
-          forcing: dict[str, float]) -> CanonicalForm:
-    feature = fitness._feature
-    return CanonicalForm(mass=mass, state=tuple((feature(f), v) for f, v in state.items()),
-                         forcing=tuple((feature(f), v) for f, v in forcing.items()))
-
-
 def _records_for(fitness: Fitness, mass: float,
-                 options: list[tuple[dict[str, float], dict[str, float]]], *,
+                 options: list[tuple[dict[sp.Expr, float], dict[sp.Expr, float]]], *,
                  refine_below: float) -> list[Record]:
     """Score several structures together; refine those scoring below ``refine_below``.
 
@@ -33,7 +29,8 @@ def _records_for(fitness: Fitness, mass: float,
     """
     keys, new = [], {}
     for state, forcing in options:
-        form = _form(fitness, mass, state, forcing)
+        form = CanonicalForm(mass=mass, state=tuple(state.items()),
+                             forcing=tuple(forcing.items()))
         key = structure_key(form, with_coefficients=False)
         if fitness.config.coefficients == "tree":
             key = "pruned " + key
@@ -61,7 +58,7 @@ def simplify(fitness: Fitness, best: Record, tolerance: float) -> tuple[Record, 
     limit, or, at equal size, to a lower objective. The limit is (1 + tolerance) times the
     lowest objective seen. Returns the final record and the path taken.
     """
-    normaliser = str(fitness.symbols.u[0]) if fitness.symbols.u else None
+    normaliser = fitness.symbols.u[0] if fitness.symbols.u else None
     tree_mode = fitness.config.coefficients == "tree"
     basis = fitness.basis_features()
     lowest = best.objective
@@ -69,7 +66,7 @@ def simplify(fitness: Fitness, best: Record, tolerance: float) -> tuple[Record, 
     while True:
         options = []
         for part in ("state", "forcing"):
-            terms = dict(getattr(current, part))
+            terms = dict(getattr(current.coefficients, part))
             others = [t for t in basis[part] if t not in terms]
             for name, value in terms.items():
                 if part == "forcing" and name == normaliser:
@@ -77,11 +74,12 @@ def simplify(fitness: Fitness, best: Record, tolerance: float) -> tuple[Record, 
                 rest = {t: v for t, v in terms.items() if t != name}
                 options.append((part, rest))
                 options += [(part, {**rest, other: value}) for other in others]
-        structures = [(terms, dict(current.forcing)) if part == "state"
-                      else (dict(current.state), terms) for part, terms in options]
-        records = _records_for(fitness, current.mass, structures, refine_below=(
+        now = current.coefficients
+        structures = [(terms, dict(now.forcing)) if part == "state"
+                      else (dict(now.state), terms) for part, terms in options]
+        records = _records_for(fitness, now.mass, structures, refine_below=(
             math.inf if tree_mode else 5 * lowest * (1 + tolerance)))
-        usable = [r for r in records if r.valid and r.status == 0]
+        usable = [r for r in records if r.valid and r.status == OK]
         lowest = min([lowest, *(r.objective for r in usable)])
         limit = lowest * (1 + tolerance)
         moves = [r for r in usable if r.objective <= limit and (
@@ -98,7 +96,7 @@ def simplify(fitness: Fitness, best: Record, tolerance: float) -> tuple[Record, 
 def pareto_front(records: list[Record]) -> list[Record]:
     """For each complexity (number of terms), the best record if it beats every simpler one."""
     front: list[Record] = []
-    for record in sorted((r for r in records if r.valid and r.status == 0),
+    for record in sorted((r for r in records if r.valid and r.status == OK),
                          key=lambda r: (r.n_terms, r.objective)):
         if not front or (record.n_terms > front[-1].n_terms
                          and record.objective < front[-1].objective):

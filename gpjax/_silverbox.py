@@ -73,7 +73,7 @@ def segment_rms(models: list, segment: Measurement, *, warmup: int = WARMUP) -> 
         segment: the test data (from :func:`silverbox_segments`).
         warmup: samples used for the initial state and left out of the RMS.
     """
-    from ._model import estimate_initial_conditions
+    from ._weak_form import estimate_initial_conditions
 
     y0 = estimate_initial_conditions(segment.segment(0, max(warmup + 1, 21)))
     rms = []

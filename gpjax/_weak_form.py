@@ -25,6 +25,7 @@ from scipy.signal import savgol_filter
 
 from ._canonical import Symbols
 from ._data import Measurement
+from ._objective import default_n_bins
 
 POLYORDER = 4
 
@@ -50,8 +51,27 @@ def savgol_window(measurement: Measurement, cutoff_hz: float) -> int:
     return window if window % 2 else window + 1
 
 
-def smoothed_derivatives(measurement: Measurement, cutoff_hz: float) -> Derivatives:
-    """x, x', x'' from a Savitzky–Golay filter that keeps frequencies up to ~``cutoff_hz``."""
+def smoothing_cutoff_hz(measurement: Measurement, n_bins: int | None = None) -> float:
+    """Frequency (Hz) of DFT bin ``n_bins`` (default: the bins holding 99 % of the
+    response's AC energy, :func:`gpjax._objective.default_n_bins`): the band the
+    derivative estimates keep."""
+    if n_bins is None:
+        n_bins = default_n_bins(measurement.response)
+    return n_bins / (measurement.n_samples * measurement.dt)
+
+
+def estimate_initial_conditions(measurement: Measurement) -> tuple[float, float]:
+    """(x, x') at the first sample from the smoothed response (eq. 13's robust estimate)."""
+    d = smoothed_derivatives(measurement)
+    return float(d.x[0]), float(d.x_dot[0])
+
+
+def smoothed_derivatives(measurement: Measurement, cutoff_hz: float | None = None
+                         ) -> Derivatives:
+    """x, x', x'' from a Savitzky–Golay filter that keeps frequencies up to ~``cutoff_hz``
+    (default :func:`smoothing_cutoff_hz`)."""
+    if cutoff_hz is None:
+        cutoff_hz = smoothing_cutoff_hz(measurement)
     largest_odd = measurement.n_samples - 1 if measurement.n_samples % 2 == 0 else (
         measurement.n_samples - 2)
     window = min(savgol_window(measurement, cutoff_hz), largest_odd)

@@ -1,7 +1,8 @@
 import pytest
 import sympy as sp
 
-from gpjax import Symbols, check_structure, tree_to_sympy
+from gpjax import Symbols, check_structure
+from gpjax.engine import tree_to_sympy
 
 S = Symbols("phi", "t", ("T",))
 phi, phi_dot, phi_ddot, T, t = S.x, S.x_dot, S.x_ddot, S.u[0], S.t

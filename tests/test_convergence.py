@@ -10,11 +10,10 @@ import numpy as np
 import pytest
 from scipy.linalg import expm
 
-from gpjax import GPConfig, Identifier, Model, Symbols
+from gpjax import Model, Symbols
 from gpjax._convergence import (Convergence, bandwidth_hz, check_model, initial_substeps,
                                 next_substeps)
 from gpjax._data import Measurement
-from gpjax.gear import load_bundled_example
 
 S = Symbols("x", "t", ("u",))
 M, C, K = 1.0, 3.0, 40.0 ** 2  # ω·dt = 0.8 at dt = 0.02
@@ -83,12 +82,6 @@ def test_a_coarse_model_fails_the_check_and_a_fine_one_passes():
     fine, _ = check_model(_model("hold", initial_conditions=(0.01, -0.2), substeps=8), noisy,
                           tolerance=0.01)
     assert fine.converged and fine.ratio < 0.01
-
-
-@pytest.fixture(scope="module")
-def demo_fit():
-    measurement, truth = load_bundled_example()
-    return Identifier(GPConfig.paper()).fit(measurement, seed=0), measurement, truth
 
 
 def test_the_reported_model_means_the_same_under_the_reference_solver(demo_fit):

@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from gpjax import Model, ModelFileError, Symbols, simulate_model
+from gpjax import Model, ModelFileError, Symbols
+from gpjax.engine import simulate_model
 from gpjax._data import Measurement
 from gpjax._diagnose import diagnose, report_markdown, write_report
 from gpjax._effects import Effect, Terms, effects, register_effect

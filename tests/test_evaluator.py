@@ -5,9 +5,11 @@ import pytest
 import sympy as sp
 from scipy.integrate import solve_ivp
 
-from gpjax import Measurement, PopulationEvaluator, Symbols, objective_parts
-from gpjax._evaluator import (DIVERGED, NONPOSITIVE_MASS, OK, PENALTY, Population, _amplitude,
-                              _dft_matrix)
+from gpjax import Measurement, Symbols
+from gpjax.engine import PopulationEvaluator, objective_parts
+from gpjax._coefficients import Population
+from gpjax._evaluator import DIVERGED, NONPOSITIVE_MASS, OK, PENALTY
+from gpjax._objective import _amplitude, _dft_matrix
 
 S = Symbols("x", "t", ("u",))
 

@@ -8,7 +8,8 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.linalg import expm
 
-from gpjax import GPConfig, Model, PopulationEvaluator, Symbols
+from gpjax import GPConfig, Model, Symbols
+from gpjax.engine import PopulationEvaluator
 from gpjax._data import Measurement, between_samples
 from gpjax._model import simulate_model
 from gpjax._refine import Refiner

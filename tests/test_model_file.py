@@ -3,7 +3,8 @@ import json
 import numpy as np
 import pytest
 
-from gpjax import Model, ModelFileError, Symbols, simulate_model
+from gpjax import Model, ModelFileError, Symbols
+from gpjax.engine import simulate_model
 from gpjax.gear import generate_gear_example
 
 

@@ -1,7 +1,8 @@
 import numpy as np
 from hypothesis import given, settings, strategies as st
 
-from gpjax import GPConfig, Symbols, check_structure, check_tree, tree_to_sympy
+from gpjax import GPConfig, Symbols, check_structure
+from gpjax.engine import check_tree, tree_to_sympy
 from gpjax._operators import (Grammar, crossover, initial_population, mutation, perturbation)
 from gpjax._trees import depth, from_json, is_function, nodes, size, to_json
 

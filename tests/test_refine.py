@@ -4,7 +4,8 @@ import numpy as np
 import pytest
 import sympy as sp
 
-from gpjax import Measurement, PopulationEvaluator, Symbols
+from gpjax import Measurement, Symbols
+from gpjax.engine import PopulationEvaluator
 from gpjax._refine import Refiner
 
 S = Symbols("x", "t", ("u",))

@@ -8,9 +8,11 @@ import sys
 
 import numpy as np
 import pytest
+import sympy as sp
 from _runs import wait_for_generation
 
 from gpjax import GPConfig, Identifier
+from gpjax.engine import Coefficients
 from gpjax._evolve import Evolution, _best_distinct
 from gpjax._fitness import Fitness, Record, feature_set_key
 from gpjax.gear import generate_gear_example
@@ -43,13 +45,15 @@ def test_coefficient_variants_share_a_feature_set_key():
 
 
 def test_best_distinct_takes_the_best_variant_of_each_feature_set():
-    def record(key, state, objective):
-        return Record(key=key, valid=True, state=state, forcing={"T": 1.0},
-                      objective=objective, status=0)
+    x, T = sp.symbols("x T")
 
-    records = [record("a", {"x": 1.0}, 0.3), record("b", {"x": 2.0}, 0.1),
-               record("c", {"x": 3.0}, 0.2), record("d", {"x**2": 1.0}, 0.4),
-               record("e", {"x": 1.0, "x**2": 1.0}, 0.5)]
+    def record(key, state, objective):
+        return Record(key=key, valid=True, objective=objective, status=0,
+                      coefficients=Coefficients(mass=1.0, state=state, forcing={T: 1.0}))
+
+    records = [record("a", {x: 1.0}, 0.3), record("b", {x: 2.0}, 0.1),
+               record("c", {x: 3.0}, 0.2), record("d", {x**2: 1.0}, 0.4),
+               record("e", {x: 1.0, x**2: 1.0}, 0.5)]
     best = _best_distinct(records, 2)
     assert [r.key for r in best] == ["b", "d"]
 

@@ -26,7 +26,7 @@ import numpy as np
 from .._canonical import Symbols
 from .._data import Measurement
 from .._errors import ConfigError, DataError
-from .._evaluator import OK, default_n_bins
+from .._evaluator import OK
 from .._model import Model
 from .._refine import Refiner
 from .._weak_form import WeakForm, least_squares, smoothed_derivatives
@@ -81,8 +81,7 @@ def fit_linear_model(measurement: Measurement, *, iterations: int = 60) -> Linea
     symbols = Symbols(measurement.response_name, measurement.time_name,
                       tuple(measurement.input_names))
     x, u = symbols.x, symbols.u[0]
-    cutoff_hz = default_n_bins(measurement.response) / (measurement.n_samples * measurement.dt)
-    derivatives = smoothed_derivatives(measurement, cutoff_hz)
+    derivatives = smoothed_derivatives(measurement)
     weak = WeakForm(measurement, symbols, derivatives.x_dot, derivatives.window)
     mass, (stiffness,), _, _ = least_squares(weak, (x,), (u,))
     y0 = (float(derivatives.x[0]), float(derivatives.x_dot[0]))

@@ -57,9 +57,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from .._errors import ConfigError
+from .._integrate import enable_float64
 from ._stiffness import GearPair, average_mesh_stiffness, mesh_cycle_angles, mesh_stiffness
 
-jax.config.update("jax_enable_x64", True)
 
 #: A constant, or a jax-traceable function of time t (s).
 Signal = Union[float, Callable[[jax.Array], jax.Array]]
@@ -281,6 +281,7 @@ def simulate_two_dof(system: TwoDofGearPair, *, t_end: float, dt: float | None =
     1/64 of the shortest undamped period of the relative mode. Raises :class:`ConfigError`
     for a bad span, step or sample count.
     """
+    enable_float64()
     _check_span(t_end, samples)
     dt = _step(system, t_end, dt, two_dof=True)
     split = [_split(getattr(system, name)) for name in ("k_m", "T1", "T2", "e1", "e2")]
@@ -307,6 +308,7 @@ def simulate_one_dof(system: TwoDofGearPair, *, t_end: float, dt: float | None =
     four assumptions). ``phi0`` (rad) and ``phi_dot0`` (rad/s) are φ1 and φ1'
     at t = 0; the other options are those of :func:`simulate_two_dof`.
     """
+    enable_float64()
     _check_span(t_end, samples)
     dt = _step(system, t_end, dt, two_dof=False)
     split = [_split(system.k_m), _split(system.T1)]
@@ -348,6 +350,7 @@ def mesh_stiffness_signal(pair: GearPair, *, pinion_speed_rpm: float, samples: i
     tabulated at ``samples`` angles over one mesh cycle and interpolated periodically
     (jax-traceable). Raises :class:`ConfigError` for a non-positive speed.
     """
+    enable_float64()
     if _number("pinion_speed_rpm", pinion_speed_rpm) <= 0.0 or not math.isfinite(
             pinion_speed_rpm):
         raise ConfigError(f"pinion_speed_rpm must be positive, got {pinion_speed_rpm!r}")

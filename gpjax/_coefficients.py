@@ -1,0 +1,211 @@
+"""One model's constants, keyed by sympy feature, and their array forms.
+
+:class:`Coefficients` is the one representation of an equation's constants that records,
+models, the diagnosis and the Silverbox tools share: the inertia m, the left-hand-side
+terms (features of x alone, of x' alone, or declared time-varying g(t)·h(x)), the forcing
+terms (features of time and inputs) and the initial state. Features are sympy
+expressions, so no feature text is parsed once a model exists; text appears only where
+a model is written to or read from JSON.
+
+Two array forms serve the compiled code:
+
+* :class:`Population`, (P,) and (P, F) arrays over an evaluator's feature columns
+  (:func:`to_population`, :func:`from_population`);
+* :class:`FlatLayout`, one vector per model ``[m | c | g | x0, x0']`` — what
+  Levenberg–Marquardt moves (:mod:`gpjax._refine`) and what the variational Jacobian
+  differentiates (:meth:`gpjax._evaluator.PopulationEvaluator.constant_jacobian`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from typing import Iterable, Protocol, Sequence
+
+import numpy as np
+import sympy as sp
+
+from ._canonical import CanonicalForm
+
+
+@dataclasses.dataclass(frozen=True)
+class Coefficients:
+    """``mass·x'' + Σ c·φ = Σ g·ψ`` and the initial state (x0, x0') of one equation.
+
+    Attributes:
+        mass: inertia coefficient m.
+        state: left-hand-side feature -> coefficient c (insertion order is kept).
+        forcing: right-hand-side feature (time and inputs; ``1`` is a constant force) ->
+            coefficient g.
+        y0: (x, x') at the first sample; NaN where not known.
+    """
+
+    mass: float
+    state: dict[sp.Expr, float]
+    forcing: dict[sp.Expr, float]
+    y0: tuple[float, float] = (math.nan, math.nan)
+
+    @classmethod
+    def from_canonical(cls, form: CanonicalForm,
+                       y0: tuple[float, float] = (math.nan, math.nan)) -> "Coefficients":
+        return cls(mass=form.mass, state=dict(form.state), forcing=dict(form.forcing), y0=y0)
+
+    def canonical(self) -> CanonicalForm:
+        return CanonicalForm(mass=self.mass, state=tuple(self.state.items()),
+                             forcing=tuple(self.forcing.items()))
+
+    @property
+    def n_terms(self) -> int:
+        """Complexity: inertia term + state terms + forcing terms."""
+        return 1 + len(self.state) + len(self.forcing)
+
+    def replace(self, **changes) -> "Coefficients":
+        return dataclasses.replace(self, **changes)
+
+    def to_json(self) -> dict:
+        """Plain JSON: feature text -> value (a checkpoint or model file part)."""
+        return {"mass": self.mass, "state": {str(f): v for f, v in self.state.items()},
+                "forcing": {str(f): v for f, v in self.forcing.items()}, "y0": list(self.y0)}
+
+    @classmethod
+    def from_json(cls, data: dict, names: set[str]) -> "Coefficients":
+        """Inverse of :meth:`to_json`; features are parsed by the whitelist parser.
+
+        Raises:
+            ModelFileError: a feature outside the whitelist or with unknown names.
+        """
+        from ._expressions import parse_expression
+
+        def parsed(terms: dict) -> dict:
+            return {parse_expression(text, names): float(v) for text, v in terms.items()}
+
+        return cls(mass=float(data["mass"]), state=parsed(data["state"]),
+                   forcing=parsed(data["forcing"]), y0=tuple(map(float, data["y0"])))
+
+
+@dataclasses.dataclass(frozen=True)
+class Population:
+    """A batch of models as arrays (P models) over an evaluator's feature columns.
+
+    Attributes:
+        mass: (P,) inertia coefficient m.
+        state: (P, F_state) coefficients of the state basis.
+        forcing: (P, F_forcing) coefficients of the forcing basis.
+        y0: (P, 2) initial response and its derivative at the first sample.
+    """
+
+    mass: np.ndarray
+    state: np.ndarray
+    forcing: np.ndarray
+    y0: np.ndarray
+
+    def __len__(self) -> int:
+        return self.mass.shape[0]
+
+    def rows(self, rows) -> "Population":
+        """The models at ``rows`` (a slice or index array)."""
+        return Population(*(getattr(self, f.name)[rows] for f in dataclasses.fields(self)))
+
+    @staticmethod
+    def concatenate(populations: Iterable["Population"]) -> "Population":
+        populations = list(populations)
+        return Population(*(np.concatenate([getattr(p, f.name) for p in populations])
+                            for f in dataclasses.fields(Population)))
+
+
+class Columns(Protocol):
+    """Where each feature's coefficient lives in a :class:`Population` (an evaluator)."""
+
+    def state_index(self, feature: sp.Expr) -> int | None: ...
+
+    def forcing_index(self, feature: sp.Expr) -> int: ...
+
+    def empty(self, count: int) -> Population: ...
+
+
+def to_population(models: Sequence[Coefficients], columns: Columns) -> Population:
+    """The arrays of ``models`` on ``columns``' features (forcing columns are added as
+    needed). A NaN mass becomes 1 and a NaN initial state 0 (placeholders).
+
+    Raises:
+        ValueError: a state feature outside ``columns``' basis.
+    """
+    for model in models:
+        for feature in model.forcing:
+            columns.forcing_index(feature)
+    population = columns.empty(len(models))
+    for i, model in enumerate(models):
+        population.mass[i] = model.mass if math.isfinite(model.mass) else 1.0
+        for feature, value in model.state.items():
+            column = columns.state_index(feature)
+            if column is None:
+                raise ValueError(f"state feature {feature} is outside the evaluator's basis")
+            population.state[i, column] = value
+        for feature, value in model.forcing.items():
+            population.forcing[i, columns.forcing_index(feature)] = value
+        population.y0[i] = np.nan_to_num(model.y0)
+    return population
+
+
+def from_population(population: Population, columns: Columns,
+                    like: Sequence[Coefficients]) -> list[Coefficients]:
+    """Coefficients of the features of ``like[i]`` read from row i of ``population``."""
+    return [Coefficients(
+        mass=float(population.mass[i]),
+        state={f: float(population.state[i, columns.state_index(f)]) for f in model.state},
+        forcing={f: float(population.forcing[i, columns.forcing_index(f)])
+                 for f in model.forcing},
+        y0=(float(population.y0[i, 0]), float(population.y0[i, 1])))
+        for i, model in enumerate(like)]
+
+
+@dataclasses.dataclass(frozen=True)
+class FlatLayout:
+    """One model's constants as one vector ``[m | c (n_state) | g (n_forcing) | x0, x0']``.
+
+    Works on numpy and JAX arrays alike; the last axis is the flat one.
+    """
+
+    n_state: int
+    n_forcing: int
+
+    @property
+    def width(self) -> int:
+        return 1 + self.n_state + self.n_forcing + 2
+
+    def state_column(self, column: int) -> int:
+        return 1 + column
+
+    def forcing_column(self, column: int) -> int:
+        return 1 + self.n_state + column
+
+    def pack(self, population: Population) -> np.ndarray:
+        """(P, width) from a population (forcing columns zero-padded to ``n_forcing``)."""
+        forcing = np.zeros((len(population), self.n_forcing))
+        forcing[:, : population.forcing.shape[1]] = population.forcing
+        return np.concatenate([population.mass[:, None], population.state, forcing,
+                               population.y0], axis=1)
+
+    def split(self, flat):
+        """(mass, state, forcing, y0) views along the last axis of ``flat``."""
+        s, g = 1 + self.n_state, 1 + self.n_state + self.n_forcing
+        return flat[..., 0], flat[..., 1:s], flat[..., s:g], flat[..., g:]
+
+    def population(self, flat: np.ndarray, n_forcing: int | None = None) -> Population:
+        """A population from (P, width) rows, keeping the first ``n_forcing`` forcing
+        columns (default all)."""
+        mass, state, forcing, y0 = self.split(np.asarray(flat))
+        return Population(mass=mass, state=state, forcing=forcing[:, :n_forcing], y0=y0)
+
+
+def padded_chunks(arrays: Sequence[np.ndarray], batch: int):
+    """Yield (size, chunk) for consecutive row blocks of ``arrays`` (same first axis), each
+    padded to ``batch`` rows by repeating the block's first row, so every compiled call
+    sees one shape and every padding row is a valid model."""
+    count = arrays[0].shape[0]
+    for begin in range(0, count, batch):
+        stop = min(begin + batch, count)
+        pad = batch - (stop - begin)
+        yield stop - begin, [np.concatenate([a[begin:stop], np.repeat(a[begin:begin + 1], pad,
+                                                                       axis=0)])
+                             for a in arrays]

@@ -1,0 +1,92 @@
+"""Fixed-step RK4 for whole populations: the tableau for diffrax and the ``lax.scan`` step.
+
+Both integrators of :class:`gpjax._evaluator.PopulationEvaluator` run the classical RK4
+tableau on the same stage grid: :func:`rk4_scan` (default; a hand-written step in
+``lax.scan``, no per-step bookkeeping) and diffrax with :class:`RK4`. The converged
+reference that checks them is :mod:`gpjax._reference`.
+
+gpjax computes in float64: :func:`enable_float64` switches JAX's ``jax_enable_x64`` on
+when gpjax first builds something that computes (an evaluator, a reference solve), not
+when it is imported.
+"""
+
+from __future__ import annotations
+
+from typing import Callable, ClassVar
+
+import diffrax
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+
+def enable_float64() -> None:
+    """Switch JAX to float64 (``jax_enable_x64``) for the rest of the process.
+
+    Called by gpjax's constructors that compute; it affects arrays a user's own JAX code
+    creates afterwards too (see the README, "Precision").
+    """
+    if not jax.config.jax_enable_x64:
+        jax.config.update("jax_enable_x64", True)
+
+
+class RK4(diffrax.AbstractERK):
+    """The classical fourth-order Runge–Kutta method, for fixed steps (no error estimate).
+
+    diffrax 0.7 has no RK4 class; this one is built from its Butcher tableau.
+    """
+
+    tableau: ClassVar[diffrax.ButcherTableau] = diffrax.ButcherTableau(
+        c=np.array([0.5, 0.5, 1.0]),
+        b_sol=np.array([1 / 6, 1 / 3, 1 / 3, 1 / 6]),
+        b_error=np.zeros(4),
+        a_lower=(np.array([0.5]), np.array([0.0, 0.5]), np.array([0.0, 0.0, 1.0])),
+    )
+    interpolation_cls: ClassVar[Callable] = (
+        diffrax.ThirdOrderHermitePolynomialInterpolation.from_k)
+
+    def order(self, terms):
+        del terms
+        return 4
+
+
+def rk4_scan(rates, y0, forces, saved, *, h: float, t0: float, substeps: int,
+             split_stages: bool):
+    """Classical RK4 over a stage grid in ``lax.scan`` for a tuple of states.
+
+    Args:
+        rates: ``rates(y, force, t)`` gives dy/dt for the tuple of states y.
+        y0: the tuple of initial states.
+        forces: arrays with the forcing rows first. Shared layout (``split_stages``
+            False): rows t0, t0 + h/2, t0 + h, … (2·steps + 1). Split layout: every
+            step's start, middle and end-left-limit rows (3·steps).
+        saved: ``saved(y)`` picks what is returned at the sample times.
+        h: step (s); t0: time of the first row (s); substeps: steps per sample interval.
+
+    Returns:
+        The tuple ``saved`` picks, each at the sample times with the initial value first.
+    """
+    def along(y, k, c):
+        return tuple(a + c * b for a, b in zip(y, k))
+
+    def step(carry, stage):
+        y, i = carry
+        f0, f_half, f1 = stage
+        t = t0 + i * h
+        k1 = rates(y, f0, t)
+        k2 = rates(along(y, k1, 0.5 * h), f_half, t + 0.5 * h)
+        k3 = rates(along(y, k2, 0.5 * h), f_half, t + 0.5 * h)
+        k4 = rates(along(y, k3, h), f1, t + h)
+        y = tuple(a + h / 6 * (b1 + 2 * b2 + 2 * b3 + b4)
+                  for a, b1, b2, b3, b4 in zip(y, k1, k2, k3, k4))
+        return (y, i + 1), saved(y)
+
+    if split_stages:
+        stages = jax.tree_util.tree_map(lambda f: (f[0::3], f[1::3], f[2::3]), forces)
+    else:
+        stages = jax.tree_util.tree_map(lambda f: (f[0:-1:2], f[1::2], f[2::2]), forces)
+    stages = jax.tree_util.tree_transpose(
+        jax.tree_util.tree_structure(forces), jax.tree_util.tree_structure((0, 0, 0)), stages)
+    _, path = jax.lax.scan(step, (y0, jnp.zeros((), jnp.int32)), stages)
+    return tuple(jnp.concatenate([first[None], p[substeps - 1:: substeps]])
+                 for first, p in zip(saved(y0), path))
