@@ -19,7 +19,7 @@ _EXPORTS = {
     "GPConfig": "_config", "Identifier": "_estimator",
     "Measurement": "_data", "load_csv": "_data",
     "Model": "_model", "Symbols": "_canonical", "check_structure": "_canonical",
-    "Diagnosis": "_diagnose", "diagnose": "_diagnose", "write_report": "_diagnose",
+    "Diagnosis": "_diagnose", "diagnose": "_diagnose", "write_report": "_diagnose_report",
     "Effect": "_effects", "Parameter": "_effects", "Terms": "_effects",
     "effects": "_effects", "register_effect": "_effects",
     "ConfigError": "_errors", "DataError": "_errors", "ModelFileError": "_errors",

@@ -52,7 +52,8 @@ class GPConfig:
             ``None`` means min(7, population).
         w_time, w_freq: weights w1, w2 of the objective, eq. 7 (paper: 1, 1).
         n_bins: number m of spectral amplitudes in f_freq, eq. 9; ``None`` picks the
-            smallest m whose bins hold 99.9 % of the measured response's spectral energy.
+            smallest m whose bins (DC included) hold 99 % of the measured response's AC
+            spectral energy (:func:`gpjax._objective.default_n_bins`).
         coefficients: ``"least_squares"`` sets every candidate's coefficients by
             equation-error least squares (the structure comes from GP, the numbers from data);
             ``"tree"`` uses the constants written in the tree, as the paper does.

@@ -24,7 +24,7 @@ from ._evaluator import INVALID_STRUCTURE, OK, PENALTY, PopulationEvaluator, Sco
 from ._memory import check_fit_memory
 from ._refine import Refiner
 from ._trees import Tree
-from ._weak_form import WeakForm, least_squares, smoothed_derivatives
+from ._weak_form import WeakForm, least_squares, smoothed_derivatives, smoothing_cutoff_hz
 
 
 @dataclasses.dataclass
@@ -109,8 +109,8 @@ class Fitness:
             batch=min(config.population, 512),
             fit_initial_conditions=config.initial_conditions is None,
             input_interpolation=config.input_interpolation)
-        cutoff_hz = self.evaluator.n_bins / (measurement.n_samples * measurement.dt)
-        self.derivatives = smoothed_derivatives(measurement, cutoff_hz)
+        self.derivatives = smoothed_derivatives(
+            measurement, smoothing_cutoff_hz(measurement, self.evaluator.n_bins))
         self.weak_form = WeakForm(measurement, self.symbols, self.derivatives.x_dot,
                                   self.derivatives.window)
         # Least squares starts refinement inside the basin, where the short-horizon
@@ -122,7 +122,7 @@ class Fitness:
         if config.initial_conditions is not None:
             self.y0 = tuple(map(float, config.initial_conditions))
         else:  # eq. 13: response and a robust derivative estimate at the first sample
-            self.y0 = (float(self.derivatives.x[0]), float(self.derivatives.x_dot[0]))
+            self.y0 = self.derivatives.initial_state
         for u in self.symbols.u[:1]:
             self.evaluator.forcing_index(u)
         self.checks: dict[Tree, tuple[str, CanonicalForm | None, str]] = {}

@@ -39,6 +39,11 @@ class Derivatives:
     x_ddot: np.ndarray
     window: int
 
+    @property
+    def initial_state(self) -> tuple[float, float]:
+        """(x, x') at the first sample: eq. 13's robust estimate of the initial state."""
+        return float(self.x[0]), float(self.x_dot[0])
+
 
 def savgol_window(measurement: Measurement, cutoff_hz: float) -> int:
     """Odd Savitzky–Golay window whose −3 dB frequency is ~2× ``cutoff_hz``.
@@ -62,8 +67,7 @@ def smoothing_cutoff_hz(measurement: Measurement, n_bins: int | None = None) -> 
 
 def estimate_initial_conditions(measurement: Measurement) -> tuple[float, float]:
     """(x, x') at the first sample from the smoothed response (eq. 13's robust estimate)."""
-    d = smoothed_derivatives(measurement)
-    return float(d.x[0]), float(d.x_dot[0])
+    return smoothed_derivatives(measurement).initial_state
 
 
 def smoothed_derivatives(measurement: Measurement, cutoff_hz: float | None = None

@@ -194,7 +194,8 @@ def _diagnose(args) -> int:
 
 
 def _run_diagnosis(args, measurement, model, out: Path) -> None:
-    from ._diagnose import diagnose, sign_cautions, write_report
+    from ._diagnose import diagnose
+    from ._diagnose_report import sign_cautions, write_report
 
     result = diagnose(measurement, model, frequencies=tuple(args.frequencies),
                       holdout=args.holdout, max_steps=args.max_steps,

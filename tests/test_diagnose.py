@@ -12,7 +12,8 @@ from scipy.integrate import solve_ivp
 from gpjax import Model, ModelFileError, Symbols
 from gpjax.engine import simulate_model
 from gpjax._data import Measurement
-from gpjax._diagnose import diagnose, report_markdown, write_report
+from gpjax._diagnose import diagnose
+from gpjax._diagnose_report import report_markdown, write_report
 from gpjax._effects import Effect, Terms, effects, register_effect
 from gpjax.gear import EFFECTS, NOISE_PHI, undeclared_effect_case
 
@@ -27,8 +28,9 @@ def test_library_has_the_named_effects_and_their_terms_obey_the_structure_rules(
     library = effects()
     assert list(library)[:8] == LIBRARY == list(EFFECTS)
     data = undeclared_effect_case("control", seed=0).measurement
-    from gpjax._diagnose import _Problem, structure_of
-    problem = _Problem(data, SYMBOLS, holdout=0.25, iterations=1, substeps=1, batch=1)
+    from gpjax._diagnose import structure_of
+    from gpjax._diagnose_fits import FitProblem
+    problem = FitProblem(data, SYMBOLS, holdout=0.25, iterations=1, substeps=1, batch=1)
     context = problem.context(structure_of(undeclared_effect_case("input_gain", seed=0).start),
                               (285.0,))
     for name in LIBRARY:

@@ -8,7 +8,9 @@ import numpy as np
 import pytest
 
 from gpjax import Model, Symbols
-from gpjax._diagnose import _Problem, diagnose, input_lines, rank_effects, structure_of
+from gpjax._diagnose import diagnose, structure_of
+from gpjax._diagnose_evidence import input_lines, rank_effects
+from gpjax._diagnose_fits import FitProblem
 from gpjax._effects import effects
 from gpjax._data import Measurement
 from gpjax._errors import DataError
@@ -42,7 +44,7 @@ def test_equation_error_evidence_names_the_offset_then_cubic_stiffness(silverbox
     change, as much); with a constant force in the model, cubic stiffness has the most
     evidence."""
     estimation = silverbox_segments(silverbox_dir)["estimation"]
-    problem = _Problem(estimation, LINEAR.symbols, holdout=0.25, iterations=1, substeps=1,
+    problem = FitProblem(estimation, LINEAR.symbols, holdout=0.25, iterations=1, substeps=1,
                        batch=1)
     with_offset = dataclasses.replace(LINEAR, forcing={"u": 1.0, "1": 1.0})
     explained = []

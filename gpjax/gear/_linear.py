@@ -24,6 +24,7 @@ import dataclasses
 import numpy as np
 
 from .._canonical import Symbols
+from .._coefficients import from_population
 from .._data import Measurement
 from .._errors import ConfigError, DataError
 from .._evaluator import OK
@@ -84,7 +85,7 @@ def fit_linear_model(measurement: Measurement, *, iterations: int = 60) -> Linea
     derivatives = smoothed_derivatives(measurement)
     weak = WeakForm(measurement, symbols, derivatives.x_dot, derivatives.window)
     mass, (stiffness,), _, _ = least_squares(weak, (x,), (u,))
-    y0 = (float(derivatives.x[0]), float(derivatives.x_dot[0]))
+    y0 = derivatives.initial_state
     start = _model(symbols, float(mass), float(stiffness), y0, refined=False)
 
     evaluator = start.evaluator(measurement)
@@ -96,10 +97,8 @@ def fit_linear_model(measurement: Measurement, *, iterations: int = 60) -> Linea
     refined = bool(scores.status[0] == OK and (start_scores.status[0] != OK or
                                               scores.objective[0] < start_scores.objective[0]))
     if refined:
-        pop = result.population
-        column = evaluator.state_index(x)
-        model = _model(symbols, float(pop.mass[0]), float(pop.state[0, column]),
-                       (float(pop.y0[0, 0]), float(pop.y0[0, 1])), refined=True)
+        found = from_population(result.population, evaluator, [start.coefficients])[0]
+        model = _model(symbols, found.mass, found.state[x], found.y0, refined=True)
     else:
         scores, model = start_scores, start
     metrics = {"rms": float(scores.rms[0]), "f_time": float(scores.f_time[0]),

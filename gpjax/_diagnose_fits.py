@@ -1,0 +1,324 @@
+"""Diagnosis, step 3: refit a structure's constants and measure its errors.
+
+A :class:`Structure` (features only) becomes a :class:`Fit` (one
+:class:`~gpjax._coefficients.Coefficients` and its errors) by weak-form least squares alone
+(equation-error mode) or by that start, optimistix Levenberg–Marquardt on the simulated
+response of the estimation part (:class:`gpjax._refine.Refiner`) and a simulation of the whole
+record (simulation mode). :class:`FitProblem` holds the data, the estimation/held-out split
+and the compiled evaluators shared by every fit of one diagnosis.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import sympy as sp
+
+from ._canonical import Symbols
+from ._coefficients import Coefficients, Population, from_population, to_population
+from ._data import Measurement
+from ._effects import Context, Terms
+from ._evaluator import OK, PopulationEvaluator, split_state_features
+from ._model import Model
+from ._objective import amplitude_spectrum, default_n_bins
+from ._refine import Refiner
+from ._weak_form import (WeakForm, design, evaluate, least_squares, savgol_window,
+                         smoothed_derivatives, smoothing_cutoff_hz)
+
+#: Continuation of the refit when a start and its refinement both diverge (fractions of the
+#: estimation part fitted in turn).
+CAREFUL_HORIZONS = (0.1, 0.25, 0.5, 1.0)
+
+@dataclasses.dataclass(frozen=True)
+class Structure:
+    """Features of a model: state (x or x' alone), parametric g(t)·h(x), forcing."""
+
+    state: tuple[sp.Expr, ...]
+    parametric: tuple[sp.Expr, ...]
+    forcing: tuple[sp.Expr, ...]
+
+    @property
+    def lhs(self) -> tuple[sp.Expr, ...]:
+        """State then parametric features (the left-hand side's coefficients, in order)."""
+        return self.state + self.parametric
+
+    def plus(self, terms: Terms) -> "Structure":
+        """This structure with ``terms`` added (features already present are kept once)."""
+        def merged(old, new):
+            return old + tuple(f for f in new if f not in old)
+        return Structure(merged(self.state, terms.state),
+                         merged(self.parametric, terms.parametric),
+                         merged(self.forcing, terms.forcing))
+
+    def coefficients(self, lhs: dict[sp.Expr, float], forcing: dict[sp.Expr, float], *,
+                     mass: float, y0: tuple[float, float]) -> Coefficients:
+        """This structure's constants taken from ``lhs`` and ``forcing`` (feature ->
+        value; supersets allowed, missing features are 0)."""
+        return Coefficients(mass=float(mass), state={f: float(lhs.get(f, 0.0)) for f in self.lhs},
+                            forcing={g: float(forcing.get(g, 0.0)) for g in self.forcing},
+                            y0=tuple(map(float, y0)))
+
+
+@dataclasses.dataclass
+class Fit:
+    """A structure with fitted constants and its errors (see :func:`diagnose`)."""
+
+    structure: Structure
+    coefficients: Coefficients
+    simulated: np.ndarray | None
+    metrics: dict[str, float]
+    criterion: float
+    force: np.ndarray | None = None
+
+    def model(self, symbols: Symbols, provenance: dict, *,
+              input_interpolation: str = "linear", substeps: int = 1) -> Model:
+        """The fit as a :class:`Model`; an equation-error fit (never simulated) has no
+        initial conditions."""
+        coefficients = self.coefficients
+        if self.simulated is None:
+            coefficients = coefficients.replace(y0=(math.nan, math.nan))
+        return Model.from_coefficients(
+            symbols, coefficients, input_interpolation=input_interpolation, substeps=substeps,
+            metrics={k: v for k, v in self.metrics.items() if v is not None},
+            provenance=provenance)
+
+
+class FitProblem:
+    """Data, split and settings shared by all fits of one diagnosis (``holdout`` = 0: fits
+    on the whole record, with criterion 0)."""
+
+    def __init__(self, measurement: Measurement, symbols: Symbols, *, holdout: float,
+                 iterations: int, substeps: int, batch: int,
+                 input_interpolation: str = "linear"):
+        self.measurement, self.symbols = measurement, symbols
+        self.n_train = int(round((1.0 - holdout) * measurement.n_samples))
+        self.train = measurement.segment(0, self.n_train)
+        self.n_bins = default_n_bins(measurement.response)
+        cutoff = smoothing_cutoff_hz(self.train)
+        window = savgol_window(self.train, cutoff)
+        self.derivatives = smoothed_derivatives(measurement, cutoff)
+        train_derivatives = (self.derivatives if self.n_train == measurement.n_samples
+                             else smoothed_derivatives(self.train, cutoff))
+        self.weak_full = WeakForm(measurement, symbols, self.derivatives.x_dot, window)
+        self.weak = (self.weak_full if self.n_train == measurement.n_samples
+                     else WeakForm(self.train, symbols, train_derivatives.x_dot, window))
+        self.holdout_rows = self.weak_full.centres - self.weak_full.half_width >= self.n_train
+        self.u0 = symbols.u[0] if symbols.u else None
+        self.y0 = self.derivatives.initial_state
+        self.iterations, self.substeps, self.batch = iterations, substeps, batch
+        self.input_interpolation = input_interpolation
+        self.train_x_dot = train_derivatives.x_dot
+        self.pool_lhs: tuple[sp.Expr, ...] = ()
+        self.pool_forcing: tuple[sp.Expr, ...] = ()
+        self.simulator: _Simulator | None = None
+
+    def sampling_error(self, mode: str) -> float:
+        """√(2/n), the relative standard error of a held-out mean square of n independent
+        noise values (n: held-out samples, or held-out windows in equation-error mode)."""
+        n = (int(np.count_nonzero(self.holdout_rows)) if mode == "equation_error"
+             else self.measurement.n_samples - self.n_train)
+        return math.sqrt(2.0 / n) if n else 0.0
+
+    def context(self, structure: Structure, frequencies: tuple[float, ...]) -> Context:
+        return Context(symbols=self.symbols, x=self.train.response, x_dot=self.train_x_dot,
+                       time=self.train.time, inputs=self.train.inputs,
+                       frequencies=frequencies, forcing=tuple(map(str, structure.forcing)))
+
+    def generalised_force(self, fit: Fit) -> np.ndarray:
+        """Pointwise equation-error residual m·x'' + Σc·φ − Σg·ψ on smoothed derivatives."""
+        d, c, m = self.derivatives, fit.coefficients, self.measurement
+        force = c.mass * d.x_ddot
+        for feature, value in c.state.items():
+            force = force + value * evaluate(feature, self.symbols, m, d.x, d.x_dot)
+        for feature, value in c.forcing.items():
+            force = force - value * evaluate(feature, self.symbols, m, d.x, d.x_dot)
+        return force
+
+    def drifts(self, structure: Structure) -> bool:
+        """Whether the model drifts in open loop: it has no restoring term (no term in x
+        alone or g(t)·h(x)) — a free mass or an integrator."""
+        x = self.symbols.x
+        return not any(x in f.free_symbols for f in structure.state + structure.parametric)
+
+    def fit_equation_error(self, structures: list[Structure]) -> list[Fit]:
+        fits = []
+        for structure in structures:
+            mass, lhs, forcing, solution = least_squares(self.weak, structure.lhs, structure.forcing)
+            coefficients = structure.coefficients(dict(zip(structure.lhs, lhs)),
+                                                  dict(zip(structure.forcing, forcing)),
+                                                  mass=mass, y0=self.y0)
+            fit = Fit(structure, coefficients, None, {}, 0.0)
+            matrix, target, _ = design(self.weak_full, structure.lhs, structure.forcing)
+            # window residual / ∫ψ: the generalised force averaged over each window
+            windowed = (target - matrix @ solution) / self.weak_full.kernel_area
+            fit.force = self.generalised_force(fit)
+            held_out = windowed[self.holdout_rows]
+            fit.criterion = float(np.mean(held_out ** 2)) if held_out.size else 0.0
+            fit.metrics = {"rms": float(np.sqrt(np.mean(windowed ** 2))),
+                           "objective": float(np.sqrt(np.sum(windowed ** 2))),
+                           "spectral_error": None, "rms_estimation": None, "rms_holdout": None}
+            fits.append(fit)
+        return fits
+
+    def fit_simulation(self, structures: list[Structure]) -> list[Fit]:
+        """Least-squares start, Levenberg–Marquardt refinement on the estimation part,
+        simulation of the whole record; the best of start and refinement is kept. If both
+        diverge for some structure, two more starts are refined along a finer continuation:
+        the same start, and the structure's coefficients from a least-squares fit of the
+        structure with every effect's terms (which removes the bias a missing effect puts
+        into the structure's own coefficients)."""
+        simulator = self.simulator_for(structures)
+        count, fixed = len(structures), self._fixed_forcing(structures, simulator.train)
+        population = self._starts(structures, structures, simulator.train)
+        options = [population, simulator.refiner.refine(population, fixed).population]
+        every = Population.concatenate(options)
+        responses, scores = simulator.full.simulate(every)
+        chosen = [self._chosen(responses, scores, i, count, len(options)) for i in range(count)]
+        if not all(simulates for _, simulates in chosen):
+            pooled = [s.plus(Terms(state=tuple(f for f in self.pool_lhs
+                                               if f not in s.state + s.parametric),
+                                   forcing=self.pool_forcing)) for s in structures]
+            retry = Population.concatenate(
+                [population, self._starts(structures, pooled, simulator.train)])
+            refined = simulator.careful_refiner.refine(retry, np.concatenate([fixed, fixed]))
+            options += [refined.population.rows(slice(0, count)),
+                        refined.population.rows(slice(count, 2 * count))]
+            every = Population.concatenate(options)
+            responses, scores = simulator.full.simulate(every)
+            chosen = [self._chosen(responses, scores, i, count, len(options))
+                      for i in range(count)]
+        rows = [j for j, _ in chosen]
+        found = from_population(every.rows(rows), simulator.train, [
+            s.coefficients({}, {}, mass=math.nan, y0=self.y0) for s in structures])
+        return [self._simulated_fit(s, c, responses[j], scores.status[j])
+                for s, c, j in zip(structures, found, rows)]
+
+    def _starts(self, structures: list[Structure], fitted: list[Structure], ev):
+        """Populations of ``structures`` with their coefficients from the weak-form least
+        squares of ``fitted`` (each a superset of its structure; extra terms dropped)."""
+        fits = self.fit_equation_error(fitted)
+        return to_population([s.coefficients(f.coefficients.state, f.coefficients.forcing,
+                                             mass=f.coefficients.mass, y0=self.y0)
+                              for s, f in zip(structures, fits)], ev)
+
+    def _fixed_forcing(self, structures: list[Structure], ev) -> np.ndarray:
+        """Per structure, the forcing column held at 1 (the first input) or −1."""
+        return np.array([ev.forcing_index(self.u0) if self.u0 is not None
+                         and self.u0 in s.forcing else -1 for s in structures])
+
+    def _chosen(self, responses, scores, i: int, count: int, n_options: int):
+        """(row, whether it simulates) of structure ``i``'s best option: the lowest RMS on
+        the estimation part among rows i, count + i, … that simulate."""
+        options = []
+        for j in range(i, n_options * count, count):
+            residual = self.measurement.response[: self.n_train] - responses[j, : self.n_train]
+            train_rms = float(np.sqrt(np.mean(residual ** 2)))
+            ok = scores.status[j] == OK and np.isfinite(train_rms)
+            options.append((train_rms if ok else math.inf, j))
+        value, j = min(options)
+        return j, math.isfinite(value)
+
+    def simulator_for(self, structures: list[Structure]) -> "_Simulator":
+        """The compiled evaluators and refiner, rebuilt only when a feature is new to them."""
+        lhs, forcing = list(self.pool_lhs), list(self.pool_forcing)
+        for s in structures:
+            lhs += [f for f in s.state + s.parametric if f not in lhs]
+            forcing += [g for g in s.forcing if g not in forcing]
+        if self.simulator is None or not (set(lhs) <= set(self.simulator.lhs)
+                                          and set(forcing) <= set(self.simulator.forcing)):
+            if self.simulator is not None:
+                lhs = list(dict.fromkeys(self.simulator.lhs + tuple(lhs)))
+                forcing = list(dict.fromkeys(self.simulator.forcing + tuple(forcing)))
+            self.simulator = _Simulator(self, tuple(lhs), tuple(forcing))
+        return self.simulator
+
+    def _simulated_fit(self, s: Structure, coefficients: Coefficients, simulated,
+                       status) -> Fit:
+        fit = Fit(s, coefficients, simulated, {}, math.inf)
+        fit.force = self.generalised_force(fit)
+        if status != OK:
+            fit.metrics = {"rms": math.inf, "objective": math.inf, "spectral_error": math.inf,
+                           "rms_estimation": math.inf, "rms_holdout": math.inf}
+            return fit
+        fit.metrics = simulation_metrics(self.measurement.response, simulated, self.n_train,
+                                         self.n_bins)
+        holdout = self.measurement.response[self.n_train:] - simulated[self.n_train:]
+        fit.criterion = float(np.mean(holdout ** 2)) if holdout.size else 0.0
+        return fit
+
+
+class _Simulator:
+    """Evaluators on the estimation part and the whole record, and a refiner, compiled
+    once for a fixed set of features (the refiner's compile dominates a diagnosis)."""
+
+    def __init__(self, problem: FitProblem, lhs: tuple[sp.Expr, ...],
+                 forcing: tuple[sp.Expr, ...]):
+        self.lhs, self.forcing = lhs, forcing
+        degree, extra = split_state_features(lhs, problem.symbols)
+        settings = dict(max_degree=max(3, degree), substeps=problem.substeps, n_bins=1,
+                        extra_state_features=extra,
+                        input_interpolation=problem.input_interpolation)
+        self.train = PopulationEvaluator(problem.train, problem.symbols, batch=problem.batch,
+                                         **settings)
+        self.full = self.train if problem.n_train == problem.measurement.n_samples else (
+            PopulationEvaluator(problem.measurement, problem.symbols, batch=2 * problem.batch,
+                                **settings))
+        for ev in (self.train, self.full):
+            for g in forcing:
+                ev.forcing_index(g)
+        self.refiner = Refiner(self.train, iterations=problem.iterations, batch=problem.batch,
+                               max_free=3 + len(lhs) + len(forcing))
+        self._careful_refiner: Refiner | None = None
+        self._jacobian = None
+
+    @property
+    def careful_refiner(self) -> Refiner:
+        """A refiner with a finer continuation (horizons 10, 25, 50, 100 % of the record),
+        compiled on first use: for starts whose simulation diverges over the record."""
+        if self._careful_refiner is None:
+            self._careful_refiner = Refiner(self.train, iterations=self.refiner.iterations,
+                                            batch=self.refiner.batch,
+                                            max_free=self.refiner.max_free,
+                                            horizons=CAREFUL_HORIZONS)
+        return self._careful_refiner
+
+    def jacobian(self, fit: Fit) -> np.ndarray:
+        """Sensitivities of the simulated response over the whole record to the parameter
+        vector (mass, every state coefficient, every forcing coefficient, x0, x0') at
+        ``fit`` — shape (N, 1 + F_state + F_forcing + 2) — from the variational equations
+        (:meth:`PopulationEvaluator.constant_jacobian`, one pass)."""
+        ev = self.full
+        if self._jacobian is None:
+            basis = jnp.asarray(ev.forcing_basis)
+            self._jacobian = jax.jit(
+                lambda p: ev.constant_jacobian(p, jnp.eye(p.size), basis)[1])
+        p = ev.layout.pack(to_population([fit.coefficients], ev))[0]
+        return np.asarray(self._jacobian(jnp.asarray(p)))
+
+
+
+def simulation_metrics(measured: np.ndarray, simulated: np.ndarray, n_train: int,
+                       n_bins: int) -> dict[str, float]:
+    """RMS (all, estimation part, held-out part), objective f = f_time + f_freq (eqs. 7–9
+    with unit weights) and the spectral error f_freq, in response units."""
+    residual = measured - simulated
+    f_time = float(np.sqrt(np.sum(residual ** 2)))
+    f_freq = float(np.sum(np.abs(amplitude_spectrum(measured)[:n_bins]
+                                 - amplitude_spectrum(simulated)[:n_bins])))
+    holdout = residual[n_train:]
+    return {"rms": float(np.sqrt(np.mean(residual ** 2))), "objective": f_time + f_freq,
+            "spectral_error": f_freq, "rms_estimation": float(np.sqrt(np.mean(
+                residual[:n_train] ** 2))),
+            "rms_holdout": float(np.sqrt(np.mean(holdout ** 2))) if holdout.size else None}
+
+def fit_structures(problem: FitProblem, mode: str, structures: list[Structure]) -> list[Fit]:
+    """Fits of ``structures``: weak-form least squares (``mode`` "equation_error") or
+    refined on the simulated response ("simulation")."""
+    if mode == "equation_error":
+        return problem.fit_equation_error(structures)
+    return problem.fit_simulation(structures)
+

@@ -1,0 +1,164 @@
+"""The diagnosis' output: ``report.json``, ``report.md``, ``model.json`` and three figures.
+
+Figures are ``matplotlib.figure.Figure`` objects rendered by the Agg canvas
+(:func:`gpjax._report.png_bytes`), so no backend is switched.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+from ._diagnose import CRITERION, Diagnosis
+from ._objective import amplitude_spectrum
+from ._report import png_bytes, write_bytes_atomic, write_text_atomic
+
+
+def write_report(diagnosis: Diagnosis, out) -> None:
+    """Write report.json, report.md, model.json and three figures into folder ``out``:
+    residual_time.png, residual_spectrum.png, measured_vs_simulated.png."""
+    out = Path(out)
+    report = diagnosis.to_json()
+    write_text_atomic(out / "report.json", json.dumps(_finite(report), indent=2) + "\n")
+    write_text_atomic(out / "report.md", report_markdown(diagnosis))
+    diagnosis.model().save(out / "model.json")
+    for name, figure in _figures(diagnosis).items():
+        write_bytes_atomic(out / name, figure)
+
+
+def _finite(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    return value
+
+
+def _number(value) -> str:
+    return "–" if value is None else f"{value:.4g}"
+
+
+def report_markdown(diagnosis: Diagnosis) -> str:
+    """The report as Markdown: the table effect → evidence → term → coefficient → errors."""
+    d = diagnosis
+    unit = "response units" if d.mode == "simulation" else "force units (equation error)"
+    lines = [f"# Diagnosis of {d.symbols.response}", "",
+             f"Mode: **{d.mode}** — {CRITERION[d.mode]}.", "",
+             f"Inputs between samples in the simulation: "
+             f"{d.settings['input_interpolation']} interpolation.", "",
+             f"Starting model: `{d.before.model(d.symbols, {}).sympy()}`", "",
+             f"Final model: `{d.model().sympy()}`", "",
+             f"Effects added: {', '.join(d.effects_added) or 'none'}", "",
+             f"RMS in {unit}; f = f_time + f_freq (eqs. 7–9); spectral error = f_freq.", "",
+             f"Whole record (the starting and the final structure refitted on all of it once "
+             f"chosen): RMS {_number(d.before.metrics.get('rms'))} → "
+             f"{_number(d.after.metrics.get('rms'))}, f {_number(d.before.metrics.get('objective'))}"
+             f" → {_number(d.after.metrics.get('objective'))}, spectral error "
+             f"{_number(d.before.metrics.get('spectral_error'))} → "
+             f"{_number(d.after.metrics.get('spectral_error'))}.", "",
+             *_convergence_lines(d),
+             f"Steps: fitted on the first {d.n_train} of {d.measurement.n_samples} samples; "
+             "the held-out rest decided.", "",
+             "| effect | evidence | term | coefficient | RMS before | RMS after | f before | "
+             "f after | spectral before | spectral after | held-out RMS before | after |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+    for s in d.steps:
+        lines.append(f"| {s['effect']} | {s['evidence']} | {s['term']} | {s['coefficient']:.6g} "
+                     f"| {_number(s['rms_before'])} | {_number(s['rms_after'])} | "
+                     f"{_number(s['objective_before'])} | {_number(s['objective_after'])} | "
+                     f"{_number(s['spectral_error_before'])} | {_number(s['spectral_error_after'])} "
+                     f"| {_number(s['rms_holdout_before'])} | {_number(s['rms_holdout_after'])} |")
+    for caution in sign_cautions(d):
+        lines += ["", f"**Caution:** {caution}"]
+    lines += ["", "## Evidence per round (best first)", "",
+              "Simulation mode: held-out RMS with the effect refitted alone (/ predicted with "
+              "its best partner); equation-error mode: share of the weak-form equation-error "
+              "residual energy the effect explains.", ""]
+    for i, ranking in enumerate(d.rankings, start=1):
+        lines.append(f"{i}. " + ", ".join(map(_evidence_cell, ranking)))
+    lines += ["", "Figures: residual_time.png, residual_spectrum.png, measured_vs_simulated.png.",
+              ""]
+    return "\n".join(lines)
+
+
+def _convergence_lines(d: Diagnosis) -> list[str]:
+    """The final model's integration check, for the report."""
+    c = d.convergence
+    if c is None:
+        return []
+    verdict = "converged" if c["converged"] else "**not converged**"
+    return [f"Integration: RK4 with {c['substeps']} step(s) per sample. Reference solve "
+            f"(adaptive diffrax Dopri8, rtol 1e-10): RMS {_number(c['rms_reference'])}; the "
+            f"two responses differ by {c['ratio']:.2%} of it ({verdict}, tolerance "
+            f"{c['tolerance']:.0%}).", ""]
+
+
+def sign_cautions(diagnosis: Diagnosis) -> list[str]:
+    """One sentence per added effect fitted with the opposite sign of its physical meaning
+    (:attr:`gpjax._effects.Effect.sign`), e.g. a friction force along the velocity."""
+    return [f"{s['effect']} was fitted with coefficient {s['coefficient']:.4g}, the opposite "
+            "sign of the effect it names (for a loss: a force that feeds energy in); read it "
+            "as an unmodelled force of that shape, not as that effect"
+            for s in diagnosis.steps if s.get("sign_as_meant") is False]
+
+
+def _evidence_cell(entry: dict) -> str:
+    predicted = entry.get("predicted")
+    if predicted is None:
+        return f"{entry['effect']} {100 * entry['explained']:.1f} %"
+    cell = f"{entry['effect']} {_number(predicted['holdout_rms_alone'])}"
+    if predicted["partner"]:
+        cell += f" / {_number(predicted['holdout_rms_with_partner'])} with {predicted['partner']}"
+    return cell
+
+
+def _figures(d: Diagnosis) -> dict[str, bytes]:
+    from matplotlib.figure import Figure
+
+    m, time = d.measurement, d.measurement.time
+    out = {}
+    fig = Figure(figsize=(9, 6))
+    axes = fig.subplots(2, 1, sharex=True)
+    for label, fit in (("before", d.before), ("after", d.after)):
+        if fit.simulated is not None:
+            axes[0].plot(time, m.response - fit.simulated, lw=0.7, label=label)
+    axes[0].axvline(time[d.n_train - 1], color="k", ls=":", label="held out in the selection →")
+    axes[0].set_ylabel(f"{m.response_name} measured − simulated")
+    axes[0].legend(loc="upper right")
+    for label, fit in (("before", d.before), ("after", d.after)):
+        axes[1].plot(time, fit.force, lw=0.7, label=label)
+    axes[1].set_ylabel("equation-error residual\n(generalised force)")
+    axes[1].set_xlabel(f"{m.time_name} [s]")
+    axes[1].legend(loc="upper right")
+    out["residual_time.png"] = png_bytes(fig, dpi=110)
+
+    fig = Figure(figsize=(9, 4))
+    ax = fig.subplots()
+    frequency = np.fft.rfftfreq(m.n_samples, m.dt)
+    for label, fit in (("before", d.before), ("after", d.after)):
+        signal = (m.response - fit.simulated) if fit.simulated is not None else fit.force
+        ax.semilogy(frequency[1:], amplitude_spectrum(signal)[1:] + 1e-300, lw=0.7, label=label)
+    for f in d.frequencies:
+        ax.axvline(f, color="grey", ls=":", lw=0.8)
+    ax.set_xlabel("frequency [Hz] (dotted: candidate frequencies)")
+    ax.set_ylabel("residual amplitude")
+    ax.legend()
+    out["residual_spectrum.png"] = png_bytes(fig, dpi=110)
+
+    fig = Figure(figsize=(9, 4))
+    ax = fig.subplots()
+    ax.plot(time, m.response, "k", lw=0.8, label="measured")
+    for label, fit in (("before", d.before), ("after", d.after)):
+        if fit.simulated is not None:
+            ax.plot(time, fit.simulated, lw=0.8, ls="--", label=f"simulated {label}")
+    ax.set_xlabel(f"{m.time_name} [s]")
+    ax.set_ylabel(m.response_name)
+    ax.legend()
+    out["measured_vs_simulated.png"] = png_bytes(fig, dpi=110)
+    return out
+
