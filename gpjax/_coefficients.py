@@ -11,7 +11,7 @@ Two array forms serve the compiled code:
 
 * :class:`Population`, (P,) and (P, F) arrays over an evaluator's feature columns
   (:func:`to_population`, :func:`from_population`);
-* :class:`FlatLayout`, one vector per model ``[m | c | g | x0, x0']`` — what
+* :class:`FlatLayout`, one vector per model ``[m | c | g | θ | x0, x0']`` — what
   Levenberg–Marquardt moves (:mod:`gpjax._refine`) and what the variational Jacobian
   differentiates (:meth:`gpjax._evaluator.PopulationEvaluator.constant_jacobian`).
 """
@@ -92,12 +92,19 @@ class Population:
         state: (P, F_state) coefficients of the state basis.
         forcing: (P, F_forcing) coefficients of the forcing basis.
         y0: (P, 2) initial response and its derivative at the first sample.
+        inner: (P, F_inner) inner constants θ of the feature bank's families
+            (:mod:`gpjax._features`); ``None`` for an evaluator without families.
     """
 
     mass: np.ndarray
     state: np.ndarray
     forcing: np.ndarray
     y0: np.ndarray
+    inner: np.ndarray | None = None
+
+    def __post_init__(self):
+        if self.inner is None:
+            object.__setattr__(self, "inner", np.zeros((self.mass.shape[0], 0)))
 
     def __len__(self) -> int:
         return self.mass.shape[0]
@@ -117,6 +124,10 @@ class Columns(Protocol):
     """Where each feature's coefficient lives in a :class:`Population` (an evaluator)."""
 
     def state_index(self, feature: sp.Expr) -> int | None: ...
+
+    def inner_of(self, feature: sp.Expr) -> tuple[slice, tuple[float, ...]]: ...
+
+    def feature_at(self, column: int, theta) -> sp.Expr: ...
 
     def forcing_index(self, feature: sp.Expr) -> int: ...
 
@@ -141,6 +152,8 @@ def to_population(models: Sequence[Coefficients], columns: Columns) -> Populatio
             if column is None:
                 raise ValueError(f"state feature {feature} is outside the evaluator's basis")
             population.state[i, column] = value
+            slots, theta = columns.inner_of(feature)
+            population.inner[i, slots] = theta
         for feature, value in model.forcing.items():
             population.forcing[i, columns.forcing_index(feature)] = value
         population.y0[i] = np.nan_to_num(model.y0)
@@ -149,10 +162,19 @@ def to_population(models: Sequence[Coefficients], columns: Columns) -> Populatio
 
 def from_population(population: Population, columns: Columns,
                     like: Sequence[Coefficients]) -> list[Coefficients]:
-    """Coefficients of the features of ``like[i]`` read from row i of ``population``."""
+    """Coefficients of the features of ``like[i]`` read from row i of ``population``; a
+    feature with inner constants comes back with row i's (refined) values inside."""
+    def state(i: int, model: Coefficients) -> dict[sp.Expr, float]:
+        out = {}
+        for feature in model.state:
+            column = columns.state_index(feature)
+            slots, _ = columns.inner_of(feature)
+            out[columns.feature_at(column, population.inner[i, slots])] = float(
+                population.state[i, column])
+        return out
+
     return [Coefficients(
-        mass=float(population.mass[i]),
-        state={f: float(population.state[i, columns.state_index(f)]) for f in model.state},
+        mass=float(population.mass[i]), state=state(i, model),
         forcing={f: float(population.forcing[i, columns.forcing_index(f)])
                  for f in model.forcing},
         y0=(float(population.y0[i, 0]), float(population.y0[i, 1])))
@@ -161,17 +183,19 @@ def from_population(population: Population, columns: Columns,
 
 @dataclasses.dataclass(frozen=True)
 class FlatLayout:
-    """One model's constants as one vector ``[m | c (n_state) | g (n_forcing) | x0, x0']``.
+    """One model's constants as one vector
+    ``[m | c (n_state) | g (n_forcing) | θ (n_inner) | x0, x0']``.
 
     Works on numpy and JAX arrays alike; the last axis is the flat one.
     """
 
     n_state: int
     n_forcing: int
+    n_inner: int = 0
 
     @property
     def width(self) -> int:
-        return 1 + self.n_state + self.n_forcing + 2
+        return 1 + self.n_state + self.n_forcing + self.n_inner + 2
 
     def state_column(self, column: int) -> int:
         return 1 + column
@@ -179,23 +203,28 @@ class FlatLayout:
     def forcing_column(self, column: int) -> int:
         return 1 + self.n_state + column
 
+    def inner_column(self, slot: int) -> int:
+        return 1 + self.n_state + self.n_forcing + slot
+
     def pack(self, population: Population) -> np.ndarray:
         """(P, width) from a population (forcing columns zero-padded to ``n_forcing``)."""
         forcing = np.zeros((len(population), self.n_forcing))
         forcing[:, : population.forcing.shape[1]] = population.forcing
         return np.concatenate([population.mass[:, None], population.state, forcing,
-                               population.y0], axis=1)
+                               population.inner, population.y0], axis=1)
 
     def split(self, flat):
-        """(mass, state, forcing, y0) views along the last axis of ``flat``."""
+        """(mass, state, forcing, inner, y0) views along the last axis of ``flat``."""
         s, g = 1 + self.n_state, 1 + self.n_state + self.n_forcing
-        return flat[..., 0], flat[..., 1:s], flat[..., s:g], flat[..., g:]
+        i = g + self.n_inner
+        return flat[..., 0], flat[..., 1:s], flat[..., s:g], flat[..., g:i], flat[..., i:]
 
     def population(self, flat: np.ndarray, n_forcing: int | None = None) -> Population:
         """A population from (P, width) rows, keeping the first ``n_forcing`` forcing
         columns (default all)."""
-        mass, state, forcing, y0 = self.split(np.asarray(flat))
-        return Population(mass=mass, state=state, forcing=forcing[:, :n_forcing], y0=y0)
+        mass, state, forcing, inner, y0 = self.split(np.asarray(flat))
+        return Population(mass=mass, state=state, forcing=forcing[:, :n_forcing], y0=y0,
+                          inner=inner)
 
 
 def padded_chunks(arrays: Sequence[np.ndarray], batch: int):

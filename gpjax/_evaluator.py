@@ -39,6 +39,7 @@ from jax.sharding import AxisType, PartitionSpec
 from ._canonical import Symbols
 from ._coefficients import FlatLayout, Population, padded_chunks
 from ._data import Measurement, between_samples
+from ._features import Family, match
 from ._integrate import RK4, enable_float64, rk4_scan
 from ._objective import _amplitude, _dft_matrix, _objective_parts, default_n_bins
 
@@ -109,6 +110,9 @@ class PopulationEvaluator:
         w_time, w_freq: weights of eq. 7.
         extra_state_features: further state features (sympy expressions in x, x' and t,
             e.g. ``sign(x_dot)`` or ``cos(1790*t)*x``) compiled in.
+        families: feature families with inner constants (:mod:`gpjax._features`), one
+            state column each, after the extra features; a model's θ are data
+            (:attr:`Population.inner`), so new values never compile.
         batch: number of models per compiled call; populations are padded to a multiple.
             Capped so one call's (stage × model) arrays hold at most
             :data:`STAGE_ELEMENTS_PER_CALL` numbers: memory stays bounded for long records.
@@ -131,7 +135,7 @@ class PopulationEvaluator:
     def __init__(self, measurement: Measurement, symbols: Symbols, *, max_degree: int = 4,
                  substeps: int = 1, n_bins: int | None = None, w_time: float = 1.0,
                  w_freq: float = 1.0, extra_state_features: tuple[sp.Expr, ...] = (),
-                 batch: int = 500, fit_initial_conditions: bool = False,
+                 families: tuple[Family, ...] = (), batch: int = 500, fit_initial_conditions: bool = False,
                  integrator: str = "scan", devices: list | None = None,
                  input_interpolation: str = "linear"):
         if integrator not in INTEGRATORS:
@@ -141,9 +145,18 @@ class PopulationEvaluator:
         enable_float64()
         self.measurement = measurement
         self.symbols = symbols
-        self.state_features = (polynomial_state_features(symbols, max_degree)
-                               + list(extra_state_features))
-        self._state_index = {f: i for i, f in enumerate(self.state_features)}
+        self.families = tuple(families)
+        self._family_column = {}
+        self._inner_slots = []
+        fixed = polynomial_state_features(symbols, max_degree) + list(extra_state_features)
+        for j, family in enumerate(self.families):
+            self._family_column[family] = len(fixed) + j
+            start = self._inner_slots[-1].stop if self._inner_slots else 0
+            self._inner_slots.append(slice(start, start + family.n_inner))
+        self.n_inner = self._inner_slots[-1].stop if self._inner_slots else 0
+        self.state_features = fixed + [family.feature(symbols, (1.0, 0.0)[:family.n_inner])
+                                       for family in self.families]
+        self._state_index = {f: i for i, f in enumerate(fixed)}
         self.max_degree = max_degree
         self.substeps = substeps
         self.integrator = integrator
@@ -186,7 +199,7 @@ class PopulationEvaluator:
             mesh = jax.make_mesh((len(self.devices),), ("population",),
                                  axis_types=(AxisType.Auto,), devices=self.devices)
             split = PartitionSpec("population")
-            run = jax.shard_map(run, mesh=mesh, in_specs=(split,) * 4 + (PartitionSpec(),),
+            run = jax.shard_map(run, mesh=mesh, in_specs=(split,) * 5 + (PartitionSpec(),),
                                 out_specs=split, check_vma=False)
         self._run = jax.jit(run)
         self._compiled: set[tuple] = set()
@@ -211,8 +224,33 @@ class PopulationEvaluator:
 
     # --- feature bookkeeping ----------------------------------------------------------
     def state_index(self, feature: sp.Expr) -> int | None:
-        """Column of a state feature in the basis, or ``None`` if it is not supported."""
-        return self._state_index.get(feature)
+        """Column of a state feature in the basis (a power, an extra feature, or a member
+        of one of the families), or ``None`` if it is not supported."""
+        column = self._state_index.get(feature)
+        if column is None and self.families:
+            found = match(feature, self.symbols)
+            column = None if found is None else self._family_column.get(found[0])
+        return column
+
+    def inner_of(self, feature: sp.Expr) -> tuple[slice, tuple[float, ...]]:
+        """The slots of a state feature's inner constants in :attr:`Population.inner` and
+        their values in ``feature`` (none for powers and extra features)."""
+        if feature in self._state_index or not self.families:
+            return slice(0, 0), ()
+        family, theta = match(feature, self.symbols)
+        return self._inner_slots[self.families.index(family)], theta
+
+    def inner_columns(self) -> list[tuple[int, slice]]:
+        """(state column, slots in :attr:`Population.inner`) of every family."""
+        return [(self._family_column[f], slots)
+                for f, slots in zip(self.families, self._inner_slots)]
+
+    def feature_at(self, column: int, theta) -> sp.Expr:
+        """The state feature of ``column`` with inner constants ``theta`` (a family's)."""
+        first = len(self.state_features) - len(self.families)
+        if column < first:
+            return self.state_features[column]
+        return self.families[column - first].feature(self.symbols, tuple(map(float, theta)))
 
     def forcing_index(self, feature: sp.Expr) -> int:
         """Column of a forcing feature, evaluating it on the stage grid the first time."""
@@ -246,7 +284,7 @@ class PopulationEvaluator:
     @property
     def layout(self) -> FlatLayout:
         """The flat constant vector of one model on this evaluator's columns."""
-        return FlatLayout(len(self.state_features), self.forcing_capacity)
+        return FlatLayout(len(self.state_features), self.forcing_capacity, self.n_inner)
 
     def forcing_values(self, feature: sp.Expr, times: np.ndarray,
                        inputs: dict[str, np.ndarray]) -> np.ndarray:
@@ -260,7 +298,8 @@ class PopulationEvaluator:
     def empty(self, count: int) -> Population:
         """A population of ``count`` placeholder models (m = 1, no terms, y0 = 0)."""
         return Population(mass=np.ones(count), state=np.zeros((count, len(self.state_features))),
-                          forcing=np.zeros((count, self.forcing_capacity)), y0=np.zeros((count, 2)))
+                          forcing=np.zeros((count, self.forcing_capacity)), y0=np.zeros((count, 2)),
+                          inner=np.zeros((count, self.n_inner)))
 
     def score(self, population: Population) -> Scores:
         """Objective (eq. 7), its parts (eqs. 8–9), RMS and status for every model."""
@@ -279,8 +318,8 @@ class PopulationEvaluator:
                     np.zeros((0, 0)))
         forcing = _pad_columns(population.forcing, self.forcing_capacity)
         parts, paths = [], []
-        for size, chunk in padded_chunks(
-                (population.mass, population.state, forcing, population.y0), self.batch):
+        for size, chunk in padded_chunks((population.mass, population.state, forcing,
+                                          population.y0, population.inner), self.batch):
             out = self._call(*chunk)
             parts.append([np.asarray(o)[:size] for o in out[:6]])
             if responses:
@@ -290,24 +329,23 @@ class PopulationEvaluator:
                         rms=stacked[3], status=stacked[4].astype(int), y0=stacked[5])
         return scores, (np.concatenate(paths) if responses else None)
 
-    def _call(self, mass, state, forcing, y0):
+    def _call(self, mass, state, forcing, y0, inner):
         key = self.forcing_capacity
         start = time.perf_counter()
         out = jax.block_until_ready(self._run(
-            jnp.asarray(mass), jnp.asarray(state), jnp.asarray(forcing), jnp.asarray(y0),
-            jnp.asarray(self._forcing_basis)))
+            *map(jnp.asarray, (mass, state, forcing, y0, inner, self._forcing_basis))))
         if key not in self._compiled:  # the first call of a shape includes its compile
             self._compiled.add(key)
             self.compile_seconds += time.perf_counter() - start
         return out
 
-    def _acceleration_fn(self, mass, state):
+    def _acceleration_fn(self, mass, state, inner):
         """x''(x, v, force, t) for all models (vectors of length P), states clipped.
 
         The one right-hand side both integrators use: Horner sums over the powers of x and
-        x', plus the compiled extra features.
+        x', plus the compiled extra features and families.
         """
-        restoring = self._restoring_fn(state)
+        restoring = self._restoring_fn(state, inner)
         bound_x, bound_v = self._bound
         inverse_mass = 1.0 / mass
 
@@ -318,13 +356,18 @@ class PopulationEvaluator:
 
         return acceleration
 
-    def _restoring_fn(self, state):
-        """Σ c·φ(x, x', t) for coefficients ``state`` of shape (..., P, F): Horner sums over
-        the powers of x and x', plus the compiled extra features; x and x' have shape (P,)."""
+    def _restoring_fn(self, state, inner):
+        """Σ c·φ(x, x', t) for coefficients ``state`` of shape (..., P, F) and the families'
+        inner constants ``inner`` (P, F_inner): Horner sums over the powers of x and x',
+        plus the compiled extra features and families; x and x' have shape (P,). A family
+        no model of the call uses is skipped (``lax.cond`` on a loop-invariant flag)."""
         d = self.max_degree
         cx = jnp.moveaxis(state[..., :d], -1, 0)
         cv = jnp.moveaxis(state[..., d:2 * d], -1, 0)
-        extra = jnp.moveaxis(state[..., 2 * d:], -1, 0)
+        n_extra = len(self._extra_fns)
+        extra = jnp.moveaxis(state[..., 2 * d:2 * d + n_extra], -1, 0)
+        bank = jnp.moveaxis(state[..., 2 * d + n_extra:], -1, 0)
+        used = [jnp.any(c != 0) for c in bank]
 
         def horner(c, z):
             total = c[d - 1]
@@ -336,27 +379,35 @@ class PopulationEvaluator:
             total = horner(cx, x) + horner(cv, v)
             for c, fn in zip(extra, self._extra_fns):
                 total = total + c * fn(x, v, t)
+            for c, flag, family, slots in zip(bank, used, self.families, self._inner_slots):
+                z = x if family.role == "x" else v
+                term = jax.lax.cond(flag, lambda z=z, c=c, family=family, slots=slots:
+                                    c * family(z, inner[..., slots]),
+                                    lambda c=c: jnp.zeros(jnp.broadcast_shapes(c.shape, x.shape)))
+                total = total + term
             return total
 
         return restoring
 
-    def integrate(self, mass, state, forcing_matrix, y0):
+    def integrate(self, mass, state, forcing_matrix, y0, inner=None):
         """x at the sample times, shape (N, P), by the configured integrator.
 
         Differentiable in forward and reverse mode (the diffrax path in forward mode).
         """
         if self.integrator == "diffrax":
-            return self.solve(mass, state, forcing_matrix, y0, adjoint=diffrax.ForwardMode())
-        return self.scan_solve(mass, state, forcing_matrix, y0)
+            return self.solve(mass, state, forcing_matrix, y0, inner,
+                              adjoint=diffrax.ForwardMode())
+        return self.scan_solve(mass, state, forcing_matrix, y0, inner)
 
-    def scan_solve(self, mass, state, forcing_matrix, y0):
+    def scan_solve(self, mass, state, forcing_matrix, y0, inner=None):
         """Integrate all models with RK4 in ``lax.scan``; x at the sample times, (N, P).
 
         Args:
             mass: (P,); state: (P, F_state) coefficients; y0: (P, 2).
             forcing_matrix: (n_stage, P) forcing of every model at every RK4 stage time.
+            inner: (P, F_inner) the families' inner constants (``None``: no families).
         """
-        acceleration = self._acceleration_fn(mass, state)
+        acceleration = self._acceleration_fn(mass, state, _no_inner(inner, mass))
 
         def rates(y, force, t):
             x, v = y
@@ -365,8 +416,8 @@ class PopulationEvaluator:
         (x,) = self._rk4_scan(rates, (y0[:, 0], y0[:, 1]), forcing_matrix, lambda y: (y[0],))
         return x
 
-    def scan_jvp(self, mass, state, forcing_matrix, y0, d_y0, *, d_mass=None, d_state=None,
-                 d_forcing=None):
+    def scan_jvp(self, mass, state, forcing_matrix, y0, d_y0, *, inner=None, d_mass=None,
+                 d_state=None, d_forcing=None, d_inner=None):
         """x at the sample times (N, P) and its derivatives (N, Q, P) along Q directions.
 
         The variational equations s' = w, w' = ∂a/∂x·s + ∂a/∂x'·w + ∂a/∂θ·dθ run in the same
@@ -377,13 +428,16 @@ class PopulationEvaluator:
         Args:
             mass, state, forcing_matrix, y0: as :meth:`scan_solve`.
             d_y0: (Q, P, 2) directions of the initial state.
-            d_mass: (Q, P), d_state: (Q, P, F_state), d_forcing: (n_stage, Q, P) directions
-                of the constants (``None``: zero). Directions come first so the population
-                axis stays the minor one that XLA vectorises.
+            inner: (P, F_inner) the families' inner constants (``None``: no families).
+            d_mass: (Q, P), d_state: (Q, P, F_state), d_forcing: (n_stage, Q, P),
+                d_inner: (Q, P, F_inner) directions of the constants (``None``: zero).
+                Directions come first so the population axis stays the minor one that XLA
+                vectorises.
         """
-        acceleration = self._acceleration_fn(mass, state)
-        restoring = self._restoring_fn(state)
-        d_restoring = self._restoring_fn(d_state) if d_state is not None else None
+        inner = _no_inner(inner, mass)
+        acceleration = self._acceleration_fn(mass, state, inner)
+        restoring = self._restoring_fn(state, inner)
+        d_restoring = self._restoring_fn(d_state, inner) if d_state is not None else None
         inverse_mass = 1.0 / mass
         if d_forcing is None:
             d_forcing = jnp.zeros((forcing_matrix.shape[0], 1, 1))
@@ -398,10 +452,16 @@ class PopulationEvaluator:
             explicit = df
             if d_restoring is not None:
                 explicit = explicit - d_restoring(x, v, t)
+            if d_inner is not None and self.families:
+                explicit = explicit - jax.vmap(lambda d: jax.jvp(
+                    lambda th: restoring_at(th, x, v, t), (inner,), (d,))[1])(d_inner)
             if d_mass is not None:
                 explicit = explicit - a * d_mass
             dw = (explicit - r_x * s - r_v * w) * inverse_mass
             return v, a, w, jnp.broadcast_to(dw, s.shape)
+
+        def restoring_at(theta, x, v, t):
+            return self._restoring_fn(state, theta)(x, v, t)
 
         start = (y0[:, 0], y0[:, 1], d_y0[..., 0], d_y0[..., 1])
         x, s = self._rk4_scan(rates, start, (forcing_matrix, d_forcing), lambda y: (y[0], y[2]))
@@ -411,16 +471,18 @@ class PopulationEvaluator:
         """One model's flat constant vector (:attr:`layout`) as :meth:`scan_solve`
         arguments for a population of one: mass (1,), state (1, F_state), forcing
         (n_stage, 1) from the rows of ``forcing_basis`` (which set n_stage), y0 (1, 2)."""
-        mass, state, forcing, y0 = self.layout.split(constants)
-        return mass[None], state[None], (forcing_basis @ forcing)[:, None], y0[None]
+        mass, state, forcing, inner, y0 = self.layout.split(constants)
+        return (mass[None], state[None], (forcing_basis @ forcing)[:, None], y0[None],
+                inner[None])
 
     def constant_jacobian(self, constants, directions, forcing_basis):
         """x of one model (:meth:`unpack`) at the sample times, (N,), and its derivatives
         along ``directions`` (Q, len(constants)) of the flat constant vector, (N, Q), by
         :meth:`scan_jvp`."""
-        d_mass, d_state, d_forcing, d_y0 = self.layout.split(directions[:, None, :])
-        x, dx = self.scan_jvp(*self.unpack(constants, forcing_basis), d_y0,
-                              d_mass=d_mass, d_state=d_state,
+        d_mass, d_state, d_forcing, d_inner, d_y0 = self.layout.split(directions[:, None, :])
+        mass, state, forcing_matrix, y0, inner = self.unpack(constants, forcing_basis)
+        x, dx = self.scan_jvp(mass, state, forcing_matrix, y0, d_y0, inner=inner,
+                              d_mass=d_mass, d_state=d_state, d_inner=d_inner,
                               d_forcing=jnp.einsum("qpk,sk->sqp", d_forcing, forcing_basis))
         return x[:, 0], dx[:, :, 0]
 
@@ -429,7 +491,7 @@ class PopulationEvaluator:
         return rk4_scan(rates, y0, forces, saved, h=self.h, t0=float(self.stage_times[0]),
                         substeps=self.substeps, split_stages=self.split_stages)
 
-    def solve(self, mass, state, forcing_matrix, y0, *, adjoint=None):
+    def solve(self, mass, state, forcing_matrix, y0, inner=None, *, adjoint=None):
         """Integrate all models with diffrax; returns x at the sample times, shape (N, P).
 
         ``adjoint=diffrax.ForwardMode()`` makes the solve forward-differentiable (for
@@ -444,7 +506,7 @@ class PopulationEvaluator:
             raise ValueError(HOLD_WITH_DIFFRAX)
         t0 = float(self.stage_times[0])
         half = 0.5 * self.h
-        acceleration = self._acceleration_fn(mass, state)
+        acceleration = self._acceleration_fn(mass, state, _no_inner(inner, mass))
 
         def field(t, y, args):
             index = jnp.clip(jnp.round((t - t0) / half).astype(jnp.int32), 0,
@@ -461,12 +523,13 @@ class PopulationEvaluator:
         states = solution.ys[:: self.substeps, :, 0]
         return states[: self.measurement.n_samples]
 
-    def _fitted_initial_conditions(self, mass, state, forcing_matrix, y0):
+    def _fitted_initial_conditions(self, mass, state, forcing_matrix, y0, inner):
         """One Gauss–Newton step on (x0, x0') per model; the sensitivities dx/dx0 and
         dx/dx0' come from the variational equations in the same scan (:meth:`scan_jvp`)."""
         measured = jnp.asarray(self.measurement.response)[:, None]
         directions = jnp.broadcast_to(jnp.eye(2)[:, None, :], (2,) + y0.shape)
-        base, sensitivity = self.scan_jvp(mass, state, forcing_matrix, y0, directions)
+        base, sensitivity = self.scan_jvp(mass, state, forcing_matrix, y0, directions,
+                                          inner=inner)
         sx, sv = sensitivity[:, 0], sensitivity[:, 1]
         residual = measured - base
         a11, a12, a22 = jnp.sum(sx * sx, 0), jnp.sum(sx * sv, 0), jnp.sum(sv * sv, 0)
@@ -477,14 +540,14 @@ class PopulationEvaluator:
         delta = jnp.stack([(a22 * b1 - a12 * b2) / safe, (a11 * b2 - a12 * b1) / safe], axis=1)
         return jnp.where(usable[:, None], y0 + delta, y0)
 
-    def _simulate_and_score(self, mass, state, forcing, y0, forcing_basis):
+    def _simulate_and_score(self, mass, state, forcing, y0, inner, forcing_basis):
         forcing_matrix = forcing_basis @ forcing.T  # (n_stage, P)
         if self.fit_initial_conditions:
-            y0 = self._fitted_initial_conditions(mass, state, forcing_matrix, y0)
+            y0 = self._fitted_initial_conditions(mass, state, forcing_matrix, y0, inner)
         if self.integrator == "diffrax":
-            x = self.solve(mass, state, forcing_matrix, y0)  # (N, P)
+            x = self.solve(mass, state, forcing_matrix, y0, inner)  # (N, P)
         else:
-            x = self.scan_solve(mass, state, forcing_matrix, y0)
+            x = self.scan_solve(mass, state, forcing_matrix, y0, inner)
         finite = jnp.all(jnp.isfinite(x), axis=0)
         bounded = jnp.all(jnp.abs(x) < self._bound[0], axis=0)
         status = jnp.where(mass > 0, jnp.where(finite & bounded, OK, DIVERGED), NONPOSITIVE_MASS)
@@ -497,6 +560,11 @@ class PopulationEvaluator:
         out = (jnp.where(good, objective, PENALTY), jnp.where(good, f_time, PENALTY),
                jnp.where(good, f_freq, PENALTY), jnp.where(good, rms, PENALTY), status, y0)
         return out + (x.T,)
+
+
+def _no_inner(inner, mass):
+    """``inner``, or an empty (P, 0) array for an evaluator call without families."""
+    return jnp.zeros((mass.shape[0], 0)) if inner is None else inner
 
 
 def _capacity(count: int) -> int:

@@ -126,6 +126,10 @@ class Refiner:
         free[:, -2:] = True
         for i, column in enumerate(np.asarray(fixed_forcing)):
             free[i, layout.forcing_column(column) if column >= 0 else 0] = False
+        for column, slots in ev.inner_columns():  # θ move where their family is used
+            used = population.state[:, column] != 0
+            free[:, [layout.inner_column(k) for k in range(slots.start, slots.stop)]] = \
+                used[:, None]
         scale = np.where(scale > 0, scale, 1.0)
         # Only free parameters are differentiated: index (P, width), padded with scale 0.
         index = np.zeros((count, self.max_free), dtype=np.int32)

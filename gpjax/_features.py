@@ -1,0 +1,150 @@
+"""Non-polynomial state features with inner constants: the feature bank.
+
+A state term is any function of x alone or of x' alone (eqs. 5–6). Besides the powers of
+eq. 10, gpjax simulates the *families* below of one variable z (x or x'). A family is
+compiled once per evaluator, and its inner constants θ are data (an array per model), so
+Levenberg–Marquardt refines them with the outer coefficients and a new θ never compiles:
+
+=========  ====================  ==  =========================================
+family     feature               θ   made by the tree functions
+=========  ====================  ==  =========================================
+``abs``    z^k·|z|, k = 0 … D−1  –   abs (x'·|x'|: quadratic drag)
+``tanh``   tanh(θ0·z)            1   tanh; sign(z), smoothed (below)
+``sin``    sin(θ0·z + θ1)        2   sin
+``cos``    cos(θ0·z + θ1)        2   cos
+``exp``    exp(θ0·z)             1   exp (a factor e^b of exp(a·z + b) is a coefficient)
+=========  ====================  ==  =========================================
+
+**sign, smoothed.** A GP candidate's sign(z) (dry friction) enters the search as
+tanh(z/ε) with ε = :data:`SIGN_WIDTH` × RMS(z) on the data: a discontinuous right-hand side
+would cost the fixed-step RK4 its order at every zero crossing, and the smoothed law is a
+member of the ``tanh`` family, so ε is refined like any inner constant. The model reports
+the tanh it was fitted with, so the reported ODE is what any accurate solver integrates.
+A ``sign`` written in a model file is simulated as the exact sign.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from functools import lru_cache
+
+import jax.numpy as jnp
+import sympy as sp
+
+from ._canonical import Symbols
+
+#: Tree functions that make state-feature families, by family.
+FAMILY_FUNCTIONS = {"abs": ("abs",), "tanh": ("tanh", "sign"), "sin": ("sin",),
+                    "cos": ("cos",), "exp": ("exp",)}
+#: Width of the smoothed sign, as a fraction of the RMS of its argument in the data.
+SIGN_WIDTH = 0.01
+#: Largest |exponent argument| evaluated (beyond it exp overflows float64 at 709.8).
+EXP_LIMIT = 700.0
+_INNER = {"abs": 0, "tanh": 1, "sin": 2, "cos": 2, "exp": 1}
+
+
+@dataclasses.dataclass(frozen=True)
+class Family:
+    """One compiled feature of one variable: ``function`` of ``role`` (``"x"`` or
+    ``"x_dot"``); ``power`` k of the ``abs`` family's z^k·|z|."""
+
+    function: str
+    role: str
+    power: int = 0
+
+    @property
+    def n_inner(self) -> int:
+        return _INNER[self.function]
+
+    def variable(self, symbols: Symbols) -> sp.Symbol:
+        return symbols.x if self.role == "x" else symbols.x_dot
+
+    def feature(self, symbols: Symbols, theta=()) -> sp.Expr:
+        """The feature with inner constants ``theta`` (floats) as a sympy expression."""
+        z = self.variable(symbols)
+        a = [sp.Float(v) for v in theta]
+        if self.function == "abs":
+            return z ** self.power * sp.Abs(z)
+        if self.function == "tanh":
+            return sp.tanh(a[0] * z)
+        if self.function == "exp":
+            return sp.exp(a[0] * z)
+        return (sp.sin if self.function == "sin" else sp.cos)(a[0] * z + a[1])
+
+    def __call__(self, z, theta):
+        """Values for states ``z`` (P,) and inner constants ``theta`` (P, n_inner) (JAX)."""
+        if self.function == "abs":
+            return z ** self.power * jnp.abs(z)
+        if self.function == "tanh":
+            return jnp.tanh(theta[..., 0] * z)
+        if self.function == "exp":
+            return jnp.exp(jnp.clip(theta[..., 0] * z, -EXP_LIMIT, EXP_LIMIT))
+        phase = theta[..., 0] * z + theta[..., 1]
+        return jnp.sin(phase) if self.function == "sin" else jnp.cos(phase)
+
+
+def families_for(functions, roles, max_degree: int) -> tuple[Family, ...]:
+    """The families the tree ``functions`` can make for the variables ``roles`` (of
+    ``"x"``, ``"x_dot"``), in a fixed order."""
+    found = []
+    for name, makers in FAMILY_FUNCTIONS.items():
+        if not set(makers) & set(functions):
+            continue
+        for role in ("x", "x_dot"):
+            if role not in roles:
+                continue
+            powers = range(max_degree) if name == "abs" else (0,)
+            found += [Family(name, role, k) for k in powers]
+    return tuple(found)
+
+
+def match(feature: sp.Expr, symbols: Symbols) -> tuple[Family, tuple[float, ...]] | None:
+    """The family of a concrete state feature and its inner constants, or ``None`` when
+    the feature is no family member (a power, a product of functions, sin(x²), …).
+    ``sign(z)`` is not matched here: it becomes a tanh with the data's width first
+    (:func:`smoothed_sign`)."""
+    return _match(feature, symbols)
+
+
+@lru_cache(maxsize=100_000)
+def _match(feature: sp.Expr, symbols: Symbols):
+    for role, z in (("x", symbols.x), ("x_dot", symbols.x_dot)):
+        if feature.free_symbols != {z}:
+            continue
+        powers = feature.as_powers_dict()
+        if powers.get(sp.Abs(z)) == 1 and set(powers) <= {z, sp.Abs(z)}:
+            k = powers.get(z, 0)
+            return (Family("abs", role, int(k)), ()) if sp.Integer(k) == k and k >= 0 else None
+        if not isinstance(feature, (sp.tanh, sp.exp, sp.sin, sp.cos)):
+            return None
+        linear = _affine(feature.args[0], z)
+        if linear is None:
+            return None
+        slope, offset = linear
+        if isinstance(feature, (sp.sin, sp.cos)):
+            name = "sin" if isinstance(feature, sp.sin) else "cos"
+            return Family(name, role), (slope, offset)
+        if offset != 0.0:
+            return None
+        return Family("tanh" if isinstance(feature, sp.tanh) else "exp", role), (slope,)
+    return None
+
+
+def _affine(argument: sp.Expr, z: sp.Symbol) -> tuple[float, float] | None:
+    """(a, b) of an argument a·z + b with numbers a ≠ 0 and b, else ``None``."""
+    expanded = sp.expand(argument)
+    slope = expanded.coeff(z, 1)
+    offset = expanded.coeff(z, 0)
+    if not (slope.is_number and offset.is_number) or slope == 0:
+        return None
+    if sp.expand(slope * z + offset - expanded) != 0:
+        return None
+    return float(slope), float(offset)
+
+
+def smoothed_sign(feature: sp.Expr, symbols: Symbols, widths: dict[str, float]) -> sp.Expr:
+    """``feature`` with every sign(x) and sign(x') replaced by tanh(z/ε), ε = ``widths``
+    of that variable (see the module docstring)."""
+    replacements = {sp.sign(z): sp.tanh(z / sp.Float(widths[role]))
+                    for role, z in (("x", symbols.x), ("x_dot", symbols.x_dot))}
+    return feature.xreplace(replacements) if feature.has(sp.sign) else feature

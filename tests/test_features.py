@@ -1,0 +1,141 @@
+"""The feature bank: non-polynomial state features with inner constants (issue 13)."""
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import sympy as sp
+from scipy.integrate import solve_ivp
+
+from gpjax._canonical import Symbols
+from gpjax._coefficients import Coefficients, from_population, to_population
+from gpjax._data import Measurement
+from gpjax._evaluator import OK, PopulationEvaluator
+from gpjax._features import Family, families_for, match, smoothed_sign
+from gpjax._refine import Refiner
+
+S = Symbols("x", "t", ("u",))
+X, V, U = S.x, S.x_dot, S.u[0]
+FAMILIES = families_for(("sin", "tanh", "abs", "exp"), ("x", "x_dot"), 3)
+#: m x'' + c x' + k sin(a x + b) + d x'|x'| = u
+TRUTH = {"m": 1.0, "c": 0.4, "k": 9.0, "a": 1.1, "b": 0.2, "d": 0.3}
+
+
+def _input(t):
+    return 6.0 * np.sin(2.1 * t) + 3.0 * np.sin(5.3 * t + 1.0)
+
+
+def _pendulum(n=1500, dt=0.004):
+    p = TRUTH
+    t = np.arange(n) * dt
+
+    def field(time, y):
+        x, v = y
+        force = _input(time) - p["c"] * v - p["k"] * np.sin(p["a"] * x + p["b"]) \
+            - p["d"] * v * abs(v)
+        return [v, force / p["m"]]
+
+    solution = solve_ivp(field, (t[0], t[-1]), [0.1, 0.0], t_eval=t, method="DOP853",
+                         rtol=1e-11, atol=1e-12)
+    return Measurement(time=t, response=solution.y[0], inputs={"u": _input(t)},
+                       time_name="t", response_name="x")
+
+
+def _truth(a=TRUTH["a"], b=TRUTH["b"]):
+    p = TRUTH
+    return Coefficients(mass=p["m"], state={V: p["c"], sp.sin(a * X + b): p["k"],
+                                            V * sp.Abs(V): p["d"]},
+                        forcing={U: 1.0}, y0=(0.1, 0.0))
+
+
+@pytest.fixture(scope="module")
+def pendulum():
+    data = _pendulum()
+    return data, PopulationEvaluator(data, S, max_degree=3, substeps=2, families=FAMILIES,
+                                     batch=4)
+
+
+def test_match_recognises_family_members_and_refuses_the_rest():
+    assert match(sp.sin(0.7 * X + 0.2), S) == (Family("sin", "x"), (0.7, 0.2))
+    assert match(sp.cos(X), S) == (Family("cos", "x"), (1.0, 0.0))
+    assert match(V * sp.Abs(V), S) == (Family("abs", "x_dot", 1), ())
+    assert match(sp.tanh(3 * V), S) == (Family("tanh", "x_dot"), (3.0,))
+    assert match(sp.exp(-1.5 * X), S) == (Family("exp", "x"), (-1.5,))
+    for outside in (sp.sin(X ** 2), X * sp.sin(X), sp.sin(X) ** 2, X ** 2, sp.tanh(V + 1),
+                    sp.sin(X) * sp.sin(V)):
+        assert match(outside, S) is None, outside
+
+
+def test_smoothed_sign_is_a_tanh_of_the_given_width():
+    assert smoothed_sign(2 * sp.sign(V), S, {"x": 1.0, "x_dot": 0.25}) == 2 * sp.tanh(4.0 * V)
+    assert smoothed_sign(X ** 2, S, {"x": 1.0, "x_dot": 1.0}) == X ** 2
+
+
+def test_family_features_simulate_like_scipy(pendulum):
+    """Against DOP853 fed the same linearly interpolated input (so only the right-hand
+    side is compared, not the input's reconstruction between samples)."""
+    data, evaluator = pendulum
+    p, t, u = TRUTH, data.time, data.inputs["u"]
+
+    def field(time, y):
+        x, v = y
+        force = np.interp(time, t, u) - p["c"] * v - p["k"] * np.sin(p["a"] * x + p["b"]) \
+            - p["d"] * v * abs(v)
+        return [v, force / p["m"]]
+
+    exact = solve_ivp(field, (t[0], t[-1]), [0.1, 0.0], t_eval=t, method="DOP853", rtol=1e-12,
+                      atol=1e-13, max_step=data.dt).y[0]
+    responses, scores = evaluator.simulate(to_population([_truth()], evaluator))
+    assert scores.status[0] == OK
+    error = np.max(np.abs(responses[0] - exact)) / np.ptp(exact)
+    assert error < 1e-7, error
+
+
+def test_inner_constants_are_data_and_come_back_refined(pendulum):
+    _, evaluator = pendulum
+    shifted = _truth(a=1.05, b=0.1)
+    population = to_population([shifted], evaluator)
+    slots, theta = evaluator.inner_of(sp.sin(1.05 * X + 0.1))
+    np.testing.assert_allclose(population.inner[0, slots], [1.05, 0.1])
+    population.inner[0, slots] = [1.2, -0.3]
+    back = from_population(population, evaluator, [shifted])[0]
+    assert sp.sin(1.2 * X - 0.3) in back.state
+    assert back.state[sp.sin(1.2 * X - 0.3)] == TRUTH["k"]
+
+
+def test_variational_sensitivities_to_inner_constants_match_autodiff(pendulum):
+    _, evaluator = pendulum
+    constants = jnp.asarray(evaluator.layout.pack(to_population([_truth()], evaluator))[0])
+    basis = jnp.asarray(evaluator.forcing_basis)
+    slots, _ = evaluator.inner_of(sp.sin(X))
+    columns = [evaluator.layout.inner_column(k) for k in range(slots.start, slots.stop)]
+    directions = jnp.eye(constants.size)[jnp.array(columns)]
+    _, jacobian = evaluator.constant_jacobian(constants, directions, basis)
+    reference = jax.jacfwd(lambda p: evaluator.scan_solve(*evaluator.unpack(p, basis))[:, 0])(
+        constants)[:, jnp.array(columns)]
+    np.testing.assert_allclose(jacobian, reference, rtol=1e-7, atol=1e-9 * float(
+        jnp.max(jnp.abs(reference))))
+
+
+def test_levenberg_marquardt_refines_inner_and_outer_constants_together(pendulum):
+    _, evaluator = pendulum
+    start = _truth(a=1.0, b=0.0).replace(state={V: 0.3, sp.sin(X): 8.0, V * sp.Abs(V): 0.4})
+    population = to_population([start], evaluator)
+    refiner = Refiner(evaluator, iterations=30, batch=1, horizons=(0.25, 1.0))
+    refined = refiner.refine(population, np.array([evaluator.forcing_index(U)]))
+    found = from_population(refined.population, evaluator, [start])[0]
+    (feature, k), = [(f, c) for f, c in found.state.items() if f.has(sp.sin)]
+    family, (a, b) = match(feature, S)
+    assert family == Family("sin", "x")
+    np.testing.assert_allclose([a, b, k, found.state[V], found.state[V * sp.Abs(V)]],
+                               [TRUTH["a"], TRUTH["b"], TRUTH["k"], TRUTH["c"], TRUTH["d"]],
+                               rtol=1e-3)  # the data: exact input, fit: interpolated
+
+
+def test_an_unused_family_changes_nothing(pendulum):
+    data, evaluator = pendulum
+    plain = PopulationEvaluator(data, S, max_degree=3, substeps=2, batch=4)
+    model = Coefficients(mass=1.0, state={X: 9.0, V: 0.4}, forcing={U: 1.0}, y0=(0.1, 0.0))
+    with_bank, _ = evaluator.simulate(to_population([model], evaluator))
+    without, _ = plain.simulate(to_population([model], plain))
+    np.testing.assert_array_equal(with_bank, without)
