@@ -6,6 +6,11 @@ A candidate expression E (read as E = 0) is expanded and each additive term clas
 * every other term depends on x only, on x' only (eqs. 5–6), or on time/inputs only;
 * anything else (x''·x, x·x', x·u, …) is a cross term and makes the candidate invalid.
 
+Beyond the paper's polynomial function set, a state term may be any function of x alone or
+x' alone (sin x, x'·|x'|, sign x', …); with ``bank=True`` (the GP's check) such a term must
+also be a member of the feature bank the evaluator compiles (:mod:`gpjax._features`) or
+sign(x) / sign(x'), and a sign with ``bank`` is smoothed later, where the data are known.
+
 Valid candidates become ``m·x'' + Σ c_i·φ_i(x or x') = Σ g_j·ψ_j(t, inputs)``, normalised
 so the first input's linear forcing coefficient is 1 (mass 1 when no such term exists).
 """
@@ -17,7 +22,7 @@ from functools import lru_cache
 
 import sympy as sp
 
-from ._trees import Tree, is_function
+from ._trees import UNARY_NODES, Tree, is_function
 
 #: Coefficients smaller than this (relative to the largest) count as zero after expansion.
 ZERO_TOLERANCE = 1e-12
@@ -98,7 +103,7 @@ def tree_to_sympy(tree: Tree, symbols: Symbols, constants: dict[str, float]) -> 
 
 
 def check_tree(tree: Tree, symbols: Symbols, constants: dict[str, float], *,
-               max_degree: int | None = None) -> StructureCheck:
+               max_degree: int | None = None, bank: bool = False) -> StructureCheck:
     """:func:`check_structure` of the expression a tree denotes (read as ``tree = 0``).
 
     Subtrees without division are multiplied out as sparse polynomials over the reals
@@ -109,9 +114,9 @@ def check_tree(tree: Tree, symbols: Symbols, constants: dict[str, float], *,
     """
     value = _expanded(tree, symbols, tuple(sorted(constants.items())))
     if isinstance(value, sp.Expr):
-        return check_structure(value, symbols, max_degree=max_degree)
+        return check_structure(value, symbols, max_degree=max_degree, bank=bank)
     terms = tuple((float(c), _monomial(symbols, exponents)) for exponents, c in value.terms())
-    return _check_terms(terms, symbols, max_degree)
+    return _check_terms(terms, symbols, max_degree, bank)
 
 
 @lru_cache(maxsize=64)
@@ -130,6 +135,8 @@ def _expanded(tree: Tree, symbols: Symbols, constants: tuple):
     """A subtree as a ring polynomial (no division below it) or an expanded expression."""
     ring, x, x_dot, x_ddot, t, *u = _ring(symbols)
     head = tree[0]
+    if head in UNARY_NODES:
+        return _unary(head, _as_expr(_expanded(tree[1], symbols, constants)))
     if is_function(tree):
         a = _expanded(tree[1], symbols, constants)
         b = _expanded(tree[2], symbols, constants)
@@ -161,6 +168,16 @@ def _expanded(tree: Tree, symbols: Symbols, constants: tuple):
     return ring.ground_new(sp.RR(value))  # ring(value) would build a new mpmath context
 
 
+def _unary(name: str, a: sp.Expr) -> sp.Expr:
+    """A unary function node applied to an expanded argument, expanded (``exp(a + b)``
+    becomes ``e^b·exp(a)``); sqrt and log act on |a| and log 0 is 0 (protected)."""
+    if name == "log":
+        return sp.Integer(0) if a == 0 else sp.expand(sp.log(sp.Abs(a)))
+    function = {"sin": sp.sin, "cos": sp.cos, "tanh": sp.tanh, "exp": sp.exp, "abs": sp.Abs,
+                "sign": sp.sign, "sqrt": lambda z: sp.sqrt(sp.Abs(z))}[name]
+    return sp.expand(function(a))
+
+
 def _as_expr(value) -> sp.Expr:
     return value if isinstance(value, sp.Expr) else value.as_expr()
 
@@ -173,13 +190,15 @@ def _degree(feature: sp.Expr, symbol: sp.Symbol) -> int:
 
 
 def check_structure(expression: sp.Expr | sp.Eq, symbols: Symbols, *,
-                    max_degree: int | None = None) -> StructureCheck:
+                    max_degree: int | None = None, bank: bool = False) -> StructureCheck:
     """Decide the §3 structure rules for ``expression`` (read as ``expression = 0``).
 
     Args:
         expression: a sympy expression or ``Eq(lhs, rhs)`` in the symbols of ``symbols``.
         symbols: the names of response, time and inputs.
         max_degree: if given, a power of x or x' above it also makes the candidate invalid.
+        bank: a non-polynomial state term must be a feature-bank member or sign(x), sign(x')
+            (see the module docstring).
 
     Returns:
         A :class:`StructureCheck`: ``valid`` and, if valid, the normalised canonical form,
@@ -189,11 +208,12 @@ def check_structure(expression: sp.Expr | sp.Eq, symbols: Symbols, *,
         expression = expression.lhs - expression.rhs
     if not isinstance(expression, sp.Expr):
         raise TypeError(f"expected a sympy expression or Eq, got {type(expression).__name__}")
-    return _check(expression, symbols, max_degree)
+    return _check(expression, symbols, max_degree, bank)
 
 
 @lru_cache(maxsize=200_000)
-def _check(expression: sp.Expr, symbols: Symbols, max_degree: int | None) -> StructureCheck:
+def _check(expression: sp.Expr, symbols: Symbols, max_degree: int | None,
+           bank: bool) -> StructureCheck:
     known = {symbols.x, symbols.x_dot, symbols.x_ddot, symbols.t, *symbols.u}
     unknown = expression.free_symbols - known
     if unknown:
@@ -207,12 +227,12 @@ def _check(expression: sp.Expr, symbols: Symbols, max_degree: int | None) -> Str
         if not feature.free_symbols:
             coefficient, feature = term, sp.Integer(1)
         terms.append((float(coefficient), feature))
-    return _check_terms(tuple(terms), symbols, max_degree)
+    return _check_terms(tuple(terms), symbols, max_degree, bank)
 
 
 @lru_cache(maxsize=200_000)
 def _check_terms(terms: tuple[tuple[float, sp.Expr], ...], symbols: Symbols,
-                 max_degree: int | None) -> StructureCheck:
+                 max_degree: int | None, bank: bool = False) -> StructureCheck:
     """The §3 rules on an expanded expression given as (coefficient, feature) terms."""
     x, v, a, t, u = symbols.x, symbols.x_dot, symbols.x_ddot, symbols.t, symbols.u
     mass = 0.0
@@ -235,11 +255,16 @@ def _check_terms(terms: tuple[tuple[float, sp.Expr], ...], symbols: Symbols,
             if symbols_in & exogenous:
                 return StructureCheck(False, f"cross term {_term(coefficient, feature)}: the "
                                              "response and time/inputs mixed in one term (eq. 3)")
+            z = x if x in symbols_in else v
             if max_degree is not None:
-                degree = _degree(feature, x if x in symbols_in else v)
+                degree = _degree(feature, z)
                 if degree > max_degree:
                     return StructureCheck(False, f"term {_term(coefficient, feature)} has degree "
                                                  f"{degree} > max_degree {max_degree}")
+            if bank and not _in_bank(feature, z, symbols, max_degree):
+                return StructureCheck(False, f"term {_term(coefficient, feature)} is no member "
+                                             "of the feature bank (powers, z^k·|z|, tanh(a·z), "
+                                             "sin/cos(a·z + b), exp(a·z), sign(z))")
             state[feature] = state.get(feature, 0.0) + coefficient
         else:
             forcing[feature] = forcing.get(feature, 0.0) - coefficient
@@ -256,6 +281,17 @@ def _check_terms(terms: tuple[tuple[float, sp.Expr], ...], symbols: Symbols,
         forcing=tuple(sorted(((f, g / norm) for f, g in forcing.items()),
                              key=lambda p: _name(p[0]))))
     return StructureCheck(True, "", form)
+
+
+def _in_bank(feature: sp.Expr, z: sp.Symbol, symbols: Symbols, max_degree: int | None) -> bool:
+    """A power of z, sign(z), or a family member the evaluator compiles (an ``abs``
+    family's z^k·|z| only up to k = max_degree − 1)."""
+    from ._features import match
+
+    if feature.is_polynomial(z) or feature == sp.sign(z):
+        return True
+    found = match(feature, symbols)
+    return found is not None and (max_degree is None or found[0].power < max_degree)
 
 
 # Features recur across thousands of candidates: their symbols, degrees and names are cached.

@@ -258,9 +258,9 @@ class _Simulator:
     def __init__(self, problem: FitProblem, lhs: tuple[sp.Expr, ...],
                  forcing: tuple[sp.Expr, ...]):
         self.lhs, self.forcing = lhs, forcing
-        degree, extra = split_state_features(lhs, problem.symbols)
+        degree, extra, families = split_state_features(lhs, problem.symbols)
         settings = dict(max_degree=max(3, degree), substeps=problem.substeps, n_bins=1,
-                        extra_state_features=extra,
+                        extra_state_features=extra, families=families,
                         input_interpolation=problem.input_interpolation)
         self.train = PopulationEvaluator(problem.train, problem.symbols, batch=problem.batch,
                                          **settings)

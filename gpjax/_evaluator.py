@@ -71,19 +71,24 @@ def polynomial_state_features(symbols: Symbols, max_degree: int) -> list[sp.Expr
             + [symbols.x_dot ** k for k in range(1, max_degree + 1)])
 
 
-def split_state_features(features, symbols: Symbols) -> tuple[int, tuple[sp.Expr, ...]]:
-    """(max_degree, extra features) of an evaluator whose basis holds ``features``: the
-    highest power of x or x' among the plain powers, and every other feature (products
-    with functions of time, sign(x'), …) compiled in as an extra feature."""
-    degree, extra = 1, []
+def split_state_features(features, symbols: Symbols
+                         ) -> tuple[int, tuple[sp.Expr, ...], tuple[Family, ...]]:
+    """(max_degree, extra features, families) of an evaluator whose basis holds
+    ``features``: the highest power of x or x' among the plain powers, the families of the
+    feature-bank members (:func:`gpjax._features.match`), and every other feature
+    (products with functions of time, sign(x'), …) compiled in as an extra feature."""
+    degree, extra, families = 1, [], []
     powers = {symbols.x, symbols.x_dot}
     for feature in features:
         base, exponent = feature.as_base_exp()
+        found = match(feature, symbols)
         if base in powers and exponent.is_Integer and exponent > 0:
             degree = max(degree, int(exponent))
+        elif found is not None:
+            families += [found[0]] if found[0] not in families else []
         else:
             extra.append(feature)
-    return degree, tuple(extra)
+    return degree, tuple(extra), tuple(families)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -21,6 +21,7 @@ from ._config import GPConfig
 from ._convergence import initial_substeps
 from ._data import Measurement
 from ._evaluator import INVALID_STRUCTURE, OK, PENALTY, PopulationEvaluator, Scores
+from ._features import SIGN_WIDTH, families_for, match, smoothed_sign
 from ._memory import check_fit_memory
 from ._refine import Refiner
 from ._trees import Tree
@@ -104,6 +105,7 @@ class Fitness:
                                measurement.input_names)
         self.evaluator = PopulationEvaluator(
             measurement, self.symbols, max_degree=config.max_degree,
+            families=families_for(config.functions, config.variables, config.max_degree),
             substeps=substeps,
             n_bins=config.n_bins, w_time=config.w_time, w_freq=config.w_freq,
             batch=min(config.population, 512),
@@ -119,6 +121,9 @@ class Fitness:
         self.refiner = Refiner(self.evaluator, iterations=config.refine_iterations,
                                horizons=(1.0,) if config.coefficients == "least_squares"
                                else (0.25, 1.0))
+        #: RMS of x and x' on the data: the scales of the bank's default inner constants
+        self.scales = {role: float(np.sqrt(np.mean(z ** 2))) or 1.0 for role, z in
+                       (("x", self.derivatives.x), ("x_dot", self.derivatives.x_dot))}
         if config.initial_conditions is not None:
             self.y0 = tuple(map(float, config.initial_conditions))
         else:  # eq. 13: response and a robust derivative estimate at the first sample
@@ -133,9 +138,10 @@ class Fitness:
         """(key, canonical form or None, reason) of a tree, cached."""
         if tree not in self.checks:
             check = check_tree(tree, self.symbols, self.config.named_constants,
-                               max_degree=self.config.max_degree)
+                               max_degree=self.config.max_degree, bank=True)
             if check.valid:
-                form = check.canonical
+                form = self._bank_form(check.canonical)
+                check = dataclasses.replace(check, canonical=form)
                 unsupported = [f for f, _ in form.state if self.evaluator.state_index(f) is None]
                 if unsupported:
                     check = dataclasses.replace(
@@ -148,6 +154,21 @@ class Fitness:
             else:
                 self.checks[tree] = ("invalid: " + check.reason, None, check.reason)
         return self.checks[tree]
+
+    def _bank_form(self, form: CanonicalForm) -> CanonicalForm:
+        """``form`` with sign(z) smoothed to tanh(z/ε) (:mod:`gpjax._features`) and every
+        family member written one way (equal inner constants, equal features)."""
+        if not self.evaluator.families:
+            return form
+        widths = {role: SIGN_WIDTH * scale for role, scale in self.scales.items()}
+        state: dict[sp.Expr, float] = {}
+        for feature, value in form.state:
+            feature = smoothed_sign(feature, self.symbols, widths)
+            found = match(feature, self.symbols)
+            if found is not None:
+                feature = found[0].feature(self.symbols, found[1])
+            state[feature] = state.get(feature, 0.0) + value
+        return dataclasses.replace(form, state=tuple(sorted(state.items(), key=lambda p: str(p[0]))))
 
     def records_for(self, trees: list[Tree]) -> list[Record]:
         """Score every tree (new structures in one batch) and return their records."""
@@ -183,11 +204,18 @@ class Fitness:
     # --- records to arrays and back -------------------------------------------------------
     def basis_features(self) -> dict[str, list[sp.Expr]]:
         """Features a one-term move may add: x^k and x'^k (k <= max_degree, where the
-        configured variables allow them), a constant force and each input."""
+        configured variables allow them), each family of the feature bank with default
+        inner constants (sin(z), tanh(z/ε) = smoothed sign(z), exp(z/RMS z)), a constant
+        force and each input."""
         variables = self.config.variables
         state = [symbol ** k for symbol, role in ((self.symbols.x, "x"),
                                                   (self.symbols.x_dot, "x_dot"))
                  if role in variables for k in range(1, self.config.max_degree + 1)]
+        defaults = {"abs": lambda s: (), "tanh": lambda s: (1.0 / (SIGN_WIDTH * s),),
+                    "sin": lambda s: (1.0, 0.0), "cos": lambda s: (1.0, 0.0),
+                    "exp": lambda s: (1.0 / s,)}
+        state += [f.feature(self.symbols, defaults[f.function](self.scales[f.role]))
+                  for f in self.evaluator.families]
         forcing = [sp.Integer(1)] + (list(self.symbols.u) if "u" in variables else [])
         return {"state": state, "forcing": forcing}
 
@@ -247,6 +275,10 @@ def _expression_tree(expression: sp.Expr, symbols: Symbols) -> tuple:
         for _ in range(int(expression.exp) - 1):
             tree = ("mul", base, tree)
         return tree
+    functions = {sp.sin: "sin", sp.cos: "cos", sp.tanh: "tanh", sp.exp: "exp", sp.Abs: "abs",
+                 sp.sign: "sign"}
+    if expression.func in functions:
+        return (functions[expression.func], _expression_tree(expression.args[0], symbols))
     if expression.is_Mul or expression.is_Add:
         head = "mul" if expression.is_Mul else "add"
         parts = [_expression_tree(a, symbols) for a in expression.args]

@@ -173,7 +173,11 @@ class Model:
         return self.equation(numeric=True)
 
     def latex(self) -> str:
-        return sp.latex(self.equation())
+        """LaTeX of :meth:`equation`; the derivatives print as \\dot{x} and \\ddot{x}."""
+        s = self.symbols
+        base = sp.latex(s.x)
+        return sp.latex(self.equation(), symbol_names={
+            s.x: base, s.x_dot: rf"\dot{{{base}}}", s.x_ddot: rf"\ddot{{{base}}}"})
 
     def __str__(self) -> str:
         constants = ", ".join(f"{k} = {v:.6g}" for k, v in self.constants().items())
@@ -184,10 +188,10 @@ class Model:
                   substeps: int | None = None) -> PopulationEvaluator:
         """An RK4 evaluator on ``measurement`` whose basis holds this model's features
         (``substeps`` default: the model's)."""
-        degree, extra = split_state_features(self.coefficients.state, self.symbols)
+        degree, extra, families = split_state_features(self.coefficients.state, self.symbols)
         return _evaluator(measurement, self.symbols, max_degree=degree,
                           substeps=substeps or self.substeps, extra_state_features=extra,
-                          input_interpolation=self.input_interpolation)
+                          families=families, input_interpolation=self.input_interpolation)
 
     def population(self, evaluator: PopulationEvaluator, y0: tuple[float, float]) -> Population:
         """This model as a population of one on ``evaluator``, starting from ``y0``."""

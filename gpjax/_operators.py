@@ -13,7 +13,7 @@ import dataclasses
 import numpy as np
 
 from ._config import GPConfig
-from ._trees import Tree, depth, is_function, nodes, replace, size, subtree
+from ._trees import Tree, arity, depth, is_function, nodes, replace, size, subtree
 
 #: Probability that crossover and mutation pick an internal node rather than a leaf (Koza).
 INTERNAL_NODE_BIAS = 0.9
@@ -82,8 +82,8 @@ class Grammar:
         if max_depth == 0 or (not full and rng.random() >= p_function):
             return self.random_terminal(rng)
         name = self.functions[rng.integers(len(self.functions))]
-        return (name, self.random_tree(rng, max_depth - 1, full=full),
-                self.random_tree(rng, max_depth - 1, full=full))
+        return (name, *(self.random_tree(rng, max_depth - 1, full=full)
+                        for _ in range(arity(name))))
 
     def within_limits(self, tree: Tree) -> bool:
         return depth(tree) <= self.max_depth and size(tree) <= self.max_size

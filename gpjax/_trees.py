@@ -1,7 +1,9 @@
 """Expression trees: immutable nested tuples, hashable so that canonical forms can be cached.
 
 Node forms:
-    ("add" | "sub" | "mul" | "div", left, right)   functions (div is protected)
+    ("add" | "sub" | "mul" | "div", left, right)   binary functions (div is protected)
+    ("sin" | "cos" | "tanh" | "exp" | "abs" | "sign" | "sqrt" | "log", argument)
+                                                    unary functions (sqrt, log protected)
     ("x",) ("x_dot",) ("x_ddot",) ("t",)            response, its derivatives, time
     ("u", k)                                        k-th input column
     ("c", name)                                     named constant (fixed value)
@@ -15,7 +17,9 @@ from typing import Iterator
 
 Tree = tuple
 
-FUNCTION_NODES = ("add", "sub", "mul", "div")
+BINARY_NODES = ("add", "sub", "mul", "div")
+UNARY_NODES = ("sin", "cos", "tanh", "exp", "abs", "sign", "sqrt", "log")
+FUNCTION_NODES = BINARY_NODES + UNARY_NODES
 VARIABLE_NODES = ("x", "x_dot", "x_ddot", "t")
 
 
@@ -23,26 +27,31 @@ def is_function(node: Tree) -> bool:
     return node[0] in FUNCTION_NODES
 
 
+def arity(name: str) -> int:
+    """Number of arguments of a function node."""
+    return 1 if name in UNARY_NODES else 2
+
+
 def size(tree: Tree) -> int:
     """Number of nodes."""
     if is_function(tree):
-        return 1 + size(tree[1]) + size(tree[2])
+        return 1 + sum(size(child) for child in tree[1:])
     return 1
 
 
 def depth(tree: Tree) -> int:
     """Depth of the deepest node; a lone terminal has depth 0."""
     if is_function(tree):
-        return 1 + max(depth(tree[1]), depth(tree[2]))
+        return 1 + max(depth(child) for child in tree[1:])
     return 0
 
 
 def nodes(tree: Tree, path: tuple[int, ...] = ()) -> Iterator[tuple[tuple[int, ...], Tree]]:
-    """Every (path, subtree) pair in prefix order; a path lists child indices (1 or 2)."""
+    """Every (path, subtree) pair in prefix order; a path lists child indices (1, 2)."""
     yield path, tree
     if is_function(tree):
-        yield from nodes(tree[1], path + (1,))
-        yield from nodes(tree[2], path + (2,))
+        for index in range(1, len(tree)):
+            yield from nodes(tree[index], path + (index,))
 
 
 def subtree(tree: Tree, path: tuple[int, ...]) -> Tree:
@@ -64,7 +73,7 @@ def replace(tree: Tree, path: tuple[int, ...], new: Tree) -> Tree:
 def to_json(tree: Tree) -> list:
     """Nested lists (JSON-ready); the inverse of :func:`from_json`."""
     if is_function(tree):
-        return [tree[0], to_json(tree[1]), to_json(tree[2])]
+        return [tree[0], *map(to_json, tree[1:])]
     return list(tree)
 
 
@@ -73,8 +82,8 @@ def from_json(data: list) -> Tree:
     if not isinstance(data, list) or not data or not isinstance(data[0], str):
         raise ValueError(f"malformed tree node {data!r}")
     head = data[0]
-    if head in FUNCTION_NODES and len(data) == 3:
-        return (head, from_json(data[1]), from_json(data[2]))
+    if head in FUNCTION_NODES and len(data) == 1 + arity(head):
+        return (head, *map(from_json, data[1:]))
     if head in VARIABLE_NODES and len(data) == 1:
         return (head,)
     if head == "u" and len(data) == 2 and isinstance(data[1], int):
@@ -97,7 +106,7 @@ def to_text(tree: Tree, names: dict[str, str] | None = None) -> str:
     names = names or {}
     head = tree[0]
     if is_function(tree):
-        return f"{head}({to_text(tree[1], names)}, {to_text(tree[2], names)})"
+        return f"{head}({', '.join(to_text(child, names) for child in tree[1:])})"
     if head == "u":
         return names.get(f"u{tree[1]}", f"u{tree[1]}")
     if head in ("c", "k"):

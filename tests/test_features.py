@@ -139,3 +139,114 @@ def test_an_unused_family_changes_nothing(pendulum):
     with_bank, _ = evaluator.simulate(to_population([model], evaluator))
     without, _ = plain.simulate(to_population([model], plain))
     np.testing.assert_array_equal(with_bank, without)
+
+
+# --- trees, structure rules, fitness, model files ----------------------------------------
+def test_unary_nodes_round_trip_and_stay_within_the_limits():
+    from gpjax._config import GPConfig
+    from gpjax._operators import Grammar, crossover, mutation
+    from gpjax._trees import depth, from_json, size, to_json
+
+    config = GPConfig(functions=("add", "sub", "mul", "sin", "abs", "sign", "exp"))
+    grammar = Grammar.from_config(config, n_inputs=1)
+    rng = np.random.default_rng(3)
+    trees = [grammar.random_tree(rng, 4, full=bool(i % 2)) for i in range(200)]
+    assert any(t[0] in ("sin", "abs", "sign", "exp") for t in trees)
+    for a, b in zip(trees, trees[1:]):
+        assert from_json(to_json(a)) == a
+        for child in (crossover(a, b, grammar, rng), mutation(a, grammar, rng)):
+            assert depth(child) <= config.max_depth and size(child) <= config.max_size
+
+
+def test_the_bank_rule_accepts_family_members_and_names_the_rest():
+    from gpjax._canonical import check_tree
+
+    def tree(term):
+        return ("sub", ("add", ("x_ddot",), term), ("u", 0))
+
+    accepted = [("sin", ("add", ("x",), ("n", 0.3))), ("mul", ("x_dot",), ("abs", ("x_dot",))),
+                ("sign", ("x_dot",)), ("tanh", ("mul", ("n", 2.0), ("x",))), ("exp", ("x",))]
+    for term in accepted:
+        assert check_tree(tree(term), S, {}, max_degree=3, bank=True).valid, term
+    refused = [("mul", ("x",), ("sin", ("x",))), ("log", ("x",)), ("sin", ("mul", ("x",), ("x",))),
+               ("mul", ("x_dot",), ("mul", ("x_dot",), ("mul", ("x_dot",), ("abs", ("x_dot",)))))]
+    for term in refused:
+        check = check_tree(tree(term), S, {}, max_degree=3, bank=True)
+        assert not check.valid and "feature bank" in check.reason, (term, check.reason)
+    # without the bank rule (hand-written structures) any function of x alone is a state term
+    assert check_tree(tree(("mul", ("x",), ("sin", ("x",)))), S, {}).valid
+
+
+def test_fitness_smooths_sign_with_the_data_width_and_writes_members_one_way(pendulum):
+    from gpjax._config import GPConfig
+    from gpjax._features import SIGN_WIDTH
+    from gpjax._fitness import Fitness
+
+    data, _ = pendulum
+    fitness = Fitness(data, GPConfig(population=8, functions=("add", "sub", "mul", "sign", "sin")))
+    _, form, _ = fitness.classify(("sub", ("add", ("x_ddot",), ("sign", ("x_dot",))), ("u", 0)))
+    (feature, _), = form.state
+    family, (theta,) = match(feature, S)
+    assert family == Family("tanh", "x_dot")
+    np.testing.assert_allclose(theta, 1.0 / (SIGN_WIDTH * fitness.scales["x_dot"]))
+    _, a, _ = fitness.classify(("sub", ("add", ("x_ddot",), ("sin", ("x",))), ("u", 0)))
+    _, b, _ = fitness.classify(("sub", ("add", ("x_ddot",), ("sin", ("mul", ("n", 1), ("x",)))),
+                                ("u", 0)))
+    assert a.state == b.state
+
+
+def test_a_hand_written_model_with_functions_loads_simulates_and_prints(pendulum, tmp_path):
+    import json
+
+    from gpjax import Model
+
+    data, _ = pendulum
+    p = TRUTH
+    text = {"variables": {"time": "t", "response": "x", "inputs": ["u"]},
+            "initial_conditions": {"response": 0.1, "response_dot": 0.0},
+            "canonical": {"mass": p["m"], "forcing": [{"feature": "u", "coefficient": 1.0}],
+                          "terms": [{"feature": "x_dot", "coefficient": p["c"]},
+                                    {"feature": f"sin({p['a']}*x + {p['b']})",
+                                     "coefficient": p["k"]},
+                                    {"feature": "x_dot*abs(x_dot)", "coefficient": p["d"]}]},
+            "simulation": {"integrator": {"method": "rk4", "substeps": 4}}}
+    (tmp_path / "model.json").write_text(json.dumps(text))
+    model = Model.load(tmp_path / "model.json")
+    rk4 = model.simulate(data, solver="rk4")
+    reference = model.simulate(data)
+    assert np.max(np.abs(rk4 - reference)) < 1e-6 * np.ptp(reference)
+    latex = model.latex()
+    assert r"\ddot{x}" in latex and r"\sin" in latex and r"\left|{\dot{x}}\right|" in latex
+
+
+@pytest.mark.slow
+def test_gp_finds_the_pendulum_sine_not_a_taylor_polynomial(tmp_path):
+    """A pendulum swinging to ~90° with 1 % noise on response and input: the GP with sin in
+    its function set returns J·x'' + c·x' + k·sin(a·x + b) = u with the constants."""
+    import gpjax
+
+    rng = np.random.default_rng(1)
+    freqs, phases, amps = rng.uniform(0.2, 1.2, 6), rng.uniform(0, 2 * np.pi, 6), \
+        rng.uniform(0.5, 1, 6)
+
+    def torque(t):
+        return 2.4 * np.sum(amps[:, None] * np.sin(2 * np.pi * freqs[:, None]
+                                                   * np.atleast_1d(t) + phases[:, None]), 0)
+
+    t = np.arange(0, 30, 0.01)
+    truth = solve_ivp(lambda s, y: [y[1], torque(s)[0] - 0.3 * y[1] - 9.81 * np.sin(y[0])],
+                      (0, t[-1]), [0, 0], t_eval=t, rtol=1e-10, atol=1e-12, method="DOP853").y[0]
+    assert np.degrees(np.max(np.abs(truth))) > 80
+    u = torque(t)
+    data = Measurement(time=t, response=truth + 0.01 * truth.std() * rng.standard_normal(t.size),
+                       inputs={"u": u + 0.01 * u.std() * rng.standard_normal(t.size)},
+                       time_name="t", response_name="x")
+    config = gpjax.GPConfig(population=200, generations=5, max_degree=3,
+                            functions=("add", "sub", "mul", "sin"))
+    model = gpjax.Identifier(config).fit(data, seed=0).model_
+    (feature, k), = [(f, c) for f, c in model.coefficients.state.items() if f.has(sp.sin)]
+    family, (a, b) = match(feature, S)
+    assert family == Family("sin", "x") and set(model.coefficients.state) == {V, feature}
+    np.testing.assert_allclose([model.mass, model.coefficients.state[V], k, a],
+                               [1.0, 0.3, 9.81, 1.0], rtol=0.01)
+    assert abs(b) < 0.01
