@@ -118,12 +118,15 @@ class Identifier:
                            "epsilon" if last.best_objective <= self.config.epsilon
                            else "generations")
         self._select(fitness, seed, state)
-        compile_s = fitness.evaluator.compile_seconds + fitness.refiner.compile_seconds
+        fits = [fitness]
         converging = time.perf_counter()
         fitness = self._converge(fitness, seed, state)
-        if fitness is not evolution.fitness:
-            compile_s += fitness.evaluator.compile_seconds + fitness.refiner.compile_seconds
-        self.timings_ = {"total_s": time.perf_counter() - began, "compile_s": compile_s,
+        fits += [fitness] if fitness is not evolution.fitness else []
+        self.timings_ = {"total_s": time.perf_counter() - began,
+                         "compile_s": sum(f.evaluator.compile_seconds + f.refiner.compile_seconds
+                                          for f in fits),
+                         "compiles": sum(f.evaluator.compile_count + f.refiner.compile_count
+                                         for f in fits),
                          "convergence_s": time.perf_counter() - converging,
                          "generations": state.generation}
         if out is not None:
@@ -196,9 +199,10 @@ class Identifier:
 
     def _report(self, fitness: Fitness, front: list[Record], chosen: Record, seed: int,
                 state: RunState) -> None:
-        """Set the equations table (``front``, with ``chosen`` marked), history and model."""
-        if chosen.key not in {r.key for r in front}:
-            front = sorted(front + [chosen], key=lambda r: (r.n_terms, r.objective))
+        """Set the equations table (``front``, with ``chosen`` marked, in place of the
+        front's row of its complexity), history and model."""
+        front = sorted([r for r in front if r.n_terms != chosen.n_terms] + [chosen],
+                       key=lambda r: (r.n_terms, r.objective))
         self._front, self._chosen = front, chosen
         self._equation_models = [self._to_model(r, fitness, seed, state) for r in front]
         self.equations_ = [_row(r, model, chosen)

@@ -108,6 +108,11 @@ class Refiner:
         self._compiled: set[int] = set()
         self.compile_seconds = 0.0
 
+    @property
+    def compile_count(self) -> int:
+        """Shapes compiled so far (one per flat-layout width used)."""
+        return len(self._compiled)
+
     def refine(self, population: Population, fixed_forcing: np.ndarray) -> Refinement:
         """Refine every model of ``population``; coefficients that are 0 stay 0.
 
