@@ -107,14 +107,16 @@ def _recovered(model):
 
 
 @pytest.mark.slow
-def test_tree_mode_recovers_eq14_from_an_interval_around_the_truth():
-    # Before every tree-mode candidate was refined, all such runs stalled at phi'' = 0.
-    # The interval shifts the odds rather than deciding them (notebook 2: a wrong interval
-    # also recovers eq. 14 in some seeds), so only the success is asserted.
-    config = GPConfig.paper(coefficients="tree", population=200, generations=10,
-                            interval_constants=_intervals(0.9, 1.1))
-    right = Identifier(config).fit(EXAMPLE.measurement, seed=0)
-    assert right.stopped_by == "epsilon" and _recovered(right.model_), str(right)
+def test_tree_mode_recovers_eq14_from_an_interval_that_excludes_the_truth():
+    # The interval is 0.3–0.6 times the true K1 and K2, so it cannot hold the answer: the
+    # structure comes from the search, the constants from refinement, which leaves the
+    # interval. On this short record a wrong structure can reach f <= epsilon, so the run
+    # goes all ten generations (epsilon = 0). Seeds 0 and 2 of 0–2 recover eq. 14 this way;
+    # before every tree-mode candidate was refined, all runs stalled at phi'' = 0.
+    config = GPConfig.paper(coefficients="tree", population=200, generations=10, epsilon=0.0,
+                            interval_constants=_intervals(0.3, 0.6))
+    found = Identifier(config).fit(EXAMPLE.measurement, seed=0)
+    assert _recovered(found.model_), str(found)
 
 
 @pytest.mark.slow
