@@ -40,6 +40,10 @@ FAMILY_FUNCTIONS = {"abs": ("abs",), "tanh": ("tanh", "sign"), "sin": ("sin",),
 SIGN_WIDTH = 0.01
 #: Largest |exponent argument| evaluated (beyond it exp overflows float64 at 709.8).
 EXP_LIMIT = 700.0
+#: Starts of a family's scale a tried beside the tree's, as a·RMS(z) (tanh: 100 is the
+#: smoothed sign's width; sin/cos keep the tree's phase b).
+INNER_GRID = {"tanh": (1.0, 3.0, 10.0, 100.0), "sin": (0.5, 1.0, 2.0), "cos": (0.5, 1.0, 2.0),
+              "exp": (-2.0, -1.0, -0.5, 0.5, 1.0, 2.0)}
 _INNER = {"abs": 0, "tanh": 1, "sin": 2, "cos": 2, "exp": 1}
 
 

@@ -21,11 +21,12 @@ from ._config import GPConfig
 from ._convergence import initial_substeps
 from ._data import Measurement
 from ._evaluator import INVALID_STRUCTURE, OK, PENALTY, PopulationEvaluator, Scores
-from ._features import SIGN_WIDTH, families_for, match, smoothed_sign
+from ._features import INNER_GRID, SIGN_WIDTH, families_for, match, smoothed_sign
 from ._memory import check_fit_memory
 from ._refine import Refiner
 from ._trees import Tree
-from ._weak_form import WeakForm, least_squares, smoothed_derivatives, smoothing_cutoff_hz
+from ._weak_form import (WeakForm, least_squares, least_squares_residual, smoothed_derivatives,
+                         smoothing_cutoff_hz)
 
 
 @dataclasses.dataclass
@@ -192,6 +193,7 @@ class Fitness:
             coefficients = Coefficients.from_canonical(form, self.y0)
             if self.config.coefficients == "least_squares":
                 state, forcing = form.structure
+                state = self._inner_start(state, forcing)
                 mass, c, g, _ = least_squares(self.weak_form, state, forcing)
                 coefficients = coefficients.replace(
                     mass=float(mass), state=dict(zip(state, map(float, c))),
@@ -200,6 +202,24 @@ class Fitness:
         self._score_records(rows)
         for record in rows:
             self.records[record.key] = record
+
+    def _inner_start(self, state: tuple[sp.Expr, ...], forcing: tuple[sp.Expr, ...]
+                     ) -> tuple[sp.Expr, ...]:
+        """``state`` with each family member's scale a taken from the tree or from
+        :data:`gpjax._features.INNER_GRID`, whichever leaves the smaller weak-form
+        least-squares residual (one feature at a time, in order)."""
+        chosen = list(state)
+        for i, feature in enumerate(state):
+            found = match(feature, self.symbols)
+            if found is None or found[0].n_inner == 0:
+                continue
+            family, theta = found
+            scale = self.scales[family.role]
+            options = [feature] + [family.feature(self.symbols, (g / scale, *theta[1:]))
+                                   for g in INNER_GRID[family.function]]
+            chosen[i] = min(options, key=lambda f: least_squares_residual(
+                self.weak_form, tuple(chosen[:i] + [f] + chosen[i + 1:]), forcing))
+        return tuple(chosen)
 
     # --- records to arrays and back -------------------------------------------------------
     def basis_features(self) -> dict[str, list[sp.Expr]]:

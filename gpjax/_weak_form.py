@@ -175,11 +175,7 @@ def least_squares(weak: WeakForm, lhs: tuple[sp.Expr, ...], forcing: tuple[sp.Ex
     coefficients, solution vector of :func:`design`'s problem), columns scaled to unit norm
     for the solve. The first input's coefficient is 1 if present, else the mass is 1."""
     matrix, target, normalise = design(weak, lhs, forcing)
-    solution = np.zeros(0)
-    if matrix.shape[1]:
-        scale = np.linalg.norm(matrix, axis=0)
-        scale[scale == 0] = 1.0
-        solution = np.linalg.lstsq(matrix / scale, target, rcond=None)[0] / scale
+    solution = _solve(matrix, target)
     k = 1 if normalise else 0
     mass = float(solution[0]) if normalise else 1.0
     coefficients = solution[k:k + len(lhs)]
@@ -187,3 +183,20 @@ def least_squares(weak: WeakForm, lhs: tuple[sp.Expr, ...], forcing: tuple[sp.Ex
     forcing_coefficients = np.array([1.0 if normalise and g == weak.u0 else float(next(rest))
                                      for g in forcing])
     return mass, coefficients, forcing_coefficients, solution
+
+
+def least_squares_residual(weak: WeakForm, lhs: tuple[sp.Expr, ...],
+                           forcing: tuple[sp.Expr, ...]) -> float:
+    """Norm of the weak-form least-squares residual of a structure (how much of the data
+    its features leave unexplained), in the weak form's units."""
+    matrix, target, _ = design(weak, lhs, forcing)
+    return float(np.linalg.norm(target - matrix @ _solve(matrix, target)))
+
+
+def _solve(matrix: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """Least-squares solution with columns scaled to unit norm for the solve."""
+    if not matrix.shape[1]:
+        return np.zeros(0)
+    scale = np.linalg.norm(matrix, axis=0)
+    scale[scale == 0] = 1.0
+    return np.linalg.lstsq(matrix / scale, target, rcond=None)[0] / scale

@@ -250,3 +250,22 @@ def test_gp_finds_the_pendulum_sine_not_a_taylor_polynomial(tmp_path):
     np.testing.assert_allclose([model.mass, model.coefficients.state[V], k, a],
                                [1.0, 0.3, 9.81, 1.0], rtol=0.01)
     assert abs(b) < 0.01
+
+
+def test_inner_constants_start_from_the_grid_when_the_tree_scale_is_wrong(pendulum):
+    """Data in degrees: sin(x) from a tree oscillates 57 times too fast; the grid of a·RMS(x)
+    gives a start near π/180 that explains the data far better."""
+    from gpjax._config import GPConfig
+    from gpjax._fitness import Fitness
+    from gpjax._weak_form import least_squares_residual
+
+    data, _ = pendulum
+    degrees = Measurement(time=data.time, response=np.degrees(data.response),
+                          inputs=data.inputs, time_name="t", response_name="x")
+    fitness = Fitness(degrees, GPConfig(population=8, functions=("add", "sub", "mul", "sin")))
+    forcing = (U,)
+    start, = [f for f in fitness._inner_start((V, sp.sin(X)), forcing) if f.has(sp.sin)]
+    _, (a, _) = match(start, S)
+    assert 0.25 < a / (np.pi / 180) < 4
+    assert least_squares_residual(fitness.weak_form, (V, start), forcing) < 0.5 * \
+        least_squares_residual(fitness.weak_form, (V, sp.sin(X)), forcing)
