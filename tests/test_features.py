@@ -121,7 +121,7 @@ def test_levenberg_marquardt_refines_inner_and_outer_constants_together(pendulum
     _, evaluator = pendulum
     start = _truth(a=1.0, b=0.0).replace(state={V: 0.3, sp.sin(X): 8.0, V * sp.Abs(V): 0.4})
     population = to_population([start], evaluator)
-    refiner = Refiner(evaluator, iterations=30, batch=1, horizons=(0.25, 1.0))
+    refiner = Refiner(evaluator, iterations=20, batch=1, horizons=(1.0,))
     refined = refiner.refine(population, np.array([evaluator.forcing_index(U)]))
     found = from_population(refined.population, evaluator, [start])[0]
     (feature, k), = [(f, c) for f, c in found.state.items() if f.has(sp.sin)]
