@@ -296,6 +296,27 @@ class PopulationEvaluator:
         """The flat constant vector of one model on this evaluator's columns."""
         return FlatLayout(len(self.state_features), self.forcing_capacity, self.n_inner)
 
+    @property
+    def plain_layout(self) -> FlatLayout:
+        """:attr:`layout` without the families' columns and inner constants (models that
+        use no family; see :meth:`plain_rows`)."""
+        return FlatLayout(len(self.state_features) - len(self.families),
+                          self.forcing_capacity, 0)
+
+    def plain_rows(self, population: Population) -> np.ndarray:
+        """(P,) whether each model uses no family: such models are simulated and refined
+        without the bank's columns (the same compiled code traced for narrower arrays), so
+        polynomial candidates never pay for the families' transcendental functions."""
+        return ~np.any(population.state[:, self.plain_layout.n_state:] != 0, axis=1)
+
+    def narrowed(self, population: Population) -> Population:
+        """``population`` on :attr:`plain_layout` (its family columns dropped)."""
+        return Population(population.mass, population.state[:, :self.plain_layout.n_state],
+                          population.forcing, population.y0, population.inner[:, :0])
+
+    def _layout_of(self, width: int) -> FlatLayout:
+        return self.layout if width == self.layout.width else self.plain_layout
+
     def forcing_values(self, feature: sp.Expr, times: np.ndarray,
                        inputs: dict[str, np.ndarray]) -> np.ndarray:
         """A forcing feature ψ(t, u) evaluated (numpy) at ``times`` with ``inputs``."""
@@ -321,26 +342,37 @@ class PopulationEvaluator:
         return responses, scores
 
     def _batched(self, population: Population, *, responses: bool):
+        """Scores (and responses) of ``population`` in padded batches, models that use no
+        family apart on :attr:`plain_layout` (one more compile;
+        ``benchmarks/bench_feature_bank.py``)."""
         count = len(population)
         if count == 0:
             empty = np.zeros(0)
             return (Scores(empty, empty, empty, empty, empty.astype(int), np.zeros((0, 2))),
                     np.zeros((0, 0)))
-        forcing = _pad_columns(population.forcing, self.forcing_capacity)
-        parts, paths = [], []
-        for size, chunk in padded_chunks((population.mass, population.state, forcing,
-                                          population.y0, population.inner), self.batch):
-            out = self._call(*chunk)
-            parts.append([np.asarray(o)[:size] for o in out[:6]])
-            if responses:
-                paths.append(np.asarray(out[6])[:size])
-        stacked = [np.concatenate(p) for p in zip(*parts)]
+        plain = self.plain_rows(population)
+        parts, paths, order = [], [], []
+        for rows in (np.flatnonzero(plain), np.flatnonzero(~plain)):
+            if not rows.size:
+                continue
+            part = population.rows(rows)
+            part = self.narrowed(part) if plain[rows[0]] else part
+            forcing = _pad_columns(part.forcing, self.forcing_capacity)
+            for size, chunk in padded_chunks((part.mass, part.state, forcing, part.y0,
+                                              part.inner), self.batch):
+                out = self._call(*chunk)
+                parts.append([np.asarray(o)[:size] for o in out[:6]])
+                if responses:
+                    paths.append(np.asarray(out[6])[:size])
+            order.append(rows)
+        back = np.argsort(np.concatenate(order))
+        stacked = [np.concatenate(p)[back] for p in zip(*parts)]
         scores = Scores(objective=stacked[0], f_time=stacked[1], f_freq=stacked[2],
                         rms=stacked[3], status=stacked[4].astype(int), y0=stacked[5])
-        return scores, (np.concatenate(paths) if responses else None)
+        return scores, (np.concatenate(paths)[back] if responses else None)
 
     def _call(self, mass, state, forcing, y0, inner):
-        key = self.forcing_capacity
+        key = (self.forcing_capacity, state.shape[1])
         start = time.perf_counter()
         out = jax.block_until_ready(self._run(
             *map(jnp.asarray, (mass, state, forcing, y0, inner, self._forcing_basis))))
@@ -481,7 +513,7 @@ class PopulationEvaluator:
         """One model's flat constant vector (:attr:`layout`) as :meth:`scan_solve`
         arguments for a population of one: mass (1,), state (1, F_state), forcing
         (n_stage, 1) from the rows of ``forcing_basis`` (which set n_stage), y0 (1, 2)."""
-        mass, state, forcing, inner, y0 = self.layout.split(constants)
+        mass, state, forcing, inner, y0 = self._layout_of(constants.shape[-1]).split(constants)
         return (mass[None], state[None], (forcing_basis @ forcing)[:, None], y0[None],
                 inner[None])
 
@@ -489,7 +521,8 @@ class PopulationEvaluator:
         """x of one model (:meth:`unpack`) at the sample times, (N,), and its derivatives
         along ``directions`` (Q, len(constants)) of the flat constant vector, (N, Q), by
         :meth:`scan_jvp`."""
-        d_mass, d_state, d_forcing, d_inner, d_y0 = self.layout.split(directions[:, None, :])
+        d_mass, d_state, d_forcing, d_inner, d_y0 = self._layout_of(
+            constants.shape[-1]).split(directions[:, None, :])
         mass, state, forcing_matrix, y0, inner = self.unpack(constants, forcing_basis)
         x, dx = self.scan_jvp(mass, state, forcing_matrix, y0, d_y0, inner=inner,
                               d_mass=d_mass, d_state=d_state, d_inner=d_inner,

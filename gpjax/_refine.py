@@ -122,16 +122,33 @@ class Refiner:
                 first input), or −1 where the mass is the normalised constant instead.
         """
         ev = self.evaluator
+        plain = ev.plain_rows(population)
+        if plain.all() or not plain.any():
+            return self._refine(population, fixed_forcing, bool(plain[0]))
+        rows = [np.flatnonzero(plain), np.flatnonzero(~plain)]
+        parts = [self._refine(population.rows(r), np.asarray(fixed_forcing)[r],
+                              bool(plain[r[0]])) for r in rows]
+        back = np.argsort(np.concatenate(rows))
+        merged = Population.concatenate(p.population for p in parts)
+        return Refinement(population=merged.rows(back),
+                          succeeded=np.concatenate([p.succeeded for p in parts])[back],
+                          steps=np.concatenate([p.steps for p in parts])[back])
+
+    def _refine(self, population: Population, fixed_forcing: np.ndarray,
+                plain: bool) -> Refinement:
+        """:meth:`refine` of models that all use no family (``plain``: on the evaluator's
+        :attr:`~PopulationEvaluator.plain_layout`) or all on its full layout."""
+        ev = self.evaluator
         count = len(population)
-        layout = ev.layout
-        start = layout.pack(population)
+        layout = ev.plain_layout if plain else ev.layout
+        start = layout.pack(ev.narrowed(population) if plain else population)
         scale = np.abs(start)
         scale[:, -2:] = self._state_scale
         free = scale > 0
         free[:, -2:] = True
         for i, column in enumerate(np.asarray(fixed_forcing)):
             free[i, layout.forcing_column(column) if column >= 0 else 0] = False
-        for column, slots in ev.inner_columns():  # θ move where their family is used
+        for column, slots in ([] if plain else ev.inner_columns()):  # θ move where used
             used = population.state[:, column] != 0
             free[:, [layout.inner_column(k) for k in range(slots.start, slots.stop)]] = \
                 used[:, None]
@@ -154,6 +171,10 @@ class Refiner:
             outputs.append([np.asarray(o)[:size] for o in out])
         params, ok, steps = (np.concatenate(p) for p in zip(*outputs))
         refined = layout.population(params, population.forcing.shape[1])
+        if plain:  # back on the full layout: the family columns and θ as they were
+            refined = Population(refined.mass, np.concatenate(
+                [refined.state, population.state[:, layout.n_state:]], axis=1),
+                refined.forcing, refined.y0, population.inner)
         return Refinement(population=refined, succeeded=ok.astype(bool), steps=steps)
 
     def _refine_one(self, start, index, index_scale, forcing_basis):
