@@ -141,13 +141,15 @@ def run_epoch(measurement: Measurement, config: GPConfig, island: int, seed: int
     Returns:
         ``state`` (the new island state), ``emigrants`` (its best ``migrants`` distinct
         valid structures: tree and record), ``worker`` (address), ``built`` (whether the
-        engine was compiled here), ``seconds`` and ``compile_s``.
+        engine was compiled here), ``generations`` (run here, generation 0 included),
+        ``seconds`` and ``compile_s``.
     """
     began = time.perf_counter()
     evolution, built = _engine(measurement, config, island, state)
     fitness = evolution.fitness
     compiled = fitness.evaluator.compile_seconds + fitness.refiner.compile_seconds
     run = evolution.start(seed) if state is None else RunState.from_json(state, fitness)
+    first = run.generation if state is not None else -1
     while run.generation < until and not run.done:
         run = evolution.step(run)
     head = run.population[:migrants]  # ranked, distinct structures first
@@ -155,7 +157,8 @@ def run_epoch(measurement: Measurement, config: GPConfig, island: int, seed: int
                  for tree, record in zip(head, fitness.records_for(head))
                  if record.valid and record.status == OK]
     return {"state": run.to_json(fitness), "emigrants": emigrants, "worker": worker_address(),
-            "built": built, "seconds": time.perf_counter() - began,
+            "built": built, "generations": run.generation - first,
+            "seconds": time.perf_counter() - began,
             "compile_s": (fitness.evaluator.compile_seconds + fitness.refiner.compile_seconds
                           - compiled)}
 
@@ -251,6 +254,7 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
         epoch, states = 0, [None] * islands
     seeds = island_seeds(seed, islands)
     tasks: list[dict] = []
+    epochs: list[dict] = []
     from tqdm.auto import tqdm
 
     with dask_client(scheduler, workers=min(islands, os.cpu_count() or 1)) as client, \
@@ -261,14 +265,17 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
         run_id = uuid.uuid4().hex[:8]
         while not _finished(states, config) and not stop.requested:
             until = min((epoch + 1) * migration.every, config.generations)
+            submitted = time.perf_counter()
             futures = [client.submit(
                 run_epoch, measurement, configs[i], i, seeds[i], states[i], until,
                 migration.migrants, key=f"gpjax-island-{run_id}-{epoch}-{i}", pure=False,
                 **({"workers": placement[i], "allow_other_workers": True} if placement[i]
                    else {})) for i in range(islands)]
             results = client.gather(futures)
+            gathered = time.perf_counter()
             placement = [r["worker"] for r in results]
-            tasks += [{k: r[k] for k in ("worker", "built", "seconds", "compile_s")}
+            tasks += [{k: r[k] for k in ("worker", "built", "generations", "seconds",
+                                         "compile_s")}
                       | {"epoch": epoch, "island": i} for i, r in enumerate(results)]
             epoch += 1
             states = [r["state"] for r in results]
@@ -279,13 +286,16 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
             states = json.loads(text)["islands"]  # as a resumed run reads them
             if out is not None:
                 write_text_atomic(out / "checkpoint.json", text)
+            epochs.append({"epoch": epoch - 1, "wall_s": gathered - submitted,
+                           "client_s": time.perf_counter() - gathered,
+                           "checkpoint_bytes": len(text)})
             bar.update(min(until, config.generations) - bar.n)
     fitness = Fitness(measurement, configs[0])
     state = RunState.from_json(merged_state(states), fitness)
     identifier.measurement_ = measurement
     identifier._provenance = {"islands": islands} | settings
     identifier._finish(fitness, seed, state, began=began, out=out, interrupted=stop.requested)
-    identifier.timings_ |= {"epochs": epoch, "island_tasks": tasks,
+    identifier.timings_ |= {"epochs": epoch, "island_tasks": tasks, "epoch_timings": epochs,
                             "worker_compile_s": sum(t["compile_s"] for t in tasks)}
     return identifier
 
