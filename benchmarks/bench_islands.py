@@ -130,9 +130,11 @@ def model() -> dict:
     island = [t["seconds"] / t["generations"] for r in compare_runs
               if r["mode"] == "2 islands" and r["epsilon"] == 0.0
               for t in r["island_tasks"] if not t["built"]]
-    ks = np.array([r["islands"] for r in over], float)
-    scheduling = np.array([r["wall_s"] - r["ideal_s"] for r in over])
-    client = np.array([r["client_s"] for r in over])
+    ks = np.array(sorted({r["islands"] for r in over}), float)  # medians per K (a loaded
+    scheduling = np.array([np.median([r["wall_s"] - r["ideal_s"] for r in over  # machine)
+                                      if r["islands"] == k]) for k in ks])
+    client = np.array([np.median([r["client_s"] for r in over if r["islands"] == k])
+                       for k in ks])
     sched_fit = np.polyfit(ks, scheduling, 1)
     client_fit = np.polyfit(ks, client, 1)
     t_gen = float(np.median(island))

@@ -12,6 +12,8 @@ from __future__ import annotations
 import contextlib
 import logging
 import re
+import signal
+import threading
 from typing import Iterator
 
 from ._errors import UserInputError
@@ -41,10 +43,18 @@ def dask_client(scheduler: str | None, *, workers: int) -> Iterator:
     from distributed import Client, LocalCluster
 
     if scheduler is None:
-        with LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
-                          dashboard_address=None, silence_logs=logging.ERROR) as cluster:
-            with Client(cluster) as client:
-                yield client
+        # Workers start with Ctrl-C ignored (inherited), so it reaches only this process,
+        # which stops after the current epoch; the cluster stays up to finish it.
+        main = threading.current_thread() is threading.main_thread()
+        previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+        try:
+            cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
+                                   dashboard_address=None, silence_logs=logging.ERROR)
+        finally:
+            if previous is not None:
+                signal.signal(signal.SIGINT, previous)
+        with cluster, Client(cluster) as client:
+            yield client
         return
     check_scheduler_address(scheduler)
     try:

@@ -39,15 +39,7 @@ def _parser() -> argparse.ArgumentParser:
     demo.add_argument("--generations", type=int, help="maximum generations (default 10)")
     fit = commands.add_parser("fit", help="identify a model from a CSV file")
     fit.add_argument("data", help="CSV file with a header row")
-    fit.add_argument("--time", required=True, help="name of the time column (seconds)")
-    fit.add_argument("--response", required=True, help="name of the measured response column")
-    fit.add_argument("--input", action="append", default=[], dest="inputs",
-                     help="name of an input column (repeat for several)")
-    fit.add_argument("--config", help="TOML file of settings (see README)")
-    fit.add_argument("--population", type=int, help="individuals per generation")
-    fit.add_argument("--generations", type=int, help="maximum generations")
-    fit.add_argument("--seed", type=_non_negative, default=0, help="random seed (default: 0)")
-    fit.add_argument("--out", default="gpjax-run", help="run folder (default: gpjax-run)")
+    _fit_options(fit, out="gpjax-run")
     fit.add_argument("--resume", action="store_true", help="continue the run in --out")
     fit.add_argument("--diagnose", action="store_true",
                      help="after the GP, diagnose missing effects (report in OUT/diagnosis)")
@@ -63,15 +55,7 @@ def _parser() -> argparse.ArgumentParser:
     many = commands.add_parser("fit-many", help="fit every CSV file of a folder (or a glob), "
                                "one Dask task each; writes OUT/summary.csv")
     many.add_argument("source", help="folder of CSV files, or a quoted glob like 'data/*.csv'")
-    many.add_argument("--time", required=True, help="name of the time column (seconds)")
-    many.add_argument("--response", required=True, help="name of the response column")
-    many.add_argument("--input", action="append", default=[], dest="inputs",
-                      help="name of an input column (repeat for several)")
-    many.add_argument("--config", help="TOML file of settings (see README)")
-    many.add_argument("--population", type=int, help="individuals per generation")
-    many.add_argument("--generations", type=int, help="maximum generations")
-    many.add_argument("--seed", type=_non_negative, default=0, help="random seed (default: 0)")
-    many.add_argument("--out", default="gpjax-many", help="folder (default: gpjax-many)")
+    _fit_options(many, out="gpjax-many")
     many.add_argument("--workers", type=int, help="local workers (default: one per core)")
     _scheduler_option(many)
     diagnose = commands.add_parser("diagnose", help="trace a model's residual to missing "
@@ -95,6 +79,20 @@ def _parser() -> argparse.ArgumentParser:
                           help="response and its derivative at the first sample (default: "
                           "estimated from the data's first samples, eq. 13)")
     return parser
+
+
+def _fit_options(parser, *, out: str) -> None:
+    parser.add_argument("--time", required=True, help="name of the time column (seconds)")
+    parser.add_argument("--response", required=True,
+                        help="name of the measured response column")
+    parser.add_argument("--input", action="append", default=[], dest="inputs",
+                        help="name of an input column (repeat for several)")
+    parser.add_argument("--config", help="TOML file of settings (see README)")
+    parser.add_argument("--population", type=int, help="individuals per generation")
+    parser.add_argument("--generations", type=int, help="maximum generations")
+    parser.add_argument("--seed", type=_non_negative, default=0,
+                        help="random seed (default: 0)")
+    parser.add_argument("--out", default=out, help=f"run folder (default: {out})")
 
 
 def _scheduler_option(parser) -> None:
