@@ -172,23 +172,32 @@ def test_losing_a_worker_mid_run_does_not_lose_the_run(reference, tmp_path):
     assert (tmp_path / "model.json").read_text() == (reference[1] / "model.json").read_text()
 
 
-def test_fit_many_writes_every_good_record_and_a_row_per_bad_one(cluster, tmp_path):
+def test_fit_many_writes_every_good_record_and_a_row_per_bad_one(cluster, tmp_path, capsys):
+    import csv
+
+    from gpjax.cli import main
+
     data = tmp_path / "records"
     data.mkdir()
     for seed in (0, 1):
         _measurement(seed).to_csv(data / f"gear{seed}.csv")
     (data / "broken.csv").write_text("t,phi,T\n0,1,2\n")
-    rows = fit_many(data, time="t", response="phi", inputs=("T",),
-                    config=GPConfig.paper(**SMALL | {"generations": 1}), out=tmp_path / "out",
-                    scheduler=cluster[0].scheduler_address)
+    (tmp_path / "small.toml").write_text("population = 24\ngenerations = 1\nrefine_top = 2\n")
+    status = main(["fit-many", str(data), "--time", "t", "--response", "phi", "--input", "T",
+                   "--config", str(tmp_path / "small.toml"), "--out", str(tmp_path / "out"),
+                   "--scheduler", cluster[0].scheduler_address])
+    err = capsys.readouterr().err
+    assert status == 2 and err.startswith("gpjax: error: 1 of 3 records failed")
+    rows = list(csv.DictReader((tmp_path / "out" / "summary.csv").open()))
     assert [r["record"] for r in rows] == ["broken", "gear0", "gear1"]
     assert "1 data rows" in rows[0]["error"] and not rows[0]["equation"]
-    assert all(r["error"] == "" and "phi_ddot" in r["equation"] and r["rms"] > 0
+    assert all(r["error"] == "" and "phi_ddot" in r["equation"] and float(r["rms"]) > 0
                for r in rows[1:])
-    summary = (tmp_path / "out" / "summary.csv").read_text().splitlines()
-    assert summary[0] == "record,equation,constants,rms,seconds,error" and len(summary) == 4
     assert (tmp_path / "out" / "gear1" / "model.json").is_file()
     assert not (tmp_path / "out" / "broken").exists()
+    assert fit_many(data / "gear0.csv", time="t", response="phi", inputs=("T",),
+                    config=GPConfig(population=24, generations=1), out=tmp_path / "one",
+                    scheduler=cluster[0].scheduler_address)[0]["error"] == ""
 
 
 # --- compilation cache --------------------------------------------------------------------
