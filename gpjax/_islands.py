@@ -244,6 +244,10 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
     migration = migration or Migration()
     config = identifier.config
     configs = island_configs(config, islands)
+    if migration.migrants >= configs[-1].population:
+        raise UserInputError(f"{migration.migrants} migrants would replace a whole island of "
+                             f"{configs[-1].population}; send fewer (--migrants) or use "
+                             "fewer islands")
     out = Path(out) if out is not None else None
     fingerprint = measurement.fingerprint()
     began = time.perf_counter()

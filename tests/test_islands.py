@@ -65,6 +65,11 @@ def test_migration_settings_validate_themselves():
         Migration(every=0)
     with pytest.raises(UserInputError, match="topology"):
         Migration(topology="star")
+    with pytest.raises(UserInputError, match="would replace a whole island of 12"):
+        Identifier(GPConfig(population=24)).fit(_measurement(), islands=2,
+                                                migration=Migration(migrants=12))
+    with pytest.raises(UserInputError, match="need islands"):
+        Identifier(GPConfig(population=24)).fit(_measurement(), scheduler="tcp://h:1")
 
 
 def _island(name, objectives):
