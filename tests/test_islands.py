@@ -161,13 +161,18 @@ def test_losing_a_worker_mid_run_does_not_lose_the_run(reference, tmp_path):
 
     with LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
                       dashboard_address=None) as local, Client(local) as client:
-        pids = list(client.run(os.getpid).values())
+        pids = client.run(os.getpid)
         killed = {}
 
         def kill():
-            time.sleep(4.0)  # tasks of epoch 0 are compiling (no compilation cache here)
+            busy = []
+            while not busy:
+                busy = [worker for worker, keys in client.processing().items()
+                        if any("gpjax-island" in str(key) for key in keys)]
+                time.sleep(0.05)
+            time.sleep(1.0)  # epoch 0 builds the engines: seconds of compiling, no cache here
             killed["before_first_checkpoint"] = not (tmp_path / "checkpoint.json").exists()
-            os.kill(pids[0], signal.SIGKILL)
+            os.kill(pids[busy[0]], signal.SIGKILL)
 
         threading.Thread(target=kill, daemon=True).start()
         Identifier(GPConfig.paper(**SMALL)).fit(
