@@ -120,6 +120,25 @@ def test_same_seed_and_islands_give_the_same_model_bit_for_bit(cluster, referenc
     assert len(checkpoint["islands"]) == 2 and checkpoint["epoch"] == 2
 
 
+def test_the_command_line_runs_islands_and_resumes_them(cluster, tmp_path, capsys):
+    from gpjax.cli import main
+
+    _measurement(2).to_csv(tmp_path / "d.csv")
+    (tmp_path / "c.toml").write_text("population = 24\ngenerations = 2\nrefine_top = 2\n")
+    command = ["fit", str(tmp_path / "d.csv"), "--time", "t", "--response", "phi", "--input",
+               "T", "--config", str(tmp_path / "c.toml"), "--out", str(tmp_path / "run"),
+               "--islands", "2", "--migrate-every", "1", "--migrants", "1", "--topology",
+               "random", "--scheduler", cluster[0].scheduler_address]
+    assert main(command) == 0
+    text = (tmp_path / "run" / "model.json").read_text()
+    provenance = json.loads(text)["provenance"]
+    assert provenance["islands"] == 2
+    assert provenance["migration"] == {"every": 1, "migrants": 1, "topology": "random"}
+    assert main(command + ["--resume"]) == 0  # a finished run: selection and write-out again
+    assert (tmp_path / "run" / "model.json").read_text() == text
+    assert "phi_ddot" in capsys.readouterr().out
+
+
 def test_each_worker_builds_its_island_once(reference):
     tasks = reference[0].timings_["island_tasks"]
     assert sum(t["built"] for t in tasks) == 2
