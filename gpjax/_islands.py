@@ -201,7 +201,8 @@ def merged_state(states: list[dict]) -> dict:
     """One state JSON holding every island's records (the best of a key's copies), for the
     final selection; its history has one row per generation across islands (best
     objective and its key over islands, median of the island medians, mean valid
-    fraction, distinct structures summed over islands, the slowest island's seconds)."""
+    fraction, distinct structures summed over islands, the slowest island's seconds); an
+    island that stopped early (it reached epsilon) counts with its last row."""
     records: dict[str, dict] = {}
     for state in states:
         for record in state["records"]:
@@ -210,7 +211,7 @@ def merged_state(states: list[dict]) -> dict:
                 records[record["key"]] = record
     history = []
     for generation in range(max(len(s["history"]) for s in states)):
-        rows = [s["history"][generation] for s in states if generation < len(s["history"])]
+        rows = [s["history"][min(generation, len(s["history"]) - 1)] for s in states]
         best = min(rows, key=lambda r: r["best_objective"])
         medians = [r["median_objective"] for r in rows if r["median_objective"] is not None]
         history.append(dataclasses.asdict(GenerationStats(
@@ -230,7 +231,9 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
                 islands: int | None, scheduler: str | None, migration: Migration | None,
                 progress: bool | None = None):
     """:meth:`Identifier.fit` with ``islands`` (see the module docstring); returns the
-    fitted ``identifier``.
+    fitted ``identifier``, whose ``timings_`` also hold ``epochs``, ``island_tasks`` (per
+    task: worker, built, generations, seconds, compile_s), ``epoch_timings`` (wall,
+    client seconds, checkpoint bytes) and ``worker_compile_s``.
 
     Raises:
         UserInputError: no ``islands`` given, bad island settings, a bad checkpoint to

@@ -104,6 +104,9 @@ def test_merged_history_takes_the_best_island_per_generation():
     assert merged["history"][0]["best_key"] == "b"
     assert merged["history"][0]["unique_structures"] == 6
     assert merged["records"] == [{"key": "k", "objective": 1.0}]
+    states[0]["history"].append(row | {"generation": 1, "best_objective": 3.0,
+                                       "best_key": "a"})  # b stopped after generation 0
+    assert merged_state(states)["history"][1]["best_key"] == "b"
 
 
 # --- on the cluster -----------------------------------------------------------------------
