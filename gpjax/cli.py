@@ -92,7 +92,7 @@ def _fit_options(parser, *, out: str) -> None:
     parser.add_argument("--generations", type=int, help="maximum generations")
     parser.add_argument("--seed", type=_non_negative, default=0,
                         help="random seed (default: 0)")
-    parser.add_argument("--out", default=out, help=f"run folder (default: {out})")
+    parser.add_argument("--out", default=out, help=f"output folder (default: {out})")
 
 
 def _scheduler_option(parser) -> None:
