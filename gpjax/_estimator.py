@@ -63,10 +63,12 @@ class Identifier:
         self._front: list[Record] = []
         self._chosen: Record | None = None
         self._reference: np.ndarray | None = None
+        self._provenance: dict = {}  # added to the model file's provenance (island runs)
 
     # --- fitting ----------------------------------------------------------------------
     def fit(self, measurement: Measurement, *, seed: int = 0, out: str | Path | None = None,
-            resume: bool = False, progress: bool | None = None) -> "Identifier":
+            resume: bool = False, progress: bool | None = None, islands: int | None = None,
+            scheduler: str | None = None, migration=None) -> "Identifier":
         """Run GP on ``measurement``.
 
         Args:
@@ -75,12 +77,25 @@ class Identifier:
             out: run folder for outputs and checkpoints (created if needed).
             resume: continue from ``out/checkpoint.json`` instead of starting afresh.
             progress: show a progress bar (default: only on a terminal).
+            islands: run K sub-populations (``population`` shared among them) on Dask with
+                migration (:mod:`gpjax._islands`); ``None``: one population in this process.
+            scheduler: address of a running Dask scheduler (``tcp://HOST:PORT``) for the
+                islands; ``None`` starts a ``distributed.LocalCluster``.
+            migration: a :class:`gpjax._islands.Migration` (default: ring, every 2
+                generations, 2 migrants).
 
         Raises:
-            UserInputError: resuming without a checkpoint, or with other data or settings.
+            UserInputError: resuming without a checkpoint, or with other data or settings;
+                bad island settings or an unreachable scheduler.
         """
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise UserInputError(f"seed must be a non-negative integer, got {seed!r}")
+        if islands is not None or scheduler is not None or migration is not None:
+            from ._islands import fit_islands
+
+            return fit_islands(self, measurement, seed=seed, out=out, resume=resume,
+                               islands=islands, scheduler=scheduler, migration=migration,
+                               progress=progress)
         began = time.perf_counter()
         out = Path(out) if out is not None else None
         fitness = Fitness(measurement, self.config)
@@ -112,16 +127,22 @@ class Identifier:
                     bar.set_postfix(best=f"{state.history[-1].best_objective:.4g}")
             finally:
                 bar.close()
-        interrupted = stop.requested
+        return self._finish(fitness, seed, state, began=began, out=out,
+                            interrupted=stop.requested)
+
+    def _finish(self, fitness: Fitness, seed: int, state: RunState, *, began: float,
+                out: Path | None, interrupted: bool) -> "Identifier":
+        """Select, convergence-check and write the reported model of a finished search
+        (``fitness`` holds every scored record; shared by one-process and island runs)."""
         last = state.history[-1]
         self.stopped_by = ("interrupted" if interrupted else
                            "epsilon" if last.best_objective <= self.config.epsilon
                            else "generations")
         self._select(fitness, seed, state)
-        fits = [fitness]
         converging = time.perf_counter()
+        fits = [fitness]
         fitness = self._converge(fitness, seed, state)
-        fits += [fitness] if fitness is not evolution.fitness else []
+        fits += [fitness] if fitness is not fits[0] else []
         self.timings_ = {"total_s": time.perf_counter() - began,
                          "compile_s": sum(f.evaluator.compile_seconds + f.refiner.compile_seconds
                                           for f in fits),
@@ -138,6 +159,9 @@ class Identifier:
             raise UserInputError(f"no checkpoint to resume in {out}; run without --resume first")
         try:
             payload = json.loads((out / CHECKPOINT).read_text(encoding="utf-8"))
+            if "islands" in payload:
+                raise UserInputError(f"{out / CHECKPOINT} was written by an island run; resume "
+                                     f"with --islands {len(payload['islands'])}")
             if payload["data"] != fingerprint:
                 raise UserInputError(f"{out / CHECKPOINT} was written for other data; resume "
                                      "with the same CSV and columns")
@@ -220,7 +244,7 @@ class Identifier:
             provenance={"seed": seed, "generations": state.generation,
                         "stopped_by": self.stopped_by, "population": self.config.population,
                         "coefficients": self.config.coefficients,
-                        "data": fitness.measurement.fingerprint()})
+                        "data": fitness.measurement.fingerprint()} | self._provenance)
 
     def _write(self, out: Path, fitness: Fitness) -> None:
         self.model_.save(out / "model.json")

@@ -7,7 +7,8 @@ reference that checks them is :mod:`gpjax._reference`.
 
 gpjax computes in float64: :func:`enable_float64` switches JAX's ``jax_enable_x64`` on
 when gpjax first builds something that computes (an evaluator, a reference solve), not
-when it is imported.
+when it is imported, and turns on the persistent compilation cache
+(:mod:`gpjax._jaxcache`).
 """
 
 from __future__ import annotations
@@ -19,13 +20,17 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._jaxcache import enable_compilation_cache
+
 
 def enable_float64() -> None:
-    """Switch JAX to float64 (``jax_enable_x64``) for the rest of the process.
+    """Switch JAX to float64 (``jax_enable_x64``) for the rest of the process, and turn
+    on gpjax's persistent compilation cache (:func:`gpjax._jaxcache.enable_compilation_cache`).
 
     Called by gpjax's constructors that compute; it affects arrays a user's own JAX code
     creates afterwards too (see the README, "Precision").
     """
+    enable_compilation_cache()
     if not jax.config.jax_enable_x64:
         jax.config.update("jax_enable_x64", True)
 

@@ -1,7 +1,10 @@
-"""Command line: ``gpjax demo``, ``gpjax fit``, ``gpjax diagnose``, ``gpjax simulate``.
+"""Command line: ``gpjax demo``, ``gpjax fit``, ``gpjax fit-many``, ``gpjax diagnose``,
+``gpjax simulate``.
 
-User errors (bad file, column, configuration, model file) print one line,
-``gpjax: error: <problem>; <fix>``, exit with status 2 and leave no output behind.
+User errors (bad file, column, configuration, model file, scheduler address) print one
+line, ``gpjax: error: <problem>; <fix>``, exit with status 2 and leave no output behind.
+``fit-many`` exits with 2 when any record failed, after writing every other record and
+the summary.
 """
 
 from __future__ import annotations
@@ -36,19 +39,25 @@ def _parser() -> argparse.ArgumentParser:
     demo.add_argument("--generations", type=int, help="maximum generations (default 10)")
     fit = commands.add_parser("fit", help="identify a model from a CSV file")
     fit.add_argument("data", help="CSV file with a header row")
-    fit.add_argument("--time", required=True, help="name of the time column (seconds)")
-    fit.add_argument("--response", required=True, help="name of the measured response column")
-    fit.add_argument("--input", action="append", default=[], dest="inputs",
-                     help="name of an input column (repeat for several)")
-    fit.add_argument("--config", help="TOML file of settings (see README)")
-    fit.add_argument("--population", type=int, help="individuals per generation")
-    fit.add_argument("--generations", type=int, help="maximum generations")
-    fit.add_argument("--seed", type=_non_negative, default=0, help="random seed (default: 0)")
-    fit.add_argument("--out", default="gpjax-run", help="run folder (default: gpjax-run)")
+    _fit_options(fit, out="gpjax-run")
     fit.add_argument("--resume", action="store_true", help="continue the run in --out")
     fit.add_argument("--diagnose", action="store_true",
                      help="after the GP, diagnose missing effects (report in OUT/diagnosis)")
+    fit.add_argument("--islands", type=int, help="run K islands (the population shared "
+                     "among them) on Dask, with migration")
+    fit.add_argument("--migrate-every", type=int, dest="every",
+                     help="generations between migrations (default 2)")
+    fit.add_argument("--migrants", type=int, help="structures each island sends (default 2)")
+    fit.add_argument("--topology", choices=("ring", "random"), help="who sends to whom "
+                     "(default ring)")
+    _scheduler_option(fit)
     _diagnose_options(fit)
+    many = commands.add_parser("fit-many", help="fit every CSV file of a folder (or a glob), "
+                               "one Dask task each; writes OUT/summary.csv")
+    many.add_argument("source", help="folder of CSV files, or a quoted glob like 'data/*.csv'")
+    _fit_options(many, out="gpjax-many")
+    many.add_argument("--workers", type=int, help="local workers (default: one per core)")
+    _scheduler_option(many)
     diagnose = commands.add_parser("diagnose", help="trace a model's residual to missing "
                                    "physical effects, add them and report")
     diagnose.add_argument("data", help="CSV file with a header row")
@@ -70,6 +79,25 @@ def _parser() -> argparse.ArgumentParser:
                           help="response and its derivative at the first sample (default: "
                           "estimated from the data's first samples, eq. 13)")
     return parser
+
+
+def _fit_options(parser, *, out: str) -> None:
+    parser.add_argument("--time", required=True, help="name of the time column (seconds)")
+    parser.add_argument("--response", required=True,
+                        help="name of the measured response column")
+    parser.add_argument("--input", action="append", default=[], dest="inputs",
+                        help="name of an input column (repeat for several)")
+    parser.add_argument("--config", help="TOML file of settings (see README)")
+    parser.add_argument("--population", type=int, help="individuals per generation")
+    parser.add_argument("--generations", type=int, help="maximum generations")
+    parser.add_argument("--seed", type=_non_negative, default=0,
+                        help="random seed (default: 0)")
+    parser.add_argument("--out", default=out, help=f"output folder (default: {out})")
+
+
+def _scheduler_option(parser) -> None:
+    parser.add_argument("--scheduler", help="address of a running Dask scheduler, "
+                        "tcp://HOST:PORT (default: start a local cluster)")
 
 
 def _diagnose_options(parser) -> None:
@@ -164,7 +192,17 @@ def _fit(args) -> int:
     config = _config(args, config)
     measurement = load_csv(args.data, time=args.time, response=args.response, inputs=args.inputs)
     _check_diagnose_options(args)
-    identifier = _run(config, measurement, args.seed, Path(args.out), resume=args.resume)
+    islands = {}
+    if any(getattr(args, k) is not None for k in ("islands", "scheduler", "every", "migrants",
+                                                  "topology")):
+        from ._islands import Migration
+
+        settings = {k: getattr(args, k) for k in ("every", "migrants", "topology")
+                    if getattr(args, k) is not None}
+        islands = dict(islands=args.islands, scheduler=args.scheduler,
+                       migration=Migration(**settings))
+    identifier = _run(config, measurement, args.seed, Path(args.out), resume=args.resume,
+                      **islands)
     print(identifier)
     _timings(identifier, args.out)
     if identifier.stopped_by == "interrupted":
@@ -252,14 +290,36 @@ def _simulate(args) -> int:
     return 0
 
 
-def _run(config, measurement, seed, out: Path, *, resume: bool):
+def _fit_many(args) -> int:
+    from ._fit_many import SUMMARY, fit_many
+
+    config = _config(args, GPConfig.from_toml(args.config) if args.config else GPConfig())
+    rows = fit_many(args.source, time=args.time, response=args.response,
+                    inputs=tuple(args.inputs), config=config, seed=args.seed, out=args.out,
+                    scheduler=args.scheduler, workers=args.workers)
+    for row in rows:
+        print(f"{row['record']}: " + (f"error: {row['error']}" if row["error"] else
+                                      f"{row['equation']}  ({row['constants']}), "
+                                      f"RMS {row['rms']:.4g}, {row['seconds']:.1f} s"))
+    failed = sum(bool(row["error"]) for row in rows)
+    if failed:
+        print(f"gpjax: error: {failed} of {len(rows)} records failed (see "
+              f"{Path(args.out) / SUMMARY}); fix those records and fit them again",
+              file=sys.stderr)
+        return EXIT_USER_ERROR
+    print(f"Summary in {Path(args.out) / SUMMARY}")
+    return 0
+
+
+def _run(config, measurement, seed, out: Path, *, resume: bool, **islands):
     from ._estimator import Identifier
 
     if out.exists() and not out.is_dir():
         raise UserInputError(f"--out {out} is a file; give a folder")
     created = not out.exists()
     try:
-        return Identifier(config).fit(measurement, seed=seed, out=out, resume=resume)
+        return Identifier(config).fit(measurement, seed=seed, out=out, resume=resume,
+                                      **islands)
     except (UserInputError, KeyboardInterrupt):
         if created and out.exists():
             shutil.rmtree(out)
@@ -270,7 +330,7 @@ def main(argv: list[str] | None = None) -> int:
     """Entry point of the ``gpjax`` console script; returns the exit status."""
     try:
         args = _parser().parse_args(argv)
-        handler = {"demo": _demo, "fit": _fit, "diagnose": _diagnose,
+        handler = {"demo": _demo, "fit": _fit, "fit-many": _fit_many, "diagnose": _diagnose,
                    "simulate": _simulate}[args.command]
         return handler(args)
     except UserInputError as err:

@@ -4,6 +4,8 @@ from pathlib import Path
 import pytest
 
 os.environ.setdefault("JAX_PLATFORMS", "cpu")
+# Tests never write into the user's compilation cache; the cache tests use their own folder.
+os.environ.setdefault("GPJAX_COMPILATION_CACHE", "off")
 
 SHARED = Path(__file__).resolve().parents[2] / "shared"
 

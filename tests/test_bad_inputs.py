@@ -272,6 +272,46 @@ CLI_CASES = [
          ["other data", "same CSV"]),
     case("demo-population-zero", ("demo", "--population", "0", "--out", "demo"), {},
          ["population must be at least 4"]),
+    # --- islands and many records ---------------------------------------------------------
+    case("islands-zero", (*FIT, *SMALL, "--islands", "0", "--out", "run"),
+         {"data.csv": VALID_CSV}, ["islands must be a positive integer", "got 0"]),
+    case("islands-too-many-for-population", (*FIT, *SMALL, "--islands", "3", "--out", "run"),
+         {"data.csv": VALID_CSV}, ["population 8 is too small for 3 islands", "fewer islands"]),
+    case("migrate-every-zero", (*FIT, *SMALL, "--islands", "2", "--migrate-every", "0"),
+         {"data.csv": VALID_CSV}, ["every must be at least 1"]),
+    case("scheduler-malformed", (*FIT, *SMALL, "--islands", "2", "--scheduler", "localhost"),
+         {"data.csv": VALID_CSV}, ["'localhost'", "PROTOCOL://HOST:PORT", "tcp://"]),
+    case("scheduler-unreachable", (*FIT, *SMALL, "--islands", "2", "--scheduler",
+                                   "tcp://127.0.0.1:9", "--out", "run"),
+         {"data.csv": VALID_CSV}, ["cannot reach the Dask scheduler", "dask scheduler",
+                                   "leave out --scheduler"]),
+    case("scheduler-without-islands", (*FIT, *SMALL, "--scheduler", "tcp://127.0.0.1:9"),
+         {"data.csv": VALID_CSV}, ["need islands", "--islands K"]),
+    case("resume-island-checkpoint-without-islands", (*FIT, *SMALL, "--out", "run", "--resume"),
+         {"data.csv": VALID_CSV, "run": DIR,
+          "run/checkpoint.json": json.dumps({"islands": [{}, {}], "data": "0" * 64})},
+         ["island run", "--islands 2"]),
+    case("resume-one-process-checkpoint-with-islands",
+         (*FIT, *SMALL, "--islands", "2", "--out", "run", "--resume"),
+         {"data.csv": VALID_CSV, "run": DIR,
+          "run/checkpoint.json": json.dumps({"data": "0" * 64, "config": {}, "seed": 0,
+                                             "state": {}})},
+         ["one-process run", "without --islands"]),
+    case("fit-many-empty-folder", ("fit-many", "records", "--time", "t", "--response", "x",
+                                   "--out", "many"),
+         {"records": DIR}, ["no CSV files in records", "glob"]),
+    case("fit-many-glob-matches-nothing", ("fit-many", "records/*.csv", "--time", "t",
+                                           "--response", "x", "--out", "many"),
+         {"data.csv": VALID_CSV}, ["no CSV files in records/\\*.csv"]),
+    case("fit-many-same-record-name-twice", ("fit-many", "*/data.csv", "--time", "t",
+                                             "--response", "x", "--out", "many"),
+         {"a/data.csv": VALID_CSV, "b/data.csv": VALID_CSV}, ["'data'", "own name"]),
+    case("fit-many-out-is-a-file", ("fit-many", ".", "--time", "t", "--response", "x",
+                                    "--out", "taken"),
+         {"data.csv": VALID_CSV, "taken": "occupied\n"}, ["--out taken", "is a file"]),
+    case("fit-many-workers-zero", ("fit-many", ".", "--time", "t", "--response", "x",
+                                   "--workers", "0", "--out", "many"),
+         {"data.csv": VALID_CSV}, ["workers must be a positive integer", "got 0"]),
     case("demo-out-is-an-existing-file", ("demo", "--population", "8", "--generations", "1",
                                           "--out", "taken"),
          {"taken": "occupied\n"}, ["--out taken", "is a file", "give a folder"]),
@@ -328,7 +368,8 @@ CLI_TIMEOUT_S = 180
 def _env() -> dict[str, str]:
     env = dict(os.environ)
     env["JAX_PLATFORMS"] = "cpu"
-    env.pop("PYTHONPATH", None)  # run the installed gpjax, nothing else on the path
+    # This checkout's gpjax (the installed one may be another worktree's), nothing else.
+    env["PYTHONPATH"] = str(Path(__file__).resolve().parents[1])
     return env
 
 

@@ -1,0 +1,335 @@
+"""Island-model GP on Dask: ``Identifier(config).fit(measurement, islands=K)``.
+
+The population is split into K islands (sizes differ by at most one), each the ordinary
+:class:`~gpjax._evolve.Evolution` with its own seed from
+``numpy.random.SeedSequence(seed).spawn(K)``. An *epoch* runs ``Migration.every``
+generations of every island as one Dask task, ``(data, config, island state) -> island
+state``, the state being the JSON-ready checkpoint of :class:`~gpjax._evolve.RunState`.
+Between epochs, on the client, each island's best ``migrants`` distinct structures (the
+head of its ranked population, with their records) replace the worst of the next island:
+ring ``i -> i + 1``, or a ring in a random order drawn from (seed, epoch). All islands are
+checkpointed after every epoch (``checkpoint.json``, atomic); resume reads it.
+
+Tasks are pure functions of their inputs, so a task whose worker dies is run again by the
+scheduler on another worker from the same state, with the same result. A worker keeps
+each island's compiled evaluator (:func:`_engine`) and is given the same islands again,
+so it compiles once per island it hosts (K = workers: once). The run stops when an island
+reaches epsilon or all have run ``generations``; the reported model is then selected from
+the records of all islands by the same code as a one-process run
+(:meth:`Identifier._finish`).
+"""
+
+from __future__ import annotations
+
+import collections
+import dataclasses
+import json
+import os
+import time
+import uuid
+from pathlib import Path
+
+import numpy as np
+
+from . import _trees
+from ._cluster import dask_client, worker_address
+from ._config import GPConfig
+from ._data import Measurement
+from ._errors import ConfigError, UserInputError
+from ._evolve import Evolution, GenerationStats, RunState
+from ._evaluator import OK
+from ._fitness import Fitness
+from ._report import write_text_atomic
+
+TOPOLOGIES = ("ring", "random")
+#: Island engines (compiled evaluators) a worker keeps.
+ENGINES_PER_WORKER = 8
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Migration:
+    """How islands exchange structures.
+
+    Attributes:
+        every: generations per epoch (between migrations).
+        migrants: best distinct structures each island sends; they replace the receiver's
+            worst.
+        topology: ``"ring"`` (island i sends to i + 1) or ``"random"`` (a ring in a random
+            order, drawn anew each epoch from the seed).
+
+    Raises:
+        ConfigError: a value out of range.
+    """
+
+    every: int = 2
+    migrants: int = 2
+    topology: str = "ring"
+
+    def __post_init__(self):
+        for name in ("every", "migrants"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ConfigError(f"migration {name} must be an integer, got {value!r}")
+        if self.every < 1:
+            raise ConfigError(f"migration every must be at least 1 generation, got {self.every}")
+        if self.migrants < 0:
+            raise ConfigError(f"migrants must be >= 0, got {self.migrants}")
+        if self.topology not in TOPOLOGIES:
+            raise ConfigError(f"topology must be one of {', '.join(TOPOLOGIES)}, got "
+                              f"{self.topology!r}")
+
+
+def island_configs(config: GPConfig, islands: int) -> list[GPConfig]:
+    """One config per island: ``config.population`` shared out (sizes differ by at most 1).
+
+    Raises:
+        UserInputError: ``islands`` is not a positive integer, or an island would be smaller
+            than the minimum population (or the tournament size).
+    """
+    if isinstance(islands, bool) or not isinstance(islands, (int, np.integer)) or islands < 1:
+        raise UserInputError(f"islands must be a positive integer, got {islands!r}; use e.g. 2")
+    sizes = [config.population // islands + (i < config.population % islands)
+             for i in range(islands)]
+    try:
+        return [config.replace(population=size) for size in sizes]
+    except ConfigError as err:
+        raise UserInputError(f"population {config.population} is too small for {islands} "
+                             f"islands ({err}); raise the population or use fewer islands") from None
+
+
+def island_seeds(seed: int, islands: int) -> list[int]:
+    """Independent seeds of the islands, from ``SeedSequence(seed).spawn(islands)``."""
+    return [int(child.generate_state(1, np.uint64)[0])
+            for child in np.random.SeedSequence(seed).spawn(islands)]
+
+
+# --- worker side ----------------------------------------------------------------------
+_ENGINES: collections.OrderedDict = collections.OrderedDict()
+
+
+def _engine(measurement: Measurement, config: GPConfig, island: int,
+            state: dict | None) -> tuple[Evolution, bool]:
+    """This worker's Evolution for ``island`` and whether it was built now.
+
+    A kept engine is reused only when its forcing columns are those ``state`` recorded
+    (a fresh engine's, for a new island), so reuse gives bit for bit what a fresh engine
+    loaded from ``state`` gives; its records are replaced by the state's.
+    """
+    key = (measurement.fingerprint(), json.dumps(config.to_dict(), sort_keys=True), island)
+    evolution = _ENGINES.pop(key, None)
+    if evolution is not None:
+        columns = [str(f) for f in evolution.fitness.evaluator.forcing_features]
+        expected = state["forcing_features"] if state else [str(u) for u in
+                                                            evolution.fitness.symbols.u[:1]]
+        if columns != expected:
+            evolution = None
+    built = evolution is None
+    if built:
+        evolution = Evolution(Fitness(measurement, config), config)
+    evolution.fitness.records.clear()
+    _ENGINES[key] = evolution
+    while len(_ENGINES) > ENGINES_PER_WORKER:
+        _ENGINES.popitem(last=False)
+    return evolution, built
+
+
+def run_epoch(measurement: Measurement, config: GPConfig, island: int, seed: int,
+              state: dict | None, until: int, migrants: int) -> dict:
+    """Dask task: island ``island`` from ``state`` (``None``: generation 0 from ``seed``)
+    to generation ``until`` or its stop rule.
+
+    Returns:
+        ``state`` (the new island state), ``emigrants`` (its best ``migrants`` distinct
+        valid structures: tree and record), ``worker`` (address), ``built`` (whether the
+        engine was compiled here), ``generations`` (run here, generation 0 included),
+        ``seconds`` and ``compile_s``.
+    """
+    began = time.perf_counter()
+    evolution, built = _engine(measurement, config, island, state)
+    fitness = evolution.fitness
+    compiled = fitness.evaluator.compile_seconds + fitness.refiner.compile_seconds
+    run = evolution.start(seed) if state is None else RunState.from_json(state, fitness)
+    first = run.generation if state is not None else -1
+    while run.generation < until and not run.done:
+        run = evolution.step(run)
+    head = run.population[:migrants]  # ranked, distinct structures first
+    emigrants = [{"tree": _trees.to_json(tree), "record": record.to_json()}
+                 for tree, record in zip(head, fitness.records_for(head))
+                 if record.valid and record.status == OK]
+    return {"state": run.to_json(fitness), "emigrants": emigrants, "worker": worker_address(),
+            "built": built, "generations": run.generation - first,
+            "seconds": time.perf_counter() - began,
+            "compile_s": (fitness.evaluator.compile_seconds + fitness.refiner.compile_seconds
+                          - compiled)}
+
+
+# --- client side ----------------------------------------------------------------------
+def migrate(results: list[dict], migration: Migration, *, seed: int, epoch: int) -> list[dict]:
+    """Island states after migration: each receiver's worst individuals replaced by its
+    sender's emigrants (their records kept where better than the receiver's own)."""
+    k = len(results)
+    if k == 1 or migration.migrants == 0:
+        return [r["state"] for r in results]
+    order = (np.arange(k) if migration.topology == "ring"
+             else np.random.default_rng([seed, epoch]).permutation(k))
+    sender = {int(order[j]): int(order[j - 1]) for j in range(k)}
+    states = []
+    for i in range(k):
+        state = dict(results[i]["state"])
+        arriving = results[sender[i]]["emigrants"]
+        if arriving:
+            state["population"] = (state["population"][: -len(arriving)]
+                                   + [m["tree"] for m in arriving])
+            records = {r["key"]: r for r in state["records"]}
+            for m in arriving:
+                own = records.get(m["record"]["key"])
+                if own is None or m["record"]["objective"] < own["objective"]:
+                    records[m["record"]["key"]] = m["record"]
+            state["records"] = list(records.values())
+        states.append(state)
+    return states
+
+
+def _finished(states: list[dict | None], config: GPConfig) -> bool:
+    if any(s is None for s in states):
+        return False
+    reached = any(s["history"][-1]["best_objective"] <= config.epsilon for s in states)
+    return reached or all(s["generation"] >= config.generations for s in states)
+
+
+def merged_state(states: list[dict]) -> dict:
+    """One state JSON holding every island's records (the best of a key's copies), for the
+    final selection; its history has one row per generation across islands (best
+    objective and its key over islands, median of the island medians, mean valid
+    fraction, distinct structures summed over islands, the slowest island's seconds); an
+    island that stopped early (it reached epsilon) counts with its last row."""
+    records: dict[str, dict] = {}
+    for state in states:
+        for record in state["records"]:
+            own = records.get(record["key"])
+            if own is None or record["objective"] < own["objective"]:
+                records[record["key"]] = record
+    history = []
+    for generation in range(max(len(s["history"]) for s in states)):
+        rows = [s["history"][min(generation, len(s["history"]) - 1)] for s in states]
+        best = min(rows, key=lambda r: r["best_objective"])
+        medians = [r["median_objective"] for r in rows if r["median_objective"] is not None]
+        history.append(dataclasses.asdict(GenerationStats(
+            generation=generation, best_objective=best["best_objective"],
+            median_objective=float(np.median(medians)) if medians else None,
+            valid_fraction=float(np.mean([r["valid_fraction"] for r in rows])),
+            unique_structures=sum(r["unique_structures"] for r in rows),
+            seconds=max(r["seconds"] for r in rows), best_key=best["best_key"])))
+    features = list(dict.fromkeys(f for s in states for f in s["forcing_features"]))
+    return {"generation": max(s["generation"] for s in states),
+            "population": [t for s in states for t in s["population"]],
+            "rng_state": states[0]["rng_state"], "history": history, "done": True,
+            "records": list(records.values()), "forcing_features": features}
+
+
+def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume: bool,
+                islands: int | None, scheduler: str | None, migration: Migration | None,
+                progress: bool | None = None):
+    """:meth:`Identifier.fit` with ``islands`` (see the module docstring); returns the
+    fitted ``identifier``, whose ``timings_`` also hold ``epochs``, ``island_tasks`` (per
+    task: worker, built, generations, seconds, compile_s), ``epoch_timings`` (wall,
+    client seconds, checkpoint bytes) and ``worker_compile_s``.
+
+    Raises:
+        UserInputError: no ``islands`` given, bad island settings, a bad checkpoint to
+            resume, or an unreachable scheduler.
+    """
+    from ._estimator import _StopOnInterrupt
+
+    if islands is None:
+        raise UserInputError("a scheduler or migration settings need islands; give "
+                             "islands=K (--islands K)")
+    migration = migration or Migration()
+    config = identifier.config
+    configs = island_configs(config, islands)
+    if migration.migrants >= configs[-1].population:
+        raise UserInputError(f"{migration.migrants} migrants would replace a whole island of "
+                             f"{configs[-1].population}; send fewer (--migrants) or use "
+                             "fewer islands")
+    out = Path(out) if out is not None else None
+    fingerprint = measurement.fingerprint()
+    began = time.perf_counter()
+    settings = {"migration": dataclasses.asdict(migration)}
+    if resume:
+        epoch, seed, states = _load(out, config, fingerprint, islands, settings)
+    else:
+        epoch, states = 0, [None] * islands
+    seeds = island_seeds(seed, islands)
+    tasks: list[dict] = []
+    epochs: list[dict] = []
+    from tqdm.auto import tqdm
+
+    with dask_client(scheduler, workers=min(islands, os.cpu_count() or 1)) as client, \
+            _StopOnInterrupt() as stop, \
+            tqdm(total=config.generations, unit="gen", leave=False,
+                 disable=None if progress is None else not progress) as bar:
+        placement: list[str | None] = [None] * islands
+        run_id = uuid.uuid4().hex[:8]
+        while not _finished(states, config) and not stop.requested:
+            until = min((epoch + 1) * migration.every, config.generations)
+            submitted = time.perf_counter()
+            futures = [client.submit(
+                run_epoch, measurement, configs[i], i, seeds[i], states[i], until,
+                migration.migrants, key=f"gpjax-island-{run_id}-{epoch}-{i}", pure=False,
+                **({"workers": placement[i], "allow_other_workers": True} if placement[i]
+                   else {})) for i in range(islands)]
+            results = client.gather(futures)
+            gathered = time.perf_counter()
+            placement = [r["worker"] for r in results]
+            tasks += [{k: r[k] for k in ("worker", "built", "generations", "seconds",
+                                         "compile_s")}
+                      | {"epoch": epoch, "island": i} for i, r in enumerate(results)]
+            epoch += 1
+            states = [r["state"] for r in results]
+            if not _finished(states, config):
+                states = migrate(results, migration, seed=seed, epoch=epoch)
+            text = json.dumps({"config": config.to_dict(), "seed": seed, "data": fingerprint,
+                               "epoch": epoch, "islands": states} | settings)
+            states = json.loads(text)["islands"]  # as a resumed run reads them
+            if out is not None:
+                write_text_atomic(out / "checkpoint.json", text)
+            epochs.append({"epoch": epoch - 1, "wall_s": gathered - submitted,
+                           "client_s": time.perf_counter() - gathered,
+                           "checkpoint_bytes": len(text)})
+            bar.update(min(until, config.generations) - bar.n)
+    fitness = Fitness(measurement, configs[0])
+    state = RunState.from_json(merged_state(states), fitness)
+    identifier.measurement_ = measurement
+    identifier._provenance = {"islands": islands} | settings
+    identifier._finish(fitness, seed, state, began=began, out=out, interrupted=stop.requested)
+    identifier.timings_ |= {"epochs": epoch, "island_tasks": tasks, "epoch_timings": epochs,
+                            "worker_compile_s": sum(t["compile_s"] for t in tasks)}
+    return identifier
+
+
+def _load(out: Path | None, config: GPConfig, fingerprint: str, islands: int,
+          settings: dict) -> tuple[int, int, list[dict]]:
+    """(epoch, seed, island states) of the island checkpoint in ``out``; raises
+    UserInputError for a missing, damaged or foreign one."""
+    path = None if out is None else out / "checkpoint.json"
+    if path is None or not path.is_file():
+        raise UserInputError(f"no checkpoint to resume in {out}; run without --resume first")
+    try:
+        payload = json.loads(path.read_text(encoding="utf-8"))
+        found = len(payload.get("islands", []))
+        problem = ("a one-process run's; resume without --islands" if "islands" not in payload
+                   else f"for {found} islands; resume with --islands {found}"
+                   if found != islands
+                   else "for other data; resume with the same CSV and columns"
+                   if payload["data"] != fingerprint
+                   else "with other settings; resume with the same configuration"
+                   if (payload["config"] != config.to_dict()
+                       or payload["migration"] != settings["migration"]) else "")
+        if problem:
+            raise UserInputError(f"{path} was written {problem}")
+        return int(payload["epoch"]), int(payload["seed"]), list(payload["islands"])
+    except (KeyError, TypeError, ValueError) as err:
+        if isinstance(err, UserInputError):
+            raise
+        raise UserInputError(f"{path} is damaged ({err}); start the run afresh without "
+                             "--resume") from None
