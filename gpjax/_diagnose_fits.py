@@ -258,9 +258,11 @@ class _Simulator:
     def __init__(self, problem: FitProblem, lhs: tuple[sp.Expr, ...],
                  forcing: tuple[sp.Expr, ...]):
         self.lhs, self.forcing = lhs, forcing
-        degree, extra, families = split_state_features(lhs, problem.symbols)
+        # the effects' nonlinear parameters stay frozen (module docstring of _diagnose), so
+        # feature-bank members are fixed features here, their inner constants not refined
+        degree, extra, _ = split_state_features(lhs, problem.symbols, families=False)
         settings = dict(max_degree=max(3, degree), substeps=problem.substeps, n_bins=1,
-                        extra_state_features=extra, families=families,
+                        extra_state_features=extra,
                         input_interpolation=problem.input_interpolation)
         self.train = PopulationEvaluator(problem.train, problem.symbols, batch=problem.batch,
                                          **settings)

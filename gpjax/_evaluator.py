@@ -71,24 +71,25 @@ def polynomial_state_features(symbols: Symbols, max_degree: int) -> list[sp.Expr
             + [symbols.x_dot ** k for k in range(1, max_degree + 1)])
 
 
-def split_state_features(features, symbols: Symbols
+def split_state_features(features, symbols: Symbols, *, families: bool = True
                          ) -> tuple[int, tuple[sp.Expr, ...], tuple[Family, ...]]:
     """(max_degree, extra features, families) of an evaluator whose basis holds
     ``features``: the highest power of x or x' among the plain powers, the families of the
-    feature-bank members (:func:`gpjax._features.match`), and every other feature
-    (products with functions of time, sign(x'), …) compiled in as an extra feature."""
-    degree, extra, families = 1, [], []
+    feature-bank members (:func:`gpjax._features.match`; with ``families=False`` they are
+    extra features too, their inner constants fixed), and every other feature (products
+    with functions of time, sign(x'), …) compiled in as an extra feature."""
+    degree, extra, found_families = 1, [], []
     powers = {symbols.x, symbols.x_dot}
     for feature in features:
         base, exponent = feature.as_base_exp()
-        found = match(feature, symbols)
+        found = match(feature, symbols) if families else None
         if base in powers and exponent.is_Integer and exponent > 0:
             degree = max(degree, int(exponent))
         elif found is not None:
-            families += [found[0]] if found[0] not in families else []
+            found_families += [found[0]] if found[0] not in found_families else []
         else:
             extra.append(feature)
-    return degree, tuple(extra), tuple(families)
+    return degree, tuple(extra), tuple(found_families)
 
 
 @dataclasses.dataclass(frozen=True)
