@@ -123,6 +123,7 @@ def test_same_seed_and_islands_give_the_same_model_bit_for_bit(cluster, referenc
     assert len(checkpoint["islands"]) == 2 and checkpoint["epoch"] == 2
 
 
+@pytest.mark.slow  # a long run: CI's slow step (fast tier <= 5 min)
 def test_the_command_line_runs_islands_and_resumes_them(cluster, tmp_path, capsys):
     from gpjax.cli import main
 
@@ -150,6 +151,7 @@ def test_each_worker_builds_its_island_once(reference):
     assert all(t["worker"] == first[t["island"]] for t in tasks)
 
 
+@pytest.mark.slow  # a long run: CI's slow step (fast tier <= 5 min)
 def test_resume_of_an_interrupted_island_run_gives_the_same_model(cluster, tmp_path):
     config = GPConfig.paper(**SMALL | {"generations": 6})
     options = dict(seed=3, islands=2, scheduler=cluster[0].scheduler_address,
@@ -252,6 +254,7 @@ def _tiny_fit(env):
     return json.loads(run.stdout.splitlines()[-1])
 
 
+@pytest.mark.slow  # a long run: CI's slow step (fast tier <= 5 min)
 def test_a_second_process_loads_its_compiled_programs_from_the_cache(tmp_path):
     cache = tmp_path / "cache"
     folder, cold = _tiny_fit({"GPJAX_CACHE_DIR": str(cache), "GPJAX_COMPILATION_CACHE": "on"})
