@@ -8,12 +8,14 @@ extrapolation input, fit noise, extrapolation noise), so a seed gives the same a
 for bit.
 
 The truth is exact up to the integrator's tolerance: the open-loop input is band-limited
-random excitation, a sum of sines with random frequencies and phases evaluated in
-continuous time, and the equations (the exact discontinuous laws for sign and |x'|) are
-integrated by scipy's DOP853 with rtol 1e-10, atol 1e-12, event-free, with ``max_step``
-:data:`~gpjax._systems.SIGN_MAX_STEP` = 1 ms for the systems with sign or |x'| (the step
-controller rejects the steps that straddle a velocity reversal). The positioning stage is
-closed loop and solved in closed form between its samples (:mod:`gpjax._stage`).
+random excitation, a random-phase multisine evaluated in continuous time, and the
+equations (the exact discontinuous laws for sign and |x'|) are integrated by scipy's
+DOP853 with rtol 1e-10, atol 1e-12 (:func:`gpjax._scoring.solve`), with ``max_step``
+:data:`~gpjax._systems.SIGN_MAX_STEP` = 5 ms (half a sample) for the systems with sign or
+|x'|. Dry friction is solved as a Filippov system — events at x' = 0, sticking while the
+friction can hold the mass — since an event-free solve chatters and stalls once the mass
+sticks. The positioning stage is closed loop and solved in closed form between its
+samples (:mod:`gpjax._stage`).
 """
 
 from __future__ import annotations

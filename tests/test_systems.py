@@ -159,3 +159,17 @@ def test_scorer_reproduces_the_truth_on_the_extrapolation_record(name):
 def test_physics_suite_names_the_eight_systems():
     assert len(PHYSICS_SUITE) == 8 and set(PHYSICS_SUITE) <= set(SYSTEMS)
     assert all(len(SYSTEMS[n].coordinates) == 1 for n in PHYSICS_SUITE)
+
+
+def test_dry_friction_sticks_then_slips_as_the_closed_form():
+    # x'' + sign(x') = 2·sin(t) from rest: stuck until 2·sin(t) = 1 (t0 = π/6), then
+    # v(t) = 2·(cos t0 − cos t) − (t − t0) until v returns to 0
+    law = sp.Eq(X_DDOT + sp.sign(X_DOT), U)
+    time = np.linspace(0.0, 2.0, 201)
+    x = simulate_equations([law], ("x",), time, 2 * np.sin(time), state0=np.zeros(2))[0]
+    t0 = math.pi / 6
+    assert np.all(x[time <= t0] == 0.0)
+    moving = (time > t0) & (time < 2.0)
+    exact = (2 * math.cos(t0) * (time - t0) - 2 * (np.sin(time) - math.sin(t0))
+             - (time - t0) ** 2 / 2)
+    assert np.allclose(x[moving], exact[moving], rtol=1e-7, atol=1e-9)
