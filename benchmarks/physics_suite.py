@@ -65,9 +65,8 @@ def main(argv: list[str] | None = None) -> int:
             methods = [("truth", lambda: data.system.truth()[0]),
                        ("gpjax", lambda: _gpjax(data, args, seed, local_search=None)),
                        ("gpjax-no-local-search", lambda: _gpjax(data, args, seed, local_search=0))]
-            methods += [(peer, lambda peer=peer: fit_peer(
-                peer, data.fit.measurement(), seed=seed, population=args.population,
-                generations=args.generations)) for peer in peers]
+            methods += [(peer, lambda peer=peer: fit_peer(peer, data.fit.measurement(),
+                                                           seed=seed)) for peer in peers]
             for method, fit in methods:
                 row = _row(data, method, fit)
                 rows.append(row)
