@@ -101,7 +101,9 @@ def generate(system: System | str, *, seed: int, noise: float = 0.01,
              input_noise: float = 0.01, extrapolation_scale: float = 1.2) -> SyntheticRecord:
     """The fit record and the extrapolation record (another input realisation, amplitude
     × ``extrapolation_scale``) of ``system``, with response noise σ = ``noise`` × std of
-    each true response and input noise σ = ``input_noise`` × std of the true input.
+    each true response and input noise σ = ``input_noise`` × std of the true input. For
+    the stage the noisy position is then rounded to the encoder's resolution (``noise=0``
+    gives the encoder reading alone), and ``extrapolation_scale`` scales the reference.
 
     Raises:
         ValueError: an unknown system name, a negative seed, negative or non-finite noise,
