@@ -1,7 +1,10 @@
 """The synthetic systems (gpjax.systems): reproducible, converged, honest truth."""
 
 import dataclasses
+import importlib.util
+import json
 import math
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -173,3 +176,30 @@ def test_dry_friction_sticks_then_slips_as_the_closed_form():
     exact = (2 * math.cos(t0) * (time - t0) - 2 * (np.sin(time) - math.sin(t0))
              - (time - t0) ** 2 / 2)
     assert np.allclose(x[moving], exact[moving], rtol=1e-7, atol=1e-9)
+
+
+def _physics_suite():
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "physics_suite.py"
+    spec = importlib.util.spec_from_file_location("physics_suite", path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
+
+
+def test_physics_suite_records_a_crashed_fit_as_a_row():
+    suite = _physics_suite()
+    data = generate(short("duffing"), seed=0)
+    row = suite._row(data, "broken", lambda: 1 / 0)
+    assert row["error"].startswith("ZeroDivisionError") and row["nrms"] is None
+    truth = suite._row(data, "truth", lambda: data.system.truth()[0])
+    assert truth["error"] is None and truth["structure"] and truth["nrms"] < 1e-5
+
+
+@pytest.mark.slow
+def test_physics_suite_runs_end_to_end(tmp_path):
+    out = tmp_path / "suite.json"
+    assert _physics_suite().main(["--systems", "duffing", "--seeds", "1", "--population",
+                                  "20", "--generations", "1", "--json", str(out)]) == 0
+    rows = json.loads(out.read_text())["rows"]
+    assert [r["method"] for r in rows] == ["truth", "gpjax", "gpjax-no-local-search"]
+    assert all(r["error"] is None for r in rows)
