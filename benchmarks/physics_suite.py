@@ -1,0 +1,164 @@
+"""Physics benchmark: synthetic systems with a known truth (gpjax.systems), gpjax with and
+without local search, and peers (PySINDy, pyoperon) on the same records, all scored by
+the same converged simulator.
+
+For each system and seed: :func:`gpjax.systems.generate` makes the fit record (1 %
+noise on response and input) and the extrapolation record (another input realisation,
+amplitude × ``--scale``). Every method fits the fit record's measured response and
+measured input. Its equation is then simulated on the extrapolation record by
+:func:`gpjax.systems.simulate_equations` — scipy DOP853, rtol 1e-10, atol 1e-12, the
+true input samples joined by a cubic spline (the same for every method), from the true
+initial state — and compared with the true response: NRMS = RMS(error) / RMS(true).
+Structure and constants by :func:`gpjax.systems.compare_structure` (constants within 2 %
+after normalising by the input's coefficient; see :mod:`gpjax._scoring` for the rule).
+The ``truth`` rows score the true equations: the scorer's floor.
+
+    python benchmarks/physics_suite.py --quick --json out.json
+    python benchmarks/physics_suite.py --seeds 5 --population 500 --generations 10 \\
+        --peers pysindy,pyoperon --json benchmarks/physics_suite.json
+
+A failed fit or simulation is a row with its error text, not a crash of the suite.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import statistics
+import sys
+import time
+import traceback
+from pathlib import Path
+
+import numpy as np
+import sympy as sp
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import gpjax  # noqa: E402
+from gpjax.systems import (PHYSICS_SUITE, compare_structure, generate,  # noqa: E402
+                           simulate_equations, nrms)
+from _peers import PEERS, fit_peer, versions  # noqa: E402
+
+QUICK = {"systems": "duffing,coulomb_viscous", "seeds": 1, "population": 100,
+         "generations": 3}
+#: A simulated state beyond this multiple of the true record's largest |x| or |x'| counts
+#: as diverged.
+DIVERGED = 100.0
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = _parser().parse_args(argv)
+    if args.quick:
+        for key, value in QUICK.items():
+            setattr(args, key, value)
+    systems = args.systems.split(",")
+    peers = [p for p in args.peers.split(",") if p]
+    unknown = [p for p in peers if p not in PEERS]
+    if unknown:
+        raise SystemExit(f"unknown peer {unknown[0]!r}; use one of {PEERS}")
+    rows = []
+    for name in systems:
+        for seed in range(args.seeds):
+            data = generate(name, seed=seed, extrapolation_scale=args.scale)
+            methods = [("truth", lambda: data.system.truth()[0]),
+                       ("gpjax", lambda: _gpjax(data, args, seed, local_search=None)),
+                       ("gpjax-no-local-search", lambda: _gpjax(data, args, seed, local_search=0))]
+            methods += [(peer, lambda peer=peer: fit_peer(peer, data.fit.measurement(),
+                                                           seed=seed)) for peer in peers]
+            for method, fit in methods:
+                row = _row(data, method, fit)
+                rows.append(row)
+                print(f"{name} seed {seed} {method}: structure {row['structure']} "
+                      f"NRMS {row['nrms']} {row['seconds']:.1f} s {row['error'] or ''}",
+                      flush=True)
+    table = _table(rows, systems, args.seeds)
+    print(table)
+    if args.json:
+        payload = {"command": " ".join([Path(sys.executable).name, *sys.argv]),
+                   "settings": vars(args), "peers": versions(),
+                   "scorer": "scipy DOP853 rtol 1e-10 atol 1e-12 (Filippov sticking for "
+                             "sign laws); true input samples joined by a cubic spline; true "
+                             "initial state; NRMS = RMS(error)/RMS(true) on the extrapolation "
+                             "record", "table": table, "rows": rows}
+        Path(args.json).write_text(json.dumps(payload, indent=1, default=str) + "\n")
+    return 0
+
+
+def _parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--systems", default=",".join(PHYSICS_SUITE),
+                        help="comma-separated names (default: the eight of the suite)")
+    parser.add_argument("--seeds", type=int, default=5, help="seeds 0 … N−1 (default 5)")
+    parser.add_argument("--population", type=int, default=500)
+    parser.add_argument("--generations", type=int, default=10)
+    parser.add_argument("--scale", type=float, default=1.2,
+                        help="extrapolation input amplitude ÷ fit amplitude (default 1.2)")
+    parser.add_argument("--peers", default="", help=f"comma-separated, from {','.join(PEERS)}")
+    parser.add_argument("--json", help="write every row and the command to this file")
+    parser.add_argument("--quick", action="store_true",
+                        help="smoke run: " + ", ".join(f"{k} {v}" for k, v in QUICK.items()))
+    return parser
+
+
+def _gpjax(data, args, seed: int, *, local_search: int | None) -> sp.Eq:
+    config = gpjax.GPConfig(population=args.population, generations=args.generations)
+    if local_search is not None:
+        config = config.replace(local_search=local_search)
+    identifier = gpjax.Identifier(config).fit(data.fit.measurement(), seed=seed,
+                                              progress=False)
+    return identifier.model_.sympy()
+
+
+def _row(data, method: str, fit) -> dict:
+    """Fit, then score on the extrapolation record; failures become the row's error."""
+    row = {"system": data.system.name, "seed": data.seed, "method": method,
+           "equation": None, "structure": False, "constants": False, "nrms": None,
+           "seconds": 0.0, "error": None}
+    began = time.perf_counter()
+    try:
+        equation = fit()
+        row["seconds"] = time.perf_counter() - began
+        row["equation"] = str(equation)
+        scales = {sp.Symbol("x"): float(np.std(data.fit.response_measured)),
+                  sp.Symbol("x_dot"): float(np.std(data.fit.velocity_true))}
+        verdict = compare_structure(equation, data.system.truth()[0], scales=scales)
+        worst = verdict["worst_constant_error"]
+        row.update(verdict, worst_constant_error=worst if math.isfinite(worst) else None)
+        record = data.extrapolation
+        bound = DIVERGED * max(np.abs(record.response_true).max(),
+                               np.abs(record.velocity_true).max())
+        simulated = simulate_equations([equation], record.coordinates, record.time,
+                                       record.input_true, state0=record.initial_state,
+                                       bound=bound)
+        row["nrms"] = nrms(simulated, record.response_true)
+    except Exception as err:  # a crashed fit or simulation is a row, not a crash
+        row["seconds"] = row["seconds"] or time.perf_counter() - began
+        row["error"] = f"{type(err).__name__}: {err}"
+        row["traceback"] = traceback.format_exc(limit=4)
+    return row
+
+
+def _table(rows: list[dict], systems: list[str], seeds: int) -> str:
+    lines = ["| system | method | structure right | constants within 2 % | "
+             "median extrap. NRMS | median s | failed |", "| --- | --- | --- | --- | --- | --- | --- |"]
+    methods = list(dict.fromkeys(r["method"] for r in rows))
+    for name in systems:
+        for method in methods:
+            chosen = [r for r in rows if r["system"] == name and r["method"] == method]
+            if not chosen:
+                continue
+            errors = [r["nrms"] if r["nrms"] is not None else math.inf for r in chosen]
+            median = statistics.median(errors)
+            lines.append(
+                f"| {name} | {method} | {sum(r['structure'] for r in chosen)}/{seeds} | "
+                f"{sum(r['constants'] for r in chosen)}/{seeds} | "
+                f"{'diverged/failed' if math.isinf(median) else f'{median:.2%}'} | "
+                f"{statistics.median(r['seconds'] for r in chosen):.1f} | "
+                f"{sum(r['error'] is not None for r in chosen)} |")
+    return "\n".join(lines)
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,241 @@
+"""Synthetic systems with a known truth: their equations, constants and excitation.
+
+Each :class:`System` holds its true equations (sympy, one per coordinate, in the symbols
+``x, x_dot, x_ddot, u, t`` or ``x1, x2, …`` for chains), its true constants and how it is
+excited; :data:`SYSTEMS` is the catalogue (the eight single-coordinate systems of the
+physics benchmark, :data:`PHYSICS_SUITE`, two and three masses in a chain with cubic
+coupling springs, and a drifting positioning stage in a PD loop). Records are made by
+:mod:`gpjax._synthetic`.
+
+Units: x in m (rad for the pendulum), u in N (N·m), t in s, constants in SI.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+from typing import Callable
+
+import numpy as np
+import sympy as sp
+
+#: Largest step (s) of the truth integration of the systems with sign(x') or |x'|: half a
+#: sample, so that no velocity reversal falls between two steps unseen (halving it
+#: changes the response by < 1e-11 relative; tests/test_systems.py).
+SIGN_MAX_STEP = 5e-3
+
+T, U = sp.symbols("t u")
+
+
+def state_symbols(coordinate: str) -> tuple[sp.Symbol, sp.Symbol, sp.Symbol]:
+    """(x, x_dot, x_ddot) of a coordinate named ``coordinate``."""
+    return sp.symbols(f"{coordinate} {coordinate}_dot {coordinate}_ddot")
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Excitation:
+    """Band-limited random excitation (a random-phase multisine): ``tones`` sines of equal
+    amplitude at frequencies evenly spaced over [``low``, ``high``] Hz, each with a
+    uniform random phase, scaled to ``rms`` (input units) on the record's sample grid."""
+
+    low: float
+    high: float
+    rms: float
+    tones: int = 60
+
+    def draw(self, rng: np.random.Generator, time: np.ndarray, scale: float) -> "Multisine":
+        """One realisation whose samples on ``time`` (s) have RMS ``scale`` × ``rms``."""
+        frequencies = np.linspace(self.low, self.high, self.tones)
+        phases = rng.uniform(0.0, 2.0 * np.pi, self.tones)
+        unit = Multisine(frequencies=frequencies, phases=phases, amplitude=1.0)
+        amplitude = scale * self.rms / float(np.sqrt(np.mean(unit(time) ** 2)))
+        return dataclasses.replace(unit, amplitude=amplitude)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class Multisine:
+    """u(t) = amplitude · Σ sin(2π·f_j·t + φ_j), exact in continuous time (t in s)."""
+
+    frequencies: np.ndarray
+    phases: np.ndarray
+    amplitude: float
+
+    def __call__(self, t):
+        t = np.asarray(t, dtype=np.float64)
+        angles = 2.0 * np.pi * np.multiply.outer(t, self.frequencies) + self.phases
+        return self.amplitude * np.sin(angles).sum(axis=-1)
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class StageLoop:
+    """The positioning stage's PD loop: force u_k = kp·e_k + kd·(e_k − e_(k−1))/dt (N)
+    held for one sample, e = reference − encoder reading (m), encoder ``resolution`` in m;
+    the reference is the system's ``excitation`` (its rms in m)."""
+
+    kp: float
+    kd: float
+    resolution: float
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class System:
+    """A system with a known truth.
+
+    Attributes:
+        name: catalogue name.
+        description: one line.
+        equations: one ``Eq(lhs, rhs)`` per coordinate, constants as symbols.
+        constants: constant name -> true value (SI).
+        coordinates: response names (x1, x2, … for chains); the input is ``u``.
+        sample_rate: samples per second (Hz).
+        duration: record length (s).
+        excitation: the open-loop input (N), or the loop's reference (m) for the stage.
+        max_step: largest truth-integration step (s), ``None`` for none.
+        loop: the closed loop of the positioning stage, else ``None``.
+    """
+
+    name: str
+    description: str
+    equations: tuple[sp.Eq, ...]
+    constants: dict[str, float]
+    coordinates: tuple[str, ...] = ("x",)
+    sample_rate: float = 100.0
+    duration: float = 20.0
+    excitation: Excitation
+    max_step: float | None = None
+    loop: StageLoop | None = None
+
+    @property
+    def time(self) -> np.ndarray:
+        """The sample times (s)."""
+        return np.arange(int(round(self.duration * self.sample_rate)) + 1) / self.sample_rate
+
+    @property
+    def input_interpolation(self) -> str:
+        """How the input is defined between samples: ``"hold"`` (stage) or ``"cubic"``."""
+        return "hold" if self.loop is not None else "cubic"
+
+    def truth(self) -> tuple[sp.Eq, ...]:
+        """The equations with the true constants substituted."""
+        values = {sp.Symbol(k): v for k, v in self.constants.items()}
+        return tuple(sp.Eq(e.lhs.subs(values), e.rhs.subs(values)) for e in self.equations)
+
+    @functools.cached_property
+    def acceleration(self) -> Callable:
+        """The numpy right-hand side: ``f(positions, velocities, u, t) -> accelerations``
+        (C,) from :meth:`truth`."""
+        return accelerations(self.truth(), self.coordinates)
+
+
+def accelerations(equations, coordinates) -> Callable:
+    """``f(positions, velocities, u, t) -> accelerations`` of ``equations`` solved for each
+    coordinate's second derivative (linear in it; lambdified with numpy).
+
+    Raises:
+        ValueError: an equation is not linear in its second derivative, or it holds other
+            symbols than the states, u and t.
+    """
+    states = [state_symbols(c) for c in coordinates]
+    known = {s for x, v, _ in states for s in (x, v)} | {U, T}
+    solved = []
+    for equation, (_, _, x_ddot) in zip(equations, states):
+        residual = sp.expand(equation.lhs - equation.rhs)
+        mass = residual.coeff(x_ddot)
+        rest = residual - mass * x_ddot
+        if mass == 0 or mass.free_symbols or x_ddot in rest.free_symbols:
+            raise ValueError(f"equation {equation} is not linear in {x_ddot} with a "
+                             "constant non-zero coefficient")
+        if not rest.free_symbols <= known:
+            raise ValueError(f"equation {equation} holds unknown symbols "
+                             f"{sorted(map(str, rest.free_symbols - known))}")
+        solved.append(-rest / mass)
+    args = [[x for x, _, _ in states], [v for _, v, _ in states], U, T]
+    function = sp.lambdify(args, solved, modules="numpy")
+    return lambda x, v, u, t: np.array(function(x, v, u, t), dtype=np.float64)
+
+
+# --- the catalogue ---------------------------------------------------------------------
+X, X_DOT, X_DDOT = state_symbols("x")
+_m, _c, _k = sp.symbols("m c k")
+
+
+def _single(name: str, description: str, forces: sp.Expr, constants: dict[str, float],
+            rms: float, **fields) -> System:
+    """m·x'' + ``forces`` = u, excited at 0.1–3 Hz with ``rms`` N."""
+    return System(name=name, description=description, equations=(sp.Eq(_m * X_DDOT + forces, U),),
+                  constants={"m": 1.0, **constants},
+                  excitation=Excitation(low=0.1, high=3.0, rms=rms), **fields)
+
+
+def _chain(n: int) -> System:
+    """n masses on ground springs and dampers, neighbours coupled by kc·d + k3·d³."""
+    names = tuple(f"x{i}" for i in range(1, n + 1))
+    kc, k3 = sp.symbols("kc k3")
+    equations = []
+    for i, name in enumerate(names):
+        x, x_dot, x_ddot = state_symbols(name)
+        lhs = sp.Symbol(f"m{i + 1}") * x_ddot + _c * x_dot + _k * x
+        for j in (i - 1, i + 1):
+            if 0 <= j < n:
+                d = x - sp.Symbol(names[j])
+                lhs += kc * d + k3 * d ** 3
+        equations.append(sp.Eq(lhs, U if i == 0 else 0))
+    masses = {f"m{i + 1}": v for i, v in enumerate((1.0, 0.8, 1.2)[:n])}
+    return System(name=f"chain{n}", description=f"{n}-mass chain, cubic coupling springs, "
+                  "input on mass 1", equations=tuple(equations), coordinates=names,
+                  constants={**masses, "c": 0.8, "k": 30.0, "kc": 20.0, "k3": 300.0},
+                  excitation=Excitation(low=0.1, high=3.0, rms=6.0))
+
+
+def _catalogue() -> dict[str, System]:
+    F, Fc, Fs, vs, a, k3, f0 = sp.symbols("F Fc Fs vs a k3 f0")
+    sign = sp.sign(X_DOT)
+    systems = [
+        _single("pendulum", "m·x'' + c·x' + k·sin(x) = u, swings to ~90°",
+                _c * X_DOT + _k * sp.sin(X), {"c": 1.5, "k": 39.48}, 11.0),
+        _single("quadratic_drag", "m·x'' + c·x'|x'| + k·x = u",
+                _c * X_DOT * sp.Abs(X_DOT) + _k * X, {"c": 2.0, "k": 40.0}, 10.0,
+                max_step=SIGN_MAX_STEP),
+        _single("coulomb_viscous", "m·x'' + c·x' + F·sign(x') + k·x = u",
+                _c * X_DOT + F * sign + _k * X, {"c": 0.6, "F": 1.5, "k": 40.0}, 8.0,
+                max_step=SIGN_MAX_STEP),
+        _single("stribeck", "m·x'' + c·x' + (Fc + (Fs − Fc)·exp(−(x'/vs)²))·sign(x') + k·x = u",
+                _c * X_DOT + (Fc + (Fs - Fc) * sp.exp(-(X_DOT / vs) ** 2)) * sign + _k * X,
+                {"c": 0.6, "Fc": 1.0, "Fs": 2.0, "vs": 0.05, "k": 40.0}, 8.0,
+                max_step=SIGN_MAX_STEP),
+        _single("saturating_spring", "m·x'' + c·x' + k·tanh(x/a) = u, reaches x/a ≈ 2",
+                _c * X_DOT + _k * sp.tanh(X / a), {"c": 2.0, "k": 20.0, "a": 0.5}, 9.0),
+        _single("exponential_stiffening", "m·x'' + c·x' + k·sinh(x/a) = u",
+                _c * X_DOT + _k * sp.sinh(X / a), {"c": 2.0, "k": 10.0, "a": 0.25}, 10.0),
+        _single("duffing", "m·x'' + c·x' + k·x + k3·x³ = u, hardening, damped (not chaotic)",
+                _c * X_DOT + _k * X + k3 * X ** 3, {"c": 2.0, "k": 40.0, "k3": 400.0}, 10.0),
+        _single("softening_spring", "m·x'' + c·x' + k·x − k3·x³ = u, below its escape",
+                _c * X_DOT + _k * X - k3 * X ** 3, {"c": 2.0, "k": 40.0, "k3": 60.0}, 4.0),
+        _chain(2),
+        _chain(3),
+        System(name="stage", description="drifting positioning stage: m·x'' + c·x' + "
+               "F·sign(x') + f0 = u, PD loop on a quantised encoder",
+               equations=(sp.Eq(_m * X_DDOT + _c * X_DOT + F * sign + f0, U),),
+               constants={"m": 2.0, "c": 4.0, "F": 2.0, "f0": 0.5}, sample_rate=200.0,
+               excitation=Excitation(low=0.05, high=0.5, rms=0.01),
+               loop=StageLoop(kp=2000.0, kd=80.0, resolution=1e-6)),
+    ]
+    return {s.name: s for s in systems}
+
+
+#: Every system by name.
+SYSTEMS: dict[str, System] = _catalogue()
+#: The physics benchmark's single-coordinate systems.
+PHYSICS_SUITE = ("pendulum", "quadratic_drag", "coulomb_viscous", "stribeck",
+                 "saturating_spring", "exponential_stiffening", "duffing", "softening_spring")
+
+
+def get_system(name: str) -> System:
+    """The catalogue's system ``name``.
+
+    Raises:
+        ValueError: an unknown name.
+    """
+    if name not in SYSTEMS:
+        raise ValueError(f"unknown system {name!r}; use one of {', '.join(SYSTEMS)}")
+    return SYSTEMS[name]
