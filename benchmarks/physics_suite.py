@@ -16,6 +16,10 @@ The ``truth`` rows score the true equations: the scorer's floor.
     python benchmarks/physics_suite.py --quick --json out.json
     python benchmarks/physics_suite.py --seeds 5 --population 500 --generations 10 \\
         --peers pysindy,pyoperon --json benchmarks/physics_suite.json
+    python benchmarks/physics_suite.py --rescore part1.json part2.json --json all.json
+
+``--rescore`` merges the rows of earlier runs (one per system, say) and decides structure
+and constants again from their equations with the current rule.
 
 A failed fit or simulation is a row with its error text, not a crash of the suite.
 """
@@ -43,6 +47,9 @@ from _peers import PEERS, fit_peer, versions  # noqa: E402
 
 QUICK = {"systems": "duffing,coulomb_viscous", "seeds": 1, "population": 100,
          "generations": 3}
+#: gpjax's default function set here: eq. 10's and the unary functions of mechanics (one
+#: set for every system; a user does not know the physics beforehand).
+FUNCTIONS = ("add", "sub", "mul", "sin", "abs", "sign", "tanh", "exp")
 #: A simulated state beyond this multiple of the true record's largest |x| or |x'| counts
 #: as diverged.
 DIVERGED = 100.0
@@ -50,6 +57,8 @@ DIVERGED = 100.0
 
 def main(argv: list[str] | None = None) -> int:
     args = _parser().parse_args(argv)
+    if args.rescore:
+        return _rescore(args)
     if args.quick:
         for key, value in QUICK.items():
             setattr(args, key, value)
@@ -73,17 +82,51 @@ def main(argv: list[str] | None = None) -> int:
                 print(f"{name} seed {seed} {method}: structure {row['structure']} "
                       f"NRMS {row['nrms']} {row['seconds']:.1f} s {row['error'] or ''}",
                       flush=True)
-    table = _table(rows, systems, args.seeds)
+    _write(args, rows, systems, args.seeds, vars(args))
+    return 0
+
+
+def _rescore(args) -> int:
+    """Merge the rows of ``args.rescore`` files; structure and constants decided again."""
+    from gpjax._expressions import parse_expression
+
+    rows, commands, seeds = [], [], 0
+    for path in args.rescore:
+        payload = json.loads(Path(path).read_text(encoding="utf-8"))
+        commands.append(payload["command"])
+        seeds = max(seeds, payload["settings"]["seeds"])
+        rows += payload["rows"]
+    for row in rows:
+        if row["equation"] is None:
+            continue
+        data = generate(row["system"], seed=row["seed"], extrapolation_scale=args.scale)
+        names = {str(s) for s in data.system.truth()[0].free_symbols} | {"x_ddot", "t"}
+        equation = parse_expression(row["equation"], names, allow_equation=True)
+        verdict = compare_structure(equation, data.system.truth()[0], scales=_scales(data))
+        worst = verdict["worst_constant_error"]
+        row.update(verdict, worst_constant_error=worst if math.isfinite(worst) else None)
+    systems = list(dict.fromkeys(r["system"] for r in rows))
+    _write(args, rows, systems, seeds, {"runs": commands})
+    return 0
+
+
+def _scales(data) -> dict:
+    """RMS-like scales of x and x' on the fit record (the structure rule's ranges)."""
+    return {sp.Symbol("x"): float(np.std(data.fit.response_measured)),
+            sp.Symbol("x_dot"): float(np.std(data.fit.velocity_true))}
+
+
+def _write(args, rows: list[dict], systems: list[str], seeds: int, settings: dict) -> None:
+    table = _table(rows, systems, seeds)
     print(table)
     if args.json:
         payload = {"command": " ".join([Path(sys.executable).name, *sys.argv]),
-                   "settings": vars(args), "peers": versions(),
+                   "settings": settings, "peers": versions(),
                    "scorer": "scipy DOP853 rtol 1e-10 atol 1e-12 (Filippov sticking for "
                              "sign laws); true input samples joined by a cubic spline; true "
                              "initial state; NRMS = RMS(error)/RMS(true) on the extrapolation "
                              "record", "table": table, "rows": rows}
         Path(args.json).write_text(json.dumps(payload, indent=1, default=str) + "\n")
-    return 0
 
 
 def _parser() -> argparse.ArgumentParser:
@@ -93,17 +136,25 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--seeds", type=int, default=5, help="seeds 0 … N−1 (default 5)")
     parser.add_argument("--population", type=int, default=500)
     parser.add_argument("--generations", type=int, default=10)
+    parser.add_argument("--functions", default=",".join(FUNCTIONS),
+                        help="gpjax's function set, the same for every system "
+                             f"(default {','.join(FUNCTIONS)})")
+    parser.add_argument("--max-degree", type=int, default=3)
     parser.add_argument("--scale", type=float, default=1.2,
                         help="extrapolation input amplitude ÷ fit amplitude (default 1.2)")
     parser.add_argument("--peers", default="", help=f"comma-separated, from {','.join(PEERS)}")
     parser.add_argument("--json", help="write every row and the command to this file")
+    parser.add_argument("--rescore", nargs="+", metavar="JSON",
+                        help="merge these runs' rows and decide structure and constants again")
     parser.add_argument("--quick", action="store_true",
                         help="smoke run: " + ", ".join(f"{k} {v}" for k, v in QUICK.items()))
     return parser
 
 
 def _gpjax(data, args, seed: int, *, local_search: int | None) -> sp.Eq:
-    config = gpjax.GPConfig(population=args.population, generations=args.generations)
+    config = gpjax.GPConfig(population=args.population, generations=args.generations,
+                            functions=tuple(args.functions.split(",")),
+                            max_degree=args.max_degree)
     if local_search is not None:
         config = config.replace(local_search=local_search)
     identifier = gpjax.Identifier(config).fit(data.fit.measurement(), seed=seed,
@@ -121,9 +172,7 @@ def _row(data, method: str, fit) -> dict:
         equation = fit()
         row["seconds"] = time.perf_counter() - began
         row["equation"] = str(equation)
-        scales = {sp.Symbol("x"): float(np.std(data.fit.response_measured)),
-                  sp.Symbol("x_dot"): float(np.std(data.fit.velocity_true))}
-        verdict = compare_structure(equation, data.system.truth()[0], scales=scales)
+        verdict = compare_structure(equation, data.system.truth()[0], scales=_scales(data))
         worst = verdict["worst_constant_error"]
         row.update(verdict, worst_constant_error=worst if math.isfinite(worst) else None)
         record = data.extrapolation

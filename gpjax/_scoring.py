@@ -13,9 +13,12 @@ Structure rule. Both equations are written as lhs − rhs = 0, normalised so tha
 input's coefficient is −1 (the form m·x'' + … = u), rewritten (sinh and cosh as
 exponentials; tanh(y/ε) with ε ≤ :data:`SIGN_EPSILON` × RMS(y) as sign(y)), expanded, and
 split into terms coefficient × feature. The structure is right when the two sets of
-features match one to one — the same sympy expression, numbers inside a feature within
-:data:`TOLERANCE` — and the constants are right when every matched coefficient (x''
-included) is within :data:`TOLERANCE` of the truth's.
+features match one to one — the same sympy expression with numbers inside a feature within
+:data:`TOLERANCE`, or (an equivalent expression) two features of the same variable z that
+agree over the exercised range, RMS difference ≤ :data:`TOLERANCE` × the truth feature's RMS
+on |z| ≤ :data:`RANGE_RMS` × RMS(z) (sin(1.0007·x − 2e-5) matches sin(x)) — and the
+constants are right when every matched coefficient (x'' included) is within
+:data:`TOLERANCE` of the truth's.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ from ._systems import U, accelerations
 RTOL, ATOL = 1e-10, 1e-12
 #: Relative tolerance of constants, and of numbers inside features.
 TOLERANCE = 0.02
+#: Features are compared numerically on |z| ≤ RANGE_RMS × RMS(z).
+RANGE_RMS = 2.5
 #: tanh(y/ε) counts as sign(y) when ε is at most this fraction of RMS(y).
 SIGN_EPSILON = 0.01
 INTERPOLATIONS = ("cubic", "hold")
@@ -236,7 +241,26 @@ def _sharp_tanh(expression: sp.tanh, scales: dict[sp.Symbol, float]) -> sp.Expr:
     return expression
 
 
-def _close(a: sp.Expr, b: sp.Expr) -> bool:
+def _close(a: sp.Expr, b: sp.Expr, scales: dict[sp.Symbol, float]) -> bool:
+    """``a`` and ``b`` are the same expression (numbers within :data:`TOLERANCE`) or
+    features of one variable that agree over its exercised range (module docstring)."""
+    if _same_form(a, b):
+        return True
+    variables = a.free_symbols
+    if len(variables) != 1 or variables != b.free_symbols or next(iter(variables)) not in scales:
+        return False
+    z = next(iter(variables))
+    grid = np.linspace(-RANGE_RMS, RANGE_RMS, 401) * scales[z]
+    values = [np.broadcast_to(np.asarray(sp.lambdify(z, f, "numpy")(grid), dtype=float),
+                              grid.shape) for f in (a, b)]
+    if not all(np.all(np.isfinite(v)) for v in values):
+        return False
+    reference = float(np.sqrt(np.mean(values[1] ** 2)))
+    return reference > 0 and float(np.sqrt(np.mean((values[0] - values[1]) ** 2))) <= \
+        TOLERANCE * reference
+
+
+def _same_form(a: sp.Expr, b: sp.Expr) -> bool:
     """``a`` and ``b`` are the same expression, numbers within :data:`TOLERANCE`."""
     if a.is_Number and b.is_Number:
         return math.isclose(float(a), float(b), rel_tol=TOLERANCE, abs_tol=1e-12)
@@ -244,7 +268,7 @@ def _close(a: sp.Expr, b: sp.Expr) -> bool:
         return False
     if not a.args:
         return a == b
-    return all(_close(x, y) for x, y in zip(a.args, b.args))
+    return all(_same_form(x, y) for x, y in zip(a.args, b.args))
 
 
 def compare_structure(model: sp.Eq, truth: sp.Eq, *,
@@ -264,7 +288,8 @@ def compare_structure(model: sp.Eq, truth: sp.Eq, *,
                 "extra": [], "worst_constant_error": math.inf}
     matched, extra = {}, []
     for feature, coefficient in found.items():
-        partner = next((w for w in wanted if w not in matched and _close(feature, w)), None)
+        partner = next((w for w in wanted if w not in matched
+                        and _close(feature, w, scales or {})), None)
         if partner is None:
             extra.append(str(feature))
         else:
