@@ -105,13 +105,18 @@ class Refiner:
         self._state_scale = np.array([np.std(response), np.std(np.diff(response))
                                       / evaluator.measurement.dt]) + 1e-300
         self._run = jax.jit(jax.vmap(self._refine_one, in_axes=(0, 0, 0, None)))
-        self._compiled: set[int] = set()
+        self._compiled: set[tuple[int, int]] = set()
         self.compile_seconds = 0.0
 
     @property
     def compile_count(self) -> int:
-        """Shapes compiled so far (one per flat-layout width used)."""
+        """Shapes compiled so far (one per flat-layout width and Jacobian width used)."""
         return len(self._compiled)
+
+    def width(self, free: int) -> int:
+        """Jacobian columns for a call whose models have at most ``free`` free constants:
+        the next even number, at most ``max_free`` (one compile per width used)."""
+        return min(self.max_free, free + free % 2)
 
     def refine(self, population: Population, fixed_forcing: np.ndarray) -> Refinement:
         """Refine every model of ``population``; coefficients that are 0 stay 0.
@@ -137,10 +142,11 @@ class Refiner:
                 used[:, None]
         scale = np.where(scale > 0, scale, 1.0)
         # Only free parameters are differentiated: index (P, width), padded with scale 0.
-        index = np.zeros((count, self.max_free), dtype=np.int32)
-        index_scale = np.zeros((count, self.max_free))
+        width = self.width(int(free.sum(axis=1).max()))
+        index = np.zeros((count, width), dtype=np.int32)
+        index_scale = np.zeros((count, width))
         for i, row in enumerate(free):
-            columns = np.flatnonzero(row)[: self.max_free]
+            columns = np.flatnonzero(row)[:width]
             index[i, : columns.size] = columns
             index_scale[i, : columns.size] = scale[i, columns]
         outputs = []
@@ -148,8 +154,8 @@ class Refiner:
         for size, chunk in padded_chunks((start, index, index_scale), self.batch):
             began = time.perf_counter()
             out = jax.block_until_ready(self._run(*map(jnp.asarray, chunk), basis))
-            if layout.width not in self._compiled:  # a shape's first call includes its compile
-                self._compiled.add(layout.width)
+            if (layout.width, width) not in self._compiled:  # a first call includes its compile
+                self._compiled.add((layout.width, width))
                 self.compile_seconds += time.perf_counter() - began
             outputs.append([np.asarray(o)[:size] for o in out])
         params, ok, steps = (np.concatenate(p) for p in zip(*outputs))
@@ -202,13 +208,27 @@ class Refiner:
             constants = _moved(start, index, index_scale, delta)
             return ev.scan_solve(*ev.unpack(constants, forcing_basis[:n_stage]))[:, 0]
 
+        @jax.custom_batching.custom_vmap
+        def augmented(constants, directions, forcing_basis):
+            return ev.constant_jacobian(constants, directions, forcing_basis[:n_stage])
+
+        @augmented.def_vmap
+        def augmented_batched(axis_size, in_batched, constants, directions, forcing_basis):
+            # Models are the population axis of one scan, not a vmap of one-model scans.
+            if in_batched[2]:
+                raise NotImplementedError("the forcing basis is shared by every model")
+            constants, directions = (a if batched else jnp.broadcast_to(a, (axis_size,) + a.shape)
+                                     for a, batched in zip((constants, directions), in_batched))
+            x, jacobian = ev.constant_jacobian(constants, directions, forcing_basis[:n_stage])
+            return (x.T, jnp.moveaxis(jacobian, -1, 0)), (True, True)
+
         @response.defjvp
         def response_jvp(primals, tangents):
             delta, start, index, index_scale, forcing_basis = primals
             # Row j of the directions: constant index[j] moved by index_scale[j].
             directions = (index[:, None] == jnp.arange(start.size)[None, :]) * index_scale[:, None]
-            x, jacobian = ev.constant_jacobian(_moved(start, index, index_scale, delta),
-                                               directions, forcing_basis[:n_stage])
+            x, jacobian = augmented(_moved(start, index, index_scale, delta), directions,
+                                    forcing_basis)
             return x, jacobian @ tangents[0]
 
         return response
