@@ -271,7 +271,7 @@ def child(function, *args, path=None):
             f"import bench_population as b; b.{function}(*{args!r})")
     env = dict(os.environ, PYTHONPATH=str(path)) if path is not None else os.environ
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         env=env, check=False)
+                         env=env, cwd=path, check=False)  # cwd: "" on sys.path finds path's
     if out.returncode:
         return {"error": f"exit {out.returncode}: {out.stderr.strip()[-300:]}"}
     return json.loads(out.stdout.strip().splitlines()[-1])

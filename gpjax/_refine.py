@@ -73,12 +73,14 @@ class Refiner:
     Args:
         evaluator: supplies the simulation and the measured response.
         iterations: maximum Levenberg–Marquardt steps.
-        batch: models refined per compiled call (padded). Capped so one call's forcing
+        batch: models refined per compiled call (padded; split over the evaluator's
+            devices when it divides evenly among them). Capped so one call's forcing
             directions (stages × ``max_free`` × models) hold at most
             :data:`gpjax._evaluator.STAGE_ELEMENTS_PER_CALL` numbers (on a 10⁶-sample
             record one model per call: 2.2 GB peak instead of 5.5 GB for eight).
-        max_free: most free constants per model (further ones stay at their start values);
-            the width of every Jacobian, so the cost of a step grows with it.
+        max_free: most free constants per model (further ones stay at their start values).
+            A call's Jacobian has :meth:`width` columns, so the cost of a step grows with
+            the free constants of its widest model.
         horizons: increasing fractions of the record fitted in turn, each for up to
             ``iterations`` steps; the last should be 1.
         jacobian: ``"variational"`` (default: the variational equations in the scan, see
