@@ -200,7 +200,7 @@ class Refiner:
         """x over the first ``samples`` samples as a function of the scaled step ``delta``
         of one model's free constants, with its Jacobian from the variational equations.
 
-        The derivative rule computes the whole Jacobian (samples, max_free) from primal
+        The derivative rule computes the whole Jacobian (samples, width) from primal
         values only — one :meth:`PopulationEvaluator.constant_jacobian` pass — and returns
         J·t; so the linearisation Levenberg–Marquardt takes each step costs one augmented
         solve, and materialising J is a matrix product, not one tangent solve per constant.
