@@ -5,7 +5,9 @@ the paper's protocol, scaling, and the gain from a second host device.
         python benchmarks/bench_population.py --json benchmarks/population_cpu.json
 
 Without ``XLA_FLAGS`` the script sets it itself (before JAX starts) so both cores are used;
-``--devices 1`` measures one device. Prints a table and writes the figures as JSON.
+``--devices 1`` measures one device. ``--baseline REV`` also measures the refinement rate
+with the engine of git revision REV (a temporary worktree, child processes interleaved
+with the current tree's). Prints a table and writes the figures as JSON.
 """
 
 from __future__ import annotations
@@ -19,7 +21,9 @@ import pstats
 import resource
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
 if "--devices" not in sys.argv or sys.argv[sys.argv.index("--devices") + 1] != "1":
     os.environ.setdefault("XLA_FLAGS", "--xla_force_host_platform_device_count=2")
@@ -37,6 +41,8 @@ from gpjax._weak_form import WeakForm, least_squares, smoothed_derivatives  # no
 from gpjax._coefficients import Population  # noqa: E402
 from gpjax._refine import LINEAR_SOLVER, Refiner  # noqa: E402
 from gpjax.gear import generate_gear_example, load_bundled_example  # noqa: E402
+
+ROOT = Path(__file__).resolve().parent.parent
 
 
 def population(evaluator, truth, count, spread, rng):
@@ -97,10 +103,7 @@ def refinement(symbols, truth, measurement, iterations, count):
     equation-error estimate competes with the given start (the lower objective wins), then
     Levenberg–Marquardt. Converged: J, K1 and K2 all within 0.1 % of the truth.
     """
-    ev0 = PopulationEvaluator(measurement, symbols, max_degree=4, batch=8)
-    start, u = population(ev0, truth, 1, 0.0, np.random.default_rng(0))
-    clean = Measurement(time=measurement.time, response=ev0.simulate(start)[0][0],
-                        inputs=measurement.inputs, response_name="phi", time_name="t")
+    clean, start = clean_example(measurement, truth, symbols)
     ev = PopulationEvaluator(clean, symbols, max_degree=4, batch=count)
     single = Refiner(ev, iterations=iterations, batch=count, horizons=(1.0,))
     continuation = Refiner(ev, iterations=iterations, batch=count, horizons=(0.25, 1.0))
@@ -161,6 +164,49 @@ def refinement(symbols, truth, measurement, iterations, count):
             "by_perturbation": {str(k): v for k, v in rows.items()}}
 
 
+def clean_example(measurement, truth, symbols):
+    """The example's record with the response of eq. 14 at the true constants (noise-free:
+    refinement's optimum is the truth), and that one-model population."""
+    ev = PopulationEvaluator(measurement, symbols, max_degree=4, batch=8)
+    start, _ = population(ev, truth, 1, 0.0, np.random.default_rng(0))
+    clean = Measurement(time=measurement.time, response=ev.simulate(start)[0][0],
+                        inputs=measurement.inputs, response_name="phi", time_name="t")
+    return clean, start
+
+
+def refinement_rate(iterations, count):
+    """Child: models/s of ``refinement``'s speed setting (one horizon, the default
+    Jacobian, 10 % starts), best of 3; prints JSON. Runs on any engine revision."""
+    measurement, truth = load_bundled_example()
+    symbols = Symbols("phi", "t", ("T",))
+    clean, _ = clean_example(measurement, truth, symbols)
+    ev = PopulationEvaluator(clean, symbols, max_degree=4, batch=count)
+    refiner = Refiner(ev, iterations=iterations, batch=count, horizons=(1.0,))
+    pop, u = population(ev, truth, count, 0.1, np.random.default_rng(1))
+    fixed = np.full(count, u)
+    refiner.refine(pop, fixed)
+    print(json.dumps(count / best_of(lambda: refiner.refine(pop, fixed), 3)))
+
+
+def baseline_refinement(revision, iterations, count, rounds=3):
+    """Refinement models/s of the engine at git ``revision`` and of this tree, each in
+    fresh processes, alternating ``rounds`` times (the machine is shared); best of each."""
+    with tempfile.TemporaryDirectory() as folder:
+        tree = Path(folder) / "baseline"
+        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree),
+                        revision], check=True, capture_output=True)
+        try:
+            rates = [(child("refinement_rate", iterations, count, path=tree),
+                      child("refinement_rate", iterations, count, path=ROOT))
+                     for _ in range(rounds)]
+        finally:
+            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)],
+                           check=True, capture_output=True)
+    baseline, current = (max(r) for r in zip(*rates))
+    return {"revision": revision, "models_per_s": baseline, "current_models_per_s": current,
+            "current_over_baseline": current / baseline}
+
+
 def lm_floor(samples, width, iterations, count, linear_solver=LINEAR_SOLVER):
     """Models/s of optimistix Levenberg–Marquardt alone, vmapped like the refiner, on a
     residual as long as the record and as wide as the refiner's Jacobian, but costing
@@ -218,12 +264,14 @@ def protocol_child(profiled):
         for name, (suffix, wanted) in parts.items()}}))
 
 
-def child(function, *args):
-    """Run ``function(*args)`` of this script in a fresh Python; its last stdout line is JSON."""
+def child(function, *args, path=None):
+    """Run ``function(*args)`` of this script in a fresh Python (with the engine at
+    ``path`` first on ``PYTHONPATH`` when given); its last stdout line is JSON."""
     code = (f"import sys; sys.argv=['x']; sys.path.insert(0, {os.path.dirname(__file__)!r});"
             f"import bench_population as b; b.{function}(*{args!r})")
+    env = dict(os.environ, PYTHONPATH=str(path)) if path is not None else os.environ
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         env=os.environ, check=False)
+                         env=env, cwd=path, check=False)  # cwd: "" on sys.path finds path's
     if out.returncode:
         return {"error": f"exit {out.returncode}: {out.stderr.strip()[-300:]}"}
     return json.loads(out.stdout.strip().splitlines()[-1])
@@ -260,6 +308,7 @@ def main() -> None:
     parser.add_argument("--json", help="write the results here")
     parser.add_argument("--devices", type=int, default=2)
     parser.add_argument("--skip-scaling", action="store_true")
+    parser.add_argument("--baseline", help="git revision whose refinement rate to compare")
     args = parser.parse_args()
     measurement, truth = load_bundled_example()
     symbols = Symbols("phi", "t", ("T",))
@@ -290,6 +339,8 @@ def main() -> None:
                   one_device_integration_share=scan_share, scipy_models_per_s=scipy_rate,
                   ratio=rate / scipy_rate, compile_s=compile_s)
     result["refinement"] = refinement(symbols, truth, measurement, 10, 64)
+    if args.baseline:
+        result["refinement"]["baseline"] = baseline_refinement(args.baseline, 10, 64)
     result["protocol"] = protocol()
     if not args.skip_scaling:
         result["scaling"] = [scaling_point(p, 1334) for p in (100, 500, 2000, 10000)]
@@ -306,6 +357,11 @@ def main() -> None:
           f"{r['lm_floor_models_per_s']:>6.4g}")
     for name, rate in r["models_per_s_by_jacobian"].items():
         print(f"{'refine models/s, jacobian ' + name:<52} {rate:>6.4g}")
+    if "baseline" in r:
+        b = r["baseline"]
+        print(f"{'refine models/s: baseline ' + b['revision'] + ', this tree, ratio':<52} "
+              f"{b['models_per_s']:>6.4g} {b['current_models_per_s']:>6.4g} "
+              f"{b['current_over_baseline']:>5.2f}")
     for spread, row in r["by_perturbation"].items():
         print(f"{'converged from ' + spread + ': LM, continuation, EE start':<52} "
               f"{row['lm_converged']:>5.2f} {row['continuation_converged']:>5.2f} "

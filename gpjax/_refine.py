@@ -8,6 +8,12 @@ scaled by their starting magnitudes, so constants spanning nine orders of magnit
 under ``vmap``; a model whose solve fails keeps its start values (status returned, never
 raised).
 
+The Jacobian has one column per free constant of the call's widest model (rounded up to
+an even number, at most ``max_free``), and the augmented solve of a call is one population
+scan (``custom_vmap``), split over the evaluator's devices like its evaluations: on the
+gear example (64 models, 10 iterations, 2 host devices) 1.9× the models/s of one padded
+8-column Jacobian per model under ``vmap`` (benchmarks/bench_population.py, ``--baseline``).
+
 The fit grows its horizon (continuation): Levenberg–Marquardt first matches a leading part
 of the record, then the whole. A wrong stiffness shifts the phase in proportion to the time
 elapsed, so on the full record (~24 periods on the gear example) a start a few per cent
@@ -29,6 +35,8 @@ import jax.numpy as jnp
 import lineax as lx
 import numpy as np
 import optimistix as optx
+
+from jax.sharding import AxisType, PartitionSpec
 
 from ._coefficients import Population, padded_chunks
 from ._evaluator import STAGE_ELEMENTS_PER_CALL, PopulationEvaluator
@@ -65,12 +73,14 @@ class Refiner:
     Args:
         evaluator: supplies the simulation and the measured response.
         iterations: maximum Levenberg–Marquardt steps.
-        batch: models refined per compiled call (padded). Capped so one call's forcing
+        batch: models refined per compiled call (padded; split over the evaluator's
+            devices when it divides evenly among them). Capped so one call's forcing
             directions (stages × ``max_free`` × models) hold at most
             :data:`gpjax._evaluator.STAGE_ELEMENTS_PER_CALL` numbers (on a 10⁶-sample
             record one model per call: 2.2 GB peak instead of 5.5 GB for eight).
-        max_free: most free constants per model (further ones stay at their start values);
-            the width of every Jacobian, so the cost of a step grows with it.
+        max_free: most free constants per model (further ones stay at their start values).
+            A call's Jacobian has :meth:`width` columns, so the cost of a step grows with
+            the free constants of its widest model.
         horizons: increasing fractions of the record fitted in turn, each for up to
             ``iterations`` steps; the last should be 1.
         jacobian: ``"variational"`` (default: the variational equations in the scan, see
@@ -105,13 +115,18 @@ class Refiner:
         self._state_scale = np.array([np.std(response), np.std(np.diff(response))
                                       / evaluator.measurement.dt]) + 1e-300
         self._run = jax.jit(jax.vmap(self._refine_one, in_axes=(0, 0, 0, None)))
-        self._compiled: set[int] = set()
+        self._compiled: set[tuple[int, int]] = set()
         self.compile_seconds = 0.0
 
     @property
     def compile_count(self) -> int:
-        """Shapes compiled so far (one per flat-layout width used)."""
+        """Shapes compiled so far (one per flat-layout width and Jacobian width used)."""
         return len(self._compiled)
+
+    def width(self, free: int) -> int:
+        """Jacobian columns for a call whose models have at most ``free`` free constants:
+        the next even number, at most ``max_free`` (one compile per width used)."""
+        return min(self.max_free, free + free % 2)
 
     def refine(self, population: Population, fixed_forcing: np.ndarray) -> Refinement:
         """Refine every model of ``population``; coefficients that are 0 stay 0.
@@ -154,10 +169,11 @@ class Refiner:
                 used[:, None]
         scale = np.where(scale > 0, scale, 1.0)
         # Only free parameters are differentiated: index (P, width), padded with scale 0.
-        index = np.zeros((count, self.max_free), dtype=np.int32)
-        index_scale = np.zeros((count, self.max_free))
+        width = self.width(int(free.sum(axis=1).max()))
+        index = np.zeros((count, width), dtype=np.int32)
+        index_scale = np.zeros((count, width))
         for i, row in enumerate(free):
-            columns = np.flatnonzero(row)[: self.max_free]
+            columns = np.flatnonzero(row)[:width]
             index[i, : columns.size] = columns
             index_scale[i, : columns.size] = scale[i, columns]
         outputs = []
@@ -165,8 +181,8 @@ class Refiner:
         for size, chunk in padded_chunks((start, index, index_scale), self.batch):
             began = time.perf_counter()
             out = jax.block_until_ready(self._run(*map(jnp.asarray, chunk), basis))
-            if layout.width not in self._compiled:  # a shape's first call includes its compile
-                self._compiled.add(layout.width)
+            if (layout.width, width) not in self._compiled:  # a first call includes its compile
+                self._compiled.add((layout.width, width))
                 self.compile_seconds += time.perf_counter() - began
             outputs.append([np.asarray(o)[:size] for o in out])
         params, ok, steps = (np.concatenate(p) for p in zip(*outputs))
@@ -205,7 +221,7 @@ class Refiner:
         """x over the first ``samples`` samples as a function of the scaled step ``delta``
         of one model's free constants, with its Jacobian from the variational equations.
 
-        The derivative rule computes the whole Jacobian (samples, max_free) from primal
+        The derivative rule computes the whole Jacobian (samples, width) from primal
         values only — one :meth:`PopulationEvaluator.constant_jacobian` pass — and returns
         J·t; so the linearisation Levenberg–Marquardt takes each step costs one augmented
         solve, and materialising J is a matrix product, not one tangent solve per constant.
@@ -223,16 +239,45 @@ class Refiner:
             constants = _moved(start, index, index_scale, delta)
             return ev.scan_solve(*ev.unpack(constants, forcing_basis[:n_stage]))[:, 0]
 
+        @jax.custom_batching.custom_vmap
+        def augmented(constants, directions, forcing_basis):
+            return ev.constant_jacobian(constants, directions, forcing_basis[:n_stage])
+
+        @augmented.def_vmap
+        def augmented_batched(axis_size, in_batched, constants, directions, forcing_basis):
+            # Models are the population axis of one scan, not a vmap of one-model scans.
+            if in_batched[2]:
+                raise NotImplementedError("the forcing basis is shared by every model")
+            constants, directions = (a if batched else jnp.broadcast_to(a, (axis_size,) + a.shape)
+                                     for a, batched in zip((constants, directions), in_batched))
+            x, jacobian = _split_over(ev.devices, ev.constant_jacobian, axis_size)(
+                constants, directions, forcing_basis[:n_stage])
+            return (x.T, jnp.moveaxis(jacobian, -1, 0)), (True, True)
+
         @response.defjvp
         def response_jvp(primals, tangents):
             delta, start, index, index_scale, forcing_basis = primals
             # Row j of the directions: constant index[j] moved by index_scale[j].
             directions = (index[:, None] == jnp.arange(start.size)[None, :]) * index_scale[:, None]
-            x, jacobian = ev.constant_jacobian(_moved(start, index, index_scale, delta),
-                                               directions, forcing_basis[:n_stage])
+            x, jacobian = augmented(_moved(start, index, index_scale, delta), directions,
+                                    forcing_basis)
             return x, jacobian @ tangents[0]
 
         return response
+
+
+def _split_over(devices, fn, count):
+    """``fn(constants, directions, basis)`` with the models (first axis of the first two,
+    last of the outputs) split over ``devices`` by ``shard_map`` where there are several
+    and ``count`` divides evenly."""
+    if len(devices) < 2 or count % len(devices):
+        return fn
+    mesh = jax.make_mesh((len(devices),), ("population",), axis_types=(AxisType.Auto,),
+                         devices=devices)
+    models = PartitionSpec("population")
+    return jax.shard_map(fn, mesh=mesh, in_specs=(models, models, PartitionSpec()),
+                         out_specs=(PartitionSpec(None, "population"),
+                                    PartitionSpec(None, None, "population")), check_vma=False)
 
 
 def _moved(start, index, index_scale, delta):

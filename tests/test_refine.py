@@ -1,3 +1,8 @@
+import os
+import subprocess
+import sys
+from pathlib import Path
+
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -125,3 +130,36 @@ def test_variational_and_autodiff_refinement_agree(refiner):
 def test_unknown_jacobian_is_refused(refiner):
     with pytest.raises(ValueError, match="jacobian"):
         Refiner(refiner.evaluator, jacobian="finite differences")
+
+
+def test_jacobian_width_is_the_next_even_count_of_free_constants(refiner):
+    assert [refiner.width(k) for k in (1, 2, 5, 6, 8, 11)] == [2, 2, 6, 6, 8, 8]
+
+
+#: Refines four models of this file's problem with the augmented solve split over two
+#: host devices and on one device; prints the largest relative difference.
+SPLIT_PROBE = """
+import numpy as np, jax
+import tests.test_refine as t
+from gpjax.engine import PopulationEvaluator
+from gpjax._refine import Refiner
+assert len(jax.devices()) == 2
+data = t._setup().measurement
+out = []
+for devices in (jax.devices(), jax.devices()[:1]):
+    ev = PopulationEvaluator(data, t.S, max_degree=2, batch=4, devices=devices)
+    start = t._models(ev, np.full(4, 0.1), np.random.default_rng(1))
+    fixed = np.full(4, ev.forcing_index(t.S.u[0]))
+    out.append(Refiner(ev, iterations=10, batch=4).refine(start, fixed).population.state[:, :2])
+print(np.max(np.abs(out[0] / out[1] - 1)))
+"""
+
+
+def test_refinement_split_over_two_host_devices_matches_one_device():
+    root = Path(__file__).resolve().parent.parent
+    env = dict(os.environ, PYTHONPATH=str(root), JAX_PLATFORMS="cpu",
+               XLA_FLAGS="--xla_force_host_platform_device_count=2")
+    done = subprocess.run([sys.executable, "-c", SPLIT_PROBE], capture_output=True, text=True,
+                          env=env, cwd=root, timeout=300)
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert float(done.stdout.split()[-1]) < 1e-9
