@@ -139,13 +139,18 @@ def to_population(models: Sequence[Coefficients], columns: Columns) -> Populatio
     needed). A NaN mass becomes 1 and a NaN initial state 0 (placeholders).
 
     Raises:
-        ValueError: a state feature outside ``columns``' basis.
+        ValueError: a state feature outside ``columns``' basis, or two features of one
+            model in one column (two members of one feature-bank family).
     """
     for model in models:
         for feature in model.forcing:
             columns.forcing_index(feature)
     population = columns.empty(len(models))
     for i, model in enumerate(models):
+        taken = [columns.state_index(feature) for feature in model.state]
+        if len(set(taken)) < len(taken):
+            raise ValueError(f"two state features of one model share a column (two members "
+                             f"of one feature-bank family?): {list(model.state)}")
         population.mass[i] = model.mass if math.isfinite(model.mass) else 1.0
         for feature, value in model.state.items():
             column = columns.state_index(feature)

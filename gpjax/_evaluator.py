@@ -75,9 +75,10 @@ def split_state_features(features, symbols: Symbols, *, families: bool = True
                          ) -> tuple[int, tuple[sp.Expr, ...], tuple[Family, ...]]:
     """(max_degree, extra features, families) of an evaluator whose basis holds
     ``features``: the highest power of x or x' among the plain powers, the families of the
-    feature-bank members (:func:`gpjax._features.match`; with ``families=False`` they are
-    extra features too, their inner constants fixed), and every other feature (products
-    with functions of time, sign(x'), …) compiled in as an extra feature."""
+    feature-bank members (:func:`gpjax._features.match`; one column per family, so a
+    second member of a family, and every member with ``families=False``, is an extra
+    feature, its inner constants fixed), and every other feature (products with functions
+    of time, sign(x'), …) compiled in as an extra feature."""
     degree, extra, found_families = 1, [], []
     powers = {symbols.x, symbols.x_dot}
     for feature in features:
@@ -85,9 +86,9 @@ def split_state_features(features, symbols: Symbols, *, families: bool = True
         found = match(feature, symbols) if families else None
         if base in powers and exponent.is_Integer and exponent > 0:
             degree = max(degree, int(exponent))
-        elif found is not None:
-            found_families += [found[0]] if found[0] not in found_families else []
-        else:
+        elif found is not None and found[0] not in found_families:
+            found_families.append(found[0])
+        else:  # a further member of a family (exp(a·x) beside exp(b·x)) is fixed too
             extra.append(feature)
     return degree, tuple(extra), tuple(found_families)
 

@@ -143,12 +143,18 @@ class Fitness:
             if check.valid:
                 form = self._bank_form(check.canonical)
                 check = dataclasses.replace(check, canonical=form)
-                unsupported = [f for f, _ in form.state if self.evaluator.state_index(f) is None]
+                columns = [self.evaluator.state_index(f) for f, _ in form.state]
+                unsupported = [f for (f, _), c in zip(form.state, columns) if c is None]
                 if unsupported:
                     check = dataclasses.replace(
                         check, valid=False, canonical=None,
                         reason=f"state feature {unsupported[0]} is outside the evaluator's basis "
                                f"(powers of x and x' up to {self.config.max_degree})")
+                elif len(set(columns)) < len(columns):
+                    check = dataclasses.replace(
+                        check, valid=False, canonical=None,
+                        reason="two members of one feature-bank family (e.g. exp(a·x) and "
+                               "exp(b·x)): a model holds at most one of each")
             if check.valid:
                 key = structure_key(check.canonical, self.config.coefficients == "tree")
                 self.checks[tree] = (key, check.canonical, "")

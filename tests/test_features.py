@@ -269,3 +269,24 @@ def test_inner_constants_start_from_the_grid_when_the_tree_scale_is_wrong(pendul
     assert 0.25 < a / (np.pi / 180) < 4
     assert least_squares_residual(fitness.weak_form, (V, start), forcing) < 0.5 * \
         least_squares_residual(fitness.weak_form, (V, sp.sin(X)), forcing)
+
+
+def test_two_members_of_one_family_invalidate_a_candidate_but_simulate_in_a_model(pendulum):
+    """The GP's bank has one column per family: exp(x) beside exp(−x) is refused with the
+    reason; a model holding both (sinh) simulates them exactly, the second as a fixed
+    feature."""
+    from gpjax import Model
+    from gpjax._config import GPConfig
+    from gpjax._fitness import Fitness
+
+    data, _ = pendulum
+    fitness = Fitness(data, GPConfig(population=8, functions=("add", "sub", "mul", "exp")))
+    tree = ("sub", ("add", ("x_ddot",), ("sub", ("exp", ("x",)),
+                                            ("exp", ("mul", ("n", -1.0), ("x",))))), ("u", 0))
+    key, form, reason = fitness.classify(tree)
+    assert form is None and "at most one of each" in reason
+    model = Model(symbols=S, mass=1.0, state={"x_dot": 0.4, "exp(1.1*x)": 4.5,
+                                              "exp(-1.1*x)": -4.5}, forcing={"u": 1.0},
+                  initial_conditions=(0.1, 0.0), substeps=4)
+    rk4, reference = model.simulate(data, solver="rk4"), model.simulate(data)
+    assert np.max(np.abs(rk4 - reference)) < 1e-6 * np.ptp(reference)
