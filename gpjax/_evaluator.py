@@ -192,6 +192,7 @@ class PopulationEvaluator:
         self._forcing_features: list[sp.Expr] = []
         self._forcing_columns: list[np.ndarray] = []
         self._forcing_index: dict[sp.Expr, int] = {}
+        self._finite: dict[sp.Expr, bool] = {}  # forcing_finite's verdicts
         self._forcing_basis = np.zeros((self.stage_times.size, 0))
         self.compile_seconds = 0.0
         self._extra_fns = [sp.lambdify((symbols.x, symbols.x_dot, symbols.t), f, modules="jax")
@@ -259,13 +260,29 @@ class PopulationEvaluator:
             return self.state_features[column]
         return self.families[column - first].feature(self.symbols, tuple(map(float, theta)))
 
+    def forcing_finite(self, feature: sp.Expr) -> bool:
+        """Whether a forcing feature is finite at every stage time: a column that is not
+        would make the forcing of *every* model in a call NaN (0·inf), so such a feature
+        must not enter the basis."""
+        if feature not in self._finite:
+            self._finite[feature] = bool(np.all(np.isfinite(self.forcing_values(
+                feature, self.stage_times, self._stage_inputs))))
+        return self._finite[feature]
+
     def forcing_index(self, feature: sp.Expr) -> int:
-        """Column of a forcing feature, evaluating it on the stage grid the first time."""
+        """Column of a forcing feature, evaluating it on the stage grid the first time.
+
+        Raises:
+            ValueError: the feature is not finite at every stage time
+                (:meth:`forcing_finite`).
+        """
         if feature not in self._forcing_index:
+            values = self.forcing_values(feature, self.stage_times, self._stage_inputs)
+            if not np.all(np.isfinite(values)):
+                raise ValueError(f"forcing feature {feature} is not finite on the data")
             self._forcing_index[feature] = len(self._forcing_features)
             self._forcing_features.append(feature)
-            self._forcing_columns.append(self.forcing_values(feature, self.stage_times,
-                                                             self._stage_inputs))
+            self._forcing_columns.append(values)
             capacity = _capacity(len(self._forcing_features))
             basis = np.zeros((self.stage_times.size, capacity))
             basis[:, :len(self._forcing_columns)] = np.stack(self._forcing_columns, axis=1)

@@ -150,6 +150,11 @@ class Fitness:
                         check, valid=False, canonical=None,
                         reason=f"state feature {unsupported[0]} is outside the evaluator's basis "
                                f"(powers of x and x' up to {self.config.max_degree})")
+                elif not all(map(self.evaluator.forcing_finite, (g for g, _ in form.forcing))):
+                    check = dataclasses.replace(
+                        check, valid=False, canonical=None,
+                        reason="a forcing term is not finite on the data (e.g. exp(a·t) "
+                               "overflows)")
                 elif len(set(columns)) < len(columns):
                     check = dataclasses.replace(
                         check, valid=False, canonical=None,

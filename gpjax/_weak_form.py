@@ -194,9 +194,12 @@ def least_squares_residual(weak: WeakForm, lhs: tuple[sp.Expr, ...],
 
 
 def _solve(matrix: np.ndarray, target: np.ndarray) -> np.ndarray:
-    """Least-squares solution with columns scaled to unit norm for the solve."""
+    """Least-squares solution with columns scaled to unit norm for the solve; NaN where a
+    column or the target is not finite (the structure then scores as diverged)."""
     if not matrix.shape[1]:
         return np.zeros(0)
+    if not (np.all(np.isfinite(matrix)) and np.all(np.isfinite(target))):
+        return np.full(matrix.shape[1], np.nan)
     scale = np.linalg.norm(matrix, axis=0)
     scale[scale == 0] = 1.0
     return np.linalg.lstsq(matrix / scale, target, rcond=None)[0] / scale

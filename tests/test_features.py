@@ -290,3 +290,23 @@ def test_two_members_of_one_family_invalidate_a_candidate_but_simulate_in_a_mode
                   initial_conditions=(0.1, 0.0), substeps=4)
     rk4, reference = model.simulate(data, solver="rk4"), model.simulate(data)
     assert np.max(np.abs(rk4 - reference)) < 1e-6 * np.ptp(reference)
+
+
+def test_a_forcing_term_that_overflows_invalidates_its_candidate_not_the_run(pendulum):
+    """exp(100·t) overflows on a 6 s record: the candidate is invalid with the reason (a
+    non-finite column in the shared forcing basis would make every model's forcing NaN),
+    and a weak-form least squares with a non-finite column gives NaN, not an exception."""
+    from gpjax._config import GPConfig
+    from gpjax._fitness import Fitness
+    from gpjax._weak_form import least_squares
+
+    data, _ = pendulum
+    fitness = Fitness(data, GPConfig(population=8, functions=("add", "sub", "mul", "exp")))
+    tree = ("sub", ("add", ("x_ddot",), ("x",)),
+            ("add", ("u", 0), ("exp", ("mul", ("n", 150.0), ("t",)))))
+    _, form, reason = fitness.classify(tree)
+    assert form is None and "not finite" in reason
+    good = fitness.records_for([("sub", ("add", ("x_ddot",), ("x",)), ("u", 0))])[0]
+    assert good.valid and np.isfinite(good.objective)
+    mass, *_ = least_squares(fitness.weak_form, (X,), (U, sp.exp(150.0 * S.t)))
+    assert np.isnan(mass)
