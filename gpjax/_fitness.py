@@ -142,30 +142,31 @@ class Fitness:
                                max_degree=self.config.max_degree, bank=True)
             if check.valid:
                 form = self._bank_form(check.canonical)
-                check = dataclasses.replace(check, canonical=form)
-                columns = [self.evaluator.state_index(f) for f, _ in form.state]
-                unsupported = [f for (f, _), c in zip(form.state, columns) if c is None]
-                if unsupported:
-                    check = dataclasses.replace(
-                        check, valid=False, canonical=None,
-                        reason=f"state feature {unsupported[0]} is outside the evaluator's basis "
-                               f"(powers of x and x' up to {self.config.max_degree})")
-                elif not all(map(self.evaluator.forcing_finite, (g for g, _ in form.forcing))):
-                    check = dataclasses.replace(
-                        check, valid=False, canonical=None,
-                        reason="a forcing term is not finite on the data (e.g. exp(a·t) "
-                               "overflows)")
-                elif len(set(columns)) < len(columns):
-                    check = dataclasses.replace(
-                        check, valid=False, canonical=None,
-                        reason="two members of one feature-bank family (e.g. exp(a·x) and "
-                               "exp(b·x)): a model holds at most one of each")
+                reason = self.unsupported(form)
+                check = dataclasses.replace(check, valid=not reason, reason=reason,
+                                            canonical=None if reason else form)
             if check.valid:
                 key = structure_key(check.canonical, self.config.coefficients == "tree")
                 self.checks[tree] = (key, check.canonical, "")
             else:
                 self.checks[tree] = ("invalid: " + check.reason, None, check.reason)
         return self.checks[tree]
+
+    def unsupported(self, form: CanonicalForm) -> str:
+        """Why the evaluator cannot score ``form`` ("" if it can): a state feature outside
+        its basis, two members of one family (one column each), or a forcing term that is
+        not finite on the data."""
+        columns = [self.evaluator.state_index(f) for f, _ in form.state]
+        outside = [f for (f, _), c in zip(form.state, columns) if c is None]
+        if outside:
+            return (f"state feature {outside[0]} is outside the evaluator's basis (powers of x "
+                    f"and x' up to {self.config.max_degree} and the feature bank)")
+        if len(set(columns)) < len(columns):
+            return ("two members of one feature-bank family (e.g. exp(a·x) and exp(b·x)): a "
+                    "model holds at most one of each")
+        if not all(self.evaluator.forcing_finite(g) for g, _ in form.forcing):
+            return "a forcing term is not finite on the data (e.g. exp(a·t) overflows)"
+        return ""
 
     def _bank_form(self, form: CanonicalForm) -> CanonicalForm:
         """``form`` with sign(z) smoothed to tanh(z/ε) (:mod:`gpjax._features`) and every
@@ -198,9 +199,15 @@ class Fitness:
         return [self.records[self.classify(tree)[0]] for tree in trees]
 
     def score_forms(self, forms: dict[str, CanonicalForm]) -> None:
-        """Set coefficients of each (key, form), score them in one batch, cache them."""
+        """Set coefficients of each (key, form), score them in one batch, cache them; a form
+        the evaluator cannot score (:meth:`unsupported`, e.g. a local-search move that adds
+        a second member of a family) is cached as an invalid record."""
         rows = []
         for key, form in forms.items():
+            reason = self.unsupported(form)
+            if reason:
+                self.records[key] = Record(key=key, valid=False, reason=reason)
+                continue
             coefficients = Coefficients.from_canonical(form, self.y0)
             if self.config.coefficients == "least_squares":
                 state, forcing = form.structure

@@ -310,3 +310,19 @@ def test_a_forcing_term_that_overflows_invalidates_its_candidate_not_the_run(pen
     assert good.valid and np.isfinite(good.objective)
     mass, *_ = least_squares(fitness.weak_form, (X,), (U, sp.exp(150.0 * S.t)))
     assert np.isnan(mass)
+
+
+def test_a_local_search_move_to_a_second_family_member_is_an_invalid_record(pendulum):
+    """Local search scores structures directly (not from trees): adding the default sin(x)
+    beside sin(2x + 0.1) must become an invalid record, not a shared column."""
+    from gpjax._canonical import CanonicalForm
+    from gpjax._config import GPConfig
+    from gpjax._fitness import Fitness
+
+    data, _ = pendulum
+    fitness = Fitness(data, GPConfig(population=8, functions=("add", "sub", "mul", "sin")))
+    form = CanonicalForm(mass=1.0, state=((sp.sin(2.0 * X + 0.1), 1.0), (sp.sin(1.0 * X), 1.0)),
+                         forcing=((U, 1.0),))
+    fitness.score_forms({"two sines": form})
+    record = fitness.records["two sines"]
+    assert not record.valid and "at most one of each" in record.reason
