@@ -96,7 +96,15 @@ def _rescore(args) -> int:
         commands.append(payload["command"])
         seeds = max(seeds, payload["settings"]["seeds"])
         rows += payload["rows"]
-    for row in rows:
+    for i, row in enumerate(rows):
+        if args.refit_failed and row["error"] and row["method"].startswith("gpjax"):
+            data = generate(row["system"], seed=row["seed"], extrapolation_scale=args.scale)
+            settings = argparse.Namespace(**json.loads(Path(args.rescore[0]).read_text(
+                encoding="utf-8"))["settings"])
+            local = None if row["method"] == "gpjax" else 0
+            rows[i] = row = _row(data, row["method"], lambda: _gpjax(
+                data, settings, row["seed"], local_search=local)) | {
+                "refit_after_error": row["error"]}
         if row["equation"] is None:
             continue
         data = generate(row["system"], seed=row["seed"], extrapolation_scale=args.scale)
@@ -146,6 +154,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--json", help="write every row and the command to this file")
     parser.add_argument("--rescore", nargs="+", metavar="JSON",
                         help="merge these runs' rows and decide structure and constants again")
+    parser.add_argument("--refit-failed", action="store_true",
+                        help="with --rescore: fit again the gpjax rows that failed (with the "
+                             "first file's settings), marked refit_after_error")
     parser.add_argument("--quick", action="store_true",
                         help="smoke run: " + ", ".join(f"{k} {v}" for k, v in QUICK.items()))
     return parser
