@@ -206,6 +206,7 @@ def test_losing_a_worker_mid_run_does_not_lose_the_run(reference, tmp_path):
     assert (tmp_path / "model.json").read_text() == (reference[1] / "model.json").read_text()
 
 
+@pytest.mark.slow  # a long run: CI's slow step (fast tier <= 5 min)
 def test_fit_many_writes_every_good_record_and_a_row_per_bad_one(cluster, tmp_path, capsys):
     import csv
 

@@ -155,6 +155,7 @@ print(np.max(np.abs(out[0] / out[1] - 1)))
 """
 
 
+@pytest.mark.slow  # a long run: CI's slow step (fast tier <= 5 min)
 def test_refinement_split_over_two_host_devices_matches_one_device():
     root = Path(__file__).resolve().parent.parent
     env = dict(os.environ, PYTHONPATH=str(root), JAX_PLATFORMS="cpu",
