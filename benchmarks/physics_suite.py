@@ -90,12 +90,12 @@ def _rescore(args) -> int:
     """Merge the rows of ``args.rescore`` files; structure and constants decided again."""
     from gpjax._expressions import parse_expression
 
-    rows, commands, seeds = [], [], 0
+    rows, commands = [], []
     for path in args.rescore:
         payload = json.loads(Path(path).read_text(encoding="utf-8"))
-        commands.append(payload["command"])
-        seeds = max(seeds, payload["settings"]["seeds"])
+        commands += payload["settings"].get("runs", [payload["command"]])
         rows += payload["rows"]
+    seeds = 1 + max(r["seed"] for r in rows)
     for i, row in enumerate(rows):
         if args.refit_failed and row["error"] and row["method"].startswith("gpjax"):
             data = generate(row["system"], seed=row["seed"], extrapolation_scale=args.scale)
