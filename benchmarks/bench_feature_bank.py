@@ -11,7 +11,7 @@ Measured in one run, on the bundled gear example (P = 500, 1,334 samples, one de
   bank), run from a temporary worktree in a child process, interleaved with the above;
 * models/s of a population whose models use sin, x'·|x'| and tanh features;
 * compiles per GP run (population evaluator and refiner shapes): the demo protocol, and a
-  pendulum fit with sin in the function set.
+  fit of ``gpjax.systems``' pendulum (seed 0) with sin in the function set.
 
 Each rate is the best of several repeats (the machine is shared); ratios are to the
 fast path measured in the same run. Prints a table and writes JSON.
@@ -75,34 +75,14 @@ def protocol_compiles(functions: tuple[str, ...] | None) -> dict:
         measurement, _ = load_bundled_example()
         config = gpjax.GPConfig.paper()
     else:
-        measurement = _pendulum()
+        from gpjax.systems import generate
+
+        measurement = generate("pendulum", seed=0).fit.measurement()
         config = gpjax.GPConfig(population=200, generations=5, max_degree=3, functions=functions)
     identifier = gpjax.Identifier(config).fit(measurement, seed=0)
     t = identifier.timings_
     return {"compiles": t["compiles"], "compile_s": t["compile_s"], "total_s": t["total_s"],
             "generations": t["generations"], "equation": str(identifier.model_.sympy())}
-
-
-def _pendulum():
-    from scipy.integrate import solve_ivp
-
-    from gpjax import Measurement
-
-    rng = np.random.default_rng(1)
-    freqs, phases, amps = rng.uniform(0.2, 1.2, 6), rng.uniform(0, 2 * np.pi, 6), \
-        rng.uniform(0.5, 1, 6)
-
-    def torque(t):
-        return 2.4 * np.sum(amps[:, None] * np.sin(2 * np.pi * freqs[:, None]
-                                                   * np.atleast_1d(t) + phases[:, None]), 0)
-
-    t = np.arange(0, 30, 0.01)
-    x = solve_ivp(lambda s, y: [y[1], torque(s)[0] - 0.3 * y[1] - 9.81 * np.sin(y[0])],
-                  (0, t[-1]), [0, 0], t_eval=t, rtol=1e-10, atol=1e-12, method="DOP853").y[0]
-    u = torque(t)
-    return Measurement(time=t, response=x + 0.01 * x.std() * rng.standard_normal(t.size),
-                       inputs={"u": u + 0.01 * u.std() * rng.standard_normal(t.size)},
-                       time_name="t", response_name="phi")
 
 
 def bank_rates(repeats: int) -> dict:
