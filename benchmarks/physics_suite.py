@@ -88,6 +88,7 @@ def main(argv: list[str] | None = None) -> int:
 
 def _rescore(args) -> int:
     """Merge the rows of ``args.rescore`` files; structure and constants decided again."""
+    from gpjax._errors import ModelFileError
     from gpjax._expressions import parse_expression
 
     rows, commands = [], []
@@ -109,7 +110,12 @@ def _rescore(args) -> int:
             continue
         data = generate(row["system"], seed=row["seed"], extrapolation_scale=args.scale)
         names = {str(s) for s in data.system.truth()[0].free_symbols} | {"x_ddot", "t"}
-        equation = parse_expression(row["equation"], names, allow_equation=True)
+        try:
+            equation = (data.system.truth()[0] if row["method"] == "truth" else
+                        parse_expression(row["equation"], names, allow_equation=True))
+        except ModelFileError as err:  # e.g. a peer's function outside the whitelist
+            row["rescore_error"] = str(err)
+            continue
         verdict = compare_structure(equation, data.system.truth()[0], scales=_scales(data))
         worst = verdict["worst_constant_error"]
         row.update(verdict, worst_constant_error=worst if math.isfinite(worst) else None)
