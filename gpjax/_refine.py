@@ -247,7 +247,8 @@ class Refiner:
         def augmented_batched(axis_size, in_batched, constants, directions, forcing_basis):
             # Models are the population axis of one scan, not a vmap of one-model scans.
             if in_batched[2]:
-                raise NotImplementedError("the forcing basis is shared by every model")
+                raise ValueError("the forcing basis is shared by every model; batch the "
+                                 "constants and directions only")
             constants, directions = (a if batched else jnp.broadcast_to(a, (axis_size,) + a.shape)
                                      for a, batched in zip((constants, directions), in_batched))
             x, jacobian = _split_over(ev.devices, ev.constant_jacobian, axis_size)(
