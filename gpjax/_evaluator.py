@@ -36,6 +36,7 @@ import sympy as sp
 
 from jax.sharding import AxisType, PartitionSpec
 
+from ._aot import Program, fingerprint
 from ._canonical import Symbols
 from ._coefficients import FlatLayout, Population, padded_chunks
 from ._data import Measurement, between_samples
@@ -209,7 +210,12 @@ class PopulationEvaluator:
             split = PartitionSpec("population")
             run = jax.shard_map(run, mesh=mesh, in_specs=(split,) * 5 + (PartitionSpec(),),
                                 out_specs=split, check_vma=False)
-        self._run = jax.jit(run)
+        #: Fingerprint of everything the compiled programs close over: the arguments.
+        self.key = fingerprint(measurement.fingerprint(), symbols, self.state_features,
+                               self.families, max_degree, substeps, self.n_bins, w_time, w_freq,
+                               self.batch, fit_initial_conditions, integrator, input_interpolation,
+                               [str(d) for d in self.devices])
+        self._run = Program(run, name="population", key=self.key)
         self._compiled: set[tuple] = set()
 
     def stage_rows(self, samples: int) -> int:

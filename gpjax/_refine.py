@@ -38,6 +38,7 @@ import optimistix as optx
 
 from jax.sharding import AxisType, PartitionSpec
 
+from ._aot import Program, fingerprint
 from ._coefficients import Population, padded_chunks
 from ._evaluator import STAGE_ELEMENTS_PER_CALL, PopulationEvaluator
 
@@ -114,7 +115,9 @@ class Refiner:
         self._noise_scale = float(np.std(response)) or 1.0
         self._state_scale = np.array([np.std(response), np.std(np.diff(response))
                                       / evaluator.measurement.dt]) + 1e-300
-        self._run = jax.jit(jax.vmap(self._refine_one, in_axes=(0, 0, 0, None)))
+        self._run = Program(jax.vmap(self._refine_one, in_axes=(0, 0, 0, None)), name="refine",
+                            key=fingerprint(evaluator.key, iterations, self.horizon_samples,
+                                            self.batch, max_free, jacobian))
         self._compiled: set[tuple[int, int]] = set()
         self.compile_seconds = 0.0
 

@@ -1,0 +1,209 @@
+"""Compiled programs kept on disk, so a second process skips tracing, lowering and XLA.
+
+JAX's persistent compilation cache (:mod:`gpjax._jaxcache`) saves only XLA's work: every
+process still traces each function in Python and lowers it before it can look the
+compiled program up — seconds per run for the batched simulator, the refiner and the
+reference solve. A :class:`Program` keeps the *executable* itself
+(``jax.experimental.serialize_executable``) under ``<cache folder>/programs``, keyed by:
+
+* the function's name and a **fingerprint** of everything it closes over (the caller
+  hashes its record and settings with :func:`fingerprint`);
+* the shapes and dtypes of its arguments;
+* the jax and jaxlib versions, the backend and its devices;
+* a digest of gpjax's own source, so any change of the code compiles afresh.
+
+A program that cannot be serialised or loaded is compiled as ``jax.jit`` would; a damaged
+file is compiled again and overwritten. ``GPJAX_COMPILATION_CACHE=off`` keeps programs in
+memory only.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+from typing import Callable
+
+import jax
+import jaxlib
+import numpy as np
+from jax.experimental.compilation_cache.compilation_cache import reset_cache
+
+from ._jaxcache import cache_folder
+
+#: Sub-folder of the cache folder holding the executables.
+PROGRAMS = "programs"
+
+
+@lru_cache(maxsize=1)
+def source_digest() -> str:
+    """SHA-256 of every gpjax source file (names and contents)."""
+    digest = hashlib.sha256()
+    package = Path(__file__).resolve().parent
+    for path in sorted(package.rglob("*.py")):
+        digest.update(str(path.relative_to(package)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def fingerprint(*parts) -> str:
+    """SHA-256 of ``parts``: numpy arrays by dtype, shape and bytes, dicts by sorted
+    items, sequences item by item, anything else by ``repr``."""
+    digest = hashlib.sha256()
+
+    def add(value):
+        if isinstance(value, (np.ndarray, jax.Array)):
+            array = np.ascontiguousarray(np.asarray(value))
+            digest.update(f"array{array.dtype.str}{array.shape}".encode())
+            digest.update(array.tobytes())
+        elif isinstance(value, dict):
+            digest.update(b"dict")
+            for key in sorted(value, key=repr):
+                add(key)
+                add(value[key])
+        elif isinstance(value, (list, tuple)):
+            digest.update(f"seq{len(value)}".encode())
+            for item in value:
+                add(item)
+        else:
+            digest.update(repr(value).encode())
+        digest.update(b"|")
+
+    add(parts)
+    return digest.hexdigest()
+
+
+class Program:
+    """``jax.jit(fn)`` whose executables persist between processes (module docstring).
+
+    ``fn`` takes arrays (or pytrees of arrays) positionally; a call returns the leaves
+    of its result as a flat tuple.
+
+    Args:
+        fn: the function to compile.
+        name: a name unique among gpjax's programs.
+        key: fingerprint of what ``fn`` closes over (:func:`fingerprint`).
+    """
+
+    def __init__(self, fn: Callable, *, name: str, key: str):
+        self._fn = fn
+        self._name = name
+        self._key = key
+        self._executables: dict[tuple, Callable] = {}
+
+    def __call__(self, *args):
+        leaves, tree = jax.tree_util.tree_flatten(args)
+        signature = (str(tree), tuple((np.shape(x), np.dtype(getattr(x, "dtype", None)
+                                                            or np.result_type(x)).str)
+                                      for x in leaves))
+        executable = self._executables.get(signature)
+        if executable is None:
+            executable = self._executables[signature] = self._executable(args, leaves,
+                                                                        signature)
+        return executable(*leaves)
+
+    def _executable(self, args, leaves, signature) -> Callable:
+        tree = jax.tree_util.tree_structure(args)
+
+        def flat(*values):
+            return tuple(jax.tree_util.tree_leaves(
+                self._fn(*jax.tree_util.tree_unflatten(tree, values))))
+
+        folder = cache_folder()
+        path = None
+        if folder is not None:
+            name = fingerprint(self._name, self._key, signature, jax.__version__,
+                               jaxlib.__version__, [(d.platform, d.device_kind)
+                                                    for d in jax.devices()], source_digest())
+            path = folder / PROGRAMS / f"{self._name}-{name[:32]}.bin"
+            loaded = _load(path, len(leaves))
+            if loaded is not None:
+                return loaded
+        lowered = jax.jit(flat).lower(*leaves)
+        if path is None:
+            return lowered.compile()
+        hits = _persistent_cache_hits()
+        compiled = lowered.compile()
+        if _persistent_cache_hits() > hits:
+            # An executable that JAX's own cache loaded serialises without its code:
+            # compile this one afresh for the file.
+            compiled = _compile_bypassing_persistent_cache(lowered)
+        _store(path, compiled)
+        return compiled
+
+
+def _load(path: Path, n_inputs: int) -> Callable | None:
+    """The executable stored at ``path``, or ``None`` if absent or unreadable."""
+    from jax.experimental import serialize_executable
+
+    try:
+        payload = path.read_bytes()
+    except OSError:
+        return None
+    try:
+        _initialize_custom_calls()
+        n_outputs = int.from_bytes(payload[:4], "little")
+        in_tree = jax.tree_util.tree_structure((tuple(range(n_inputs)), {}))
+        out_tree = jax.tree_util.tree_structure(tuple(range(n_outputs)))
+        return serialize_executable.deserialize_and_load(payload[4:], in_tree, out_tree)
+    except Exception:  # noqa: BLE001 - a damaged or foreign file is compiled afresh
+        return None
+
+
+#: Executables JAX's persistent cache has served in this process (see
+#: :func:`_persistent_cache_hits`).
+_HITS = [0]
+_HIT_EVENT = "/jax/compilation_cache/cache_hits"
+
+
+@lru_cache(maxsize=1)
+def _listen_for_hits() -> None:
+    """Count JAX's persistent-cache hits (one listener per process, added on first use)."""
+    def count(event: str, **_):
+        _HITS[0] += event == _HIT_EVENT
+    jax.monitoring.register_event_listener(count)
+
+
+def _persistent_cache_hits() -> int:
+    _listen_for_hits()
+    return _HITS[0]
+
+
+def _compile_bypassing_persistent_cache(lowered):
+    """``lowered.compile()`` by XLA itself, JAX's persistent cache switched off for the
+    call (and re-initialised afterwards with the user's settings)."""
+    enabled = jax.config.jax_enable_compilation_cache
+    jax.config.update("jax_enable_compilation_cache", False)
+    reset_cache()
+    try:
+        return lowered.compile()
+    finally:
+        jax.config.update("jax_enable_compilation_cache", enabled)
+        reset_cache()
+
+
+def _initialize_custom_calls() -> None:
+    """Bind LAPACK's routines for the CPU custom calls of linear solves. JAX does this
+    when it lowers such a call (and when ``jax.export`` loads one); a loaded executable
+    that was never lowered in this process would call unbound routines."""
+    from jax._src.lax import linalg
+
+    linalg.initialize_lapack()
+
+
+def _store(path: Path, compiled) -> None:
+    """Write ``compiled``'s executable to ``path`` atomically; skipped where the backend
+    cannot serialise it or the folder is not writable."""
+    from jax.experimental import serialize_executable
+
+    try:
+        payload, _, out_tree = serialize_executable.serialize(compiled)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        handle, temporary = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+        with os.fdopen(handle, "wb") as file:
+            file.write(out_tree.num_leaves.to_bytes(4, "little") + payload)
+        os.replace(temporary, path)
+    except Exception:  # noqa: BLE001 - caching is an optimisation, never a failure
+        return

@@ -1,0 +1,109 @@
+"""Compiled programs kept on disk (gpjax._aot): a second process loads the executable
+instead of tracing and compiling, a changed key compiles afresh, a damaged file is
+replaced, and switching the cache off writes nothing."""
+
+import os
+import subprocess
+import sys
+import textwrap
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from gpjax import _aot
+from gpjax._integrate import enable_float64
+
+SCRIPT = textwrap.dedent("""
+    import sys, jax, jax.numpy as jnp
+    jax.config.update("jax_enable_x64", True)
+    from gpjax import _aot
+    traced = []
+    def f(x, y):
+        traced.append(1)
+        return jnp.sin(x) * y, jnp.linalg.solve(jnp.eye(3) + x[:3, None] * x[None, :3], x[:3])
+    program = _aot.Program(f, name="test", key=_aot.fingerprint(sys.argv[1]))
+    a, b = program(jnp.linspace(0, 1, 5), jnp.asarray(2.0))
+    print(len(traced), float(a.sum()), float(b.sum()))
+""")
+
+
+def _run(folder, key):
+    env = dict(os.environ, GPJAX_CACHE_DIR=str(folder), GPJAX_COMPILATION_CACHE="on",
+               JAX_PLATFORMS="cpu")
+    out = subprocess.run([sys.executable, "-c", SCRIPT, key], env=env, capture_output=True,
+                         text=True, check=True)
+    traced, *values = out.stdout.split()
+    return int(traced), [float(v) for v in values]
+
+
+def test_a_second_process_loads_the_program_without_tracing_it(tmp_path):
+    first = _run(tmp_path, "record-a")
+    files = sorted((tmp_path / _aot.PROGRAMS).iterdir())
+    second = _run(tmp_path, "record-a")
+    assert first[0] == 1 and second[0] == 0  # traced once, then loaded (LAPACK call too)
+    assert first[1] == second[1]
+    assert sorted((tmp_path / _aot.PROGRAMS).iterdir()) == files and len(files) == 1
+    other = _run(tmp_path, "record-b")  # another key: traced and stored beside it
+    assert other[0] == 1 and len(list((tmp_path / _aot.PROGRAMS).iterdir())) == 2
+
+
+def test_a_damaged_program_file_is_compiled_again_and_replaced(tmp_path):
+    _run(tmp_path, "record-a")
+    (path,) = (tmp_path / _aot.PROGRAMS).iterdir()
+    path.write_bytes(b"\x02\x00\x00\x00not an executable")
+    traced, values = _run(tmp_path, "record-a")
+    assert traced == 1 and np.isfinite(values).all()
+    assert _run(tmp_path, "record-a")[0] == 0
+
+
+def test_switched_off_the_cache_keeps_programs_in_memory(tmp_path, monkeypatch):
+    enable_float64()
+    monkeypatch.setenv("GPJAX_CACHE_DIR", str(tmp_path))
+    monkeypatch.setenv("GPJAX_COMPILATION_CACHE", "off")
+    calls = []
+
+    def f(x):
+        calls.append(1)
+        return (2 * x,)
+
+    program = _aot.Program(f, name="off", key="k")
+    assert float(program(jnp.ones(3))[0].sum()) == 6.0
+    assert float(program(jnp.ones(3))[0].sum()) == 6.0
+    program(jnp.ones(4))  # a new shape is a new executable
+    assert len(calls) == 2 and not (tmp_path / _aot.PROGRAMS).exists()
+
+
+def test_fingerprint_tells_arrays_and_settings_apart():
+    base = _aot.fingerprint(np.arange(3.0), {"substeps": 2}, "x")
+    assert base == _aot.fingerprint(np.arange(3.0), {"substeps": 2}, "x")
+    assert base != _aot.fingerprint(np.arange(3.0) + 1e-12, {"substeps": 2}, "x")
+    assert base != _aot.fingerprint(np.arange(3.0), {"substeps": 3}, "x")
+    assert base != _aot.fingerprint(np.arange(3.0).astype(np.float32), {"substeps": 2}, "x")
+
+
+@pytest.mark.parametrize("change", ["data", "substeps"])
+def test_evaluators_on_other_data_or_settings_have_other_keys(change):
+    from gpjax import Symbols
+    from gpjax._evaluator import PopulationEvaluator
+    from gpjax.gear import load_bundled_example
+
+    measurement, _ = load_bundled_example()
+    symbols = Symbols("phi", "t", ("T",))
+    base = PopulationEvaluator(measurement, symbols, max_degree=2, batch=4)
+    if change == "data":
+        other = measurement.segment(0, measurement.n_samples - 1)
+        other_ev = PopulationEvaluator(other, symbols, max_degree=2, batch=4)
+    else:
+        other_ev = PopulationEvaluator(measurement, symbols, max_degree=2, batch=4, substeps=2)
+    assert base.key != other_ev.key
+    assert base.key == PopulationEvaluator(measurement, symbols, max_degree=2, batch=4).key
+
+
+def test_bypassing_the_persistent_cache_restores_the_settings(tmp_path):
+    enabled = jax.config.jax_enable_compilation_cache
+    lowered = jax.jit(lambda x: (x + 1,)).lower(jnp.ones(2))
+    compiled = _aot._compile_bypassing_persistent_cache(lowered)
+    assert float(compiled(jnp.ones(2))[0].sum()) == 4.0
+    assert jax.config.jax_enable_compilation_cache == enabled
