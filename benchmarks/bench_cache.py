@@ -23,7 +23,8 @@ import numpy as np
 
 
 def timed_demo(env: dict, out: Path) -> dict:
-    """One ``gpjax demo`` process: wall seconds, peak RSS (MB), compile seconds it printed."""
+    """One ``gpjax demo`` process: wall seconds, peak RSS (MB), the seconds it printed
+    for compiling or loading its programs, and the 1-minute load average after it."""
     command = ["/usr/bin/time", "-f", "TIME %e %M", sys.executable, "-m", "gpjax", "demo",
                "--out", str(out)]
     run = subprocess.run(command, env=dict(os.environ, JAX_PLATFORMS="cpu", **env),
@@ -31,7 +32,8 @@ def timed_demo(env: dict, out: Path) -> dict:
     wall, peak = run.stderr.strip().splitlines()[-1].split()[1:]
     line = next(x for x in run.stdout.splitlines() if "of it compiling" in x)
     compile_s = float(line.split(" s of it compiling")[0].rsplit(" ", 1)[-1])
-    return {"wall_s": float(wall), "peak_mb": int(peak) / 1024, "compile_s": compile_s}
+    return {"wall_s": float(wall), "peak_mb": int(peak) / 1024, "compile_s": compile_s,
+            "load_average_1min": os.getloadavg()[0]}  # the machine's load as it ended
 
 
 def main() -> None:
@@ -48,7 +50,8 @@ def main() -> None:
                            ("warm", on)):
             row = {"cache": label, "repeat": repeat} | timed_demo(env, scratch / "run")
             if label == "warm":
-                row["cache_mb"] = sum(p.stat().st_size for p in cache.iterdir()) / 2**20
+                row["cache_mb"] = sum(p.stat().st_size for p in cache.rglob("*")
+                                      if p.is_file()) / 2**20
             rows.append(row)
             print(f"{label:>5} #{repeat}: {row['wall_s']:5.2f} s wall, {row['compile_s']:5.2f} "
                   f"s compiling, peak {row['peak_mb']:.0f} MB", flush=True)

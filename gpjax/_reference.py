@@ -4,18 +4,19 @@ The run's own integrator is fixed-step RK4 (fast, batched over a population). Wh
 reported model means the same under *any* accurate solver is checked here, independently:
 the model's equation is lambdified from sympy to one JAX right-hand side and integrated by
 diffrax's 8th-order Dormand–Prince method (``Dopri8``) under PID step-size control with
-tight tolerances, the inputs given as functions of continuous time:
+tight tolerances. The record is integrated one sample interval at a time (a ``lax.scan``
+of adaptive solves, each choosing its own first step), so every kink or jump of the input
+falls on an interval's end, and the inputs are functions of continuous time:
 
-* ``linear``: straight lines between samples (the solver steps exactly to every sample,
-  where the input has a kink);
-* ``hold``: each sample's value until the next (the solver steps to just before and just
-  after every sample, where the input jumps);
+* ``linear``: straight lines between samples;
+* ``hold``: each interval sees its first sample's value (the left limit at its end);
 * ``bandlimited``: the cubic spline of :func:`gpjax._data.bandlimited_spline`, the same
   function the RK4 stage values are taken from.
 
 The state is scaled by the response's and its derivative's spread, so one absolute
-tolerance serves both. A solve that fails (a model that blows up, or more steps than
-allowed) is returned as data (``ok`` false, NaN response), never raised.
+tolerance serves both. A solve that fails (a model that blows up, or more steps than an
+interval allows) is returned as data (``ok`` false, NaN response), never raised. The
+solve of a structure is a :class:`gpjax._aot.Program`: a later process loads it.
 """
 
 from __future__ import annotations
@@ -24,12 +25,12 @@ import dataclasses
 from functools import lru_cache
 
 import diffrax
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 import sympy as sp
 
+from ._aot import Program, fingerprint
 from ._coefficients import Coefficients
 from ._data import BANDLIMITED_FACTOR, Measurement, bandlimited_spline
 from ._integrate import enable_float64
@@ -42,7 +43,8 @@ class ReferenceSolver:
     Attributes:
         rtol: relative tolerance.
         atol: absolute tolerance on the state scaled to unit spread.
-        max_steps_per_sample: step budget per sample interval (the solve fails beyond it).
+        max_steps_per_sample: steps allowed in one sample interval (the solve fails
+            beyond it).
 
     Raises:
         ValueError: a non-positive setting.
@@ -61,21 +63,10 @@ class ReferenceSolver:
                 "atol": self.atol}
 
 
-class _Hold(eqx.Module):
-    """Piecewise-constant inputs: each sample's value until the next sample time."""
-
-    ts: jax.Array
-    ys: jax.Array
-
-    def evaluate(self, t):
-        index = jnp.searchsorted(self.ts, t, side="right") - 1
-        return self.ys[jnp.clip(index, 0, self.ys.shape[0] - 1)]
-
-
 def input_path(time: np.ndarray, inputs: list[np.ndarray], method: str):
-    """Inputs sampled at uniform ``time`` (s) as a diffrax-ready path
-    ``path.evaluate(t) -> (K,)``, with the times the solver must step to (``step_ts``) and
-    across (``jump_ts``), per the module docstring: ``(path, step_ts, jump_ts)``.
+    """Inputs sampled at uniform ``time`` (s) for the reference solve: a diffrax path
+    (``path.evaluate(t) -> (K,)``) for ``linear`` and ``bandlimited``, the samples (N, K)
+    themselves for ``hold`` (module docstring).
 
     Raises:
         ValueError: an unknown method.
@@ -84,9 +75,9 @@ def input_path(time: np.ndarray, inputs: list[np.ndarray], method: str):
     times = jnp.asarray(time)
     values = np.stack(inputs, axis=1) if inputs else np.zeros((n, 0))
     if method == "linear":
-        return diffrax.LinearInterpolation(ts=times, ys=jnp.asarray(values)), times, None
+        return diffrax.LinearInterpolation(ts=times, ys=jnp.asarray(values))
     if method == "hold":
-        return _Hold(ts=times, ys=jnp.asarray(values)), None, times
+        return jnp.asarray(values)
     if method == "bandlimited":
         splines = [bandlimited_spline(values[:, k]) for k in range(values.shape[1])]
         fine = np.arange((n - 1) * BANDLIMITED_FACTOR + 1) / BANDLIMITED_FACTOR
@@ -94,8 +85,7 @@ def input_path(time: np.ndarray, inputs: list[np.ndarray], method: str):
         # to seconds are diffrax's (d, c, b, a); one column per input
         coeffs = tuple(jnp.asarray(np.stack([s.c[i] for s in splines], axis=-1).reshape(
             fine.size - 1, len(splines)) / dt ** (3 - i)) for i in range(4))
-        path = diffrax.CubicInterpolation(ts=jnp.asarray(time[0] + fine * dt), coeffs=coeffs)
-        return path, None, None
+        return diffrax.CubicInterpolation(ts=jnp.asarray(time[0] + fine * dt), coeffs=coeffs)
     raise ValueError(f"unknown input interpolation {method!r}")
 
 
@@ -112,20 +102,47 @@ def _structure(coefficients: Coefficients) -> tuple[sp.Expr, tuple[sp.Symbol, ..
 
 
 @lru_cache(maxsize=64)
-def _field(expression: sp.Expr, names: tuple, constants: tuple):
-    """The scaled vector field ``field(t, y, (values, path, scale))`` of one structure;
-    cached, so models of one structure share a compiled solve."""
+def _solve_program(expression: sp.Expr, names: tuple, constants: tuple, method: str,
+                   solver: ReferenceSolver) -> Program:
+    """The compiled reference solve of one structure, shared by its models:
+    ``program(values, path, ts, y0, scale) -> (x / scale at ts, succeeded)`` with
+    ``path`` from :func:`input_path`, ``ts`` the sample times (s) and ``y0`` = (x, x')."""
     rhs = sp.lambdify((*names, constants), expression, modules="jax")
     n_inputs = len(names) - 3
+    hold = method == "hold"
 
     def field(time, y, args):
-        values, path, scale = args
+        values, inputs, scale = args
+        u = inputs if hold else inputs.evaluate(time)
         position, velocity = y[0] * scale[0], y[1] * scale[1]
-        inputs = path.evaluate(time)
-        acceleration = rhs(position, velocity, time,
-                           *(inputs[k] for k in range(n_inputs)), values)
+        acceleration = rhs(position, velocity, time, *(u[k] for k in range(n_inputs)), values)
         return jnp.stack([velocity, acceleration]) / scale
-    return field
+
+    term = diffrax.ODETerm(field)
+    controller = diffrax.PIDController(rtol=solver.rtol, atol=solver.atol)
+
+    def solve(values, path, ts, y0, scale):
+        def advance(y, k):
+            solution = diffrax.diffeqsolve(
+                term, diffrax.Dopri8(), t0=ts[k], t1=ts[k + 1], dt0=None, y0=y,
+                args=(values, path[k] if hold else path, scale),
+                saveat=diffrax.SaveAt(t1=True), stepsize_controller=controller,
+                max_steps=solver.max_steps_per_sample, throw=False)
+            ok = (solution.result == diffrax.RESULTS.successful) & jnp.all(
+                jnp.isfinite(solution.ys[-1]))
+            return solution.ys[-1], ok
+
+        def interval(carry, k):  # after a failure the rest is skipped (NaN)
+            y, ok = carry
+            y, succeeded = jax.lax.cond(ok, advance, lambda y, k: (y * jnp.nan, False), y, k)
+            return (y, ok & succeeded), y[0]
+
+        start = y0 / scale
+        (_, ok), xs = jax.lax.scan(interval, (start, jnp.array(True)), jnp.arange(ts.size - 1))
+        return jnp.concatenate([start[:1], xs]), ok
+
+    return Program(solve, name="reference", key=fingerprint(
+        sp.srepr(expression), names, constants, method, solver))
 
 
 def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
@@ -148,23 +165,14 @@ def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
     enable_float64()
     symbols = model.symbols
     expression, constants, values = _structure(model.coefficients)
-    field = _field(expression, (symbols.x, symbols.x_dot, symbols.t, *symbols.u), constants)
-    path, step_ts, jump_ts = input_path(time, [inputs[name] for name in symbols.inputs],
-                                        model.input_interpolation)
+    program = _solve_program(expression, (symbols.x, symbols.x_dot, symbols.t, *symbols.u),
+                             constants, model.input_interpolation, solver)
+    path = input_path(time, [inputs[name] for name in symbols.inputs], model.input_interpolation)
     scale = jnp.asarray([s if s > 0 else 1.0 for s in scale])
-    controller = diffrax.PIDController(rtol=solver.rtol, atol=solver.atol)
-    if step_ts is not None or jump_ts is not None:
-        controller = diffrax.ClipStepSizeController(controller, step_ts=step_ts,
-                                                    jump_ts=jump_ts)
-    dt = float((time[-1] - time[0]) / (time.size - 1))
-    solution = diffrax.diffeqsolve(
-        diffrax.ODETerm(field), diffrax.Dopri8(), t0=float(time[0]), t1=float(time[-1]),
-        dt0=dt / 4, y0=jnp.asarray(initial_conditions) / scale,
-        args=(jnp.asarray(values), path, scale), saveat=diffrax.SaveAt(ts=jnp.asarray(time)),
-        stepsize_controller=controller, max_steps=solver.max_steps_per_sample * time.size,
-        throw=False)
-    x = np.asarray(solution.ys[:, 0]) * float(scale[0])
-    ok = bool(solution.result == diffrax.RESULTS.successful) and bool(np.all(np.isfinite(x)))
+    scaled, succeeded = program(jnp.asarray(values), path, jnp.asarray(time, dtype=float),
+                                jnp.asarray(initial_conditions, dtype=float), scale)
+    x = np.asarray(scaled) * float(scale[0])
+    ok = bool(succeeded) and bool(np.all(np.isfinite(x)))
     return (x if ok else np.full(time.shape, np.nan)), ok
 
 

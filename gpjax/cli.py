@@ -180,8 +180,8 @@ def _timings(identifier, out) -> None:
     later = (f", later generations {sum(seconds[1:]) / len(seconds[1:]):.2f} s each"
              if len(seconds) > 1 else "")
     print(f"\nStopped by {identifier.stopped_by} after generation {t['generations']}; "
-          f"{t['total_s']:.1f} s in all, {t['compile_s']:.1f} s of it compiling "
-          f"({t['compiles']} population evaluator/refiner compiles); generation 0 "
+          f"{t['total_s']:.1f} s in all, {t['compile_s']:.1f} s of it compiling or loading "
+          f"{t['compiles']} population evaluator/refiner programs; generation 0 "
           f"{seconds[0]:.2f} s{later}. Results in {out}/")
 
 
