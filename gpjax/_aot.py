@@ -121,15 +121,12 @@ class Program:
             loaded = _load(path, len(leaves))
             if loaded is not None:
                 return loaded
-        lowered = jax.jit(flat).lower(*leaves)
         if path is None:
-            return lowered.compile()
-        hits = _persistent_cache_hits()
-        compiled = lowered.compile()
-        if _persistent_cache_hits() > hits:
-            # An executable that JAX's own cache loaded serialises without its code:
-            # compile this one afresh for the file.
-            compiled = _compile_bypassing_persistent_cache(lowered)
+            return jax.jit(flat).lower(*leaves).compile()
+        # Compiled by XLA itself: an executable loaded from JAX's own cache in this
+        # process serialises without the code of its kernels.
+        compiled = _compile_bypassing_persistent_cache(
+            lambda: jax.jit(flat).lower(*leaves).compile())
         _store(path, compiled)
         return compiled
 
@@ -152,33 +149,14 @@ def _load(path: Path, n_inputs: int) -> Callable | None:
         return None
 
 
-#: Executables JAX's persistent cache has served in this process (see
-#: :func:`_persistent_cache_hits`).
-_HITS = [0]
-_HIT_EVENT = "/jax/compilation_cache/cache_hits"
-
-
-@lru_cache(maxsize=1)
-def _listen_for_hits() -> None:
-    """Count JAX's persistent-cache hits (one listener per process, added on first use)."""
-    def count(event: str, **_):
-        _HITS[0] += event == _HIT_EVENT
-    jax.monitoring.register_event_listener(count)
-
-
-def _persistent_cache_hits() -> int:
-    _listen_for_hits()
-    return _HITS[0]
-
-
-def _compile_bypassing_persistent_cache(lowered):
-    """``lowered.compile()`` by XLA itself, JAX's persistent cache switched off for the
-    call (and re-initialised afterwards with the user's settings)."""
+def _compile_bypassing_persistent_cache(compile: Callable):
+    """``compile()`` by XLA itself, JAX's persistent cache switched off for the call (and
+    re-initialised afterwards with the user's settings)."""
     enabled = jax.config.jax_enable_compilation_cache
     jax.config.update("jax_enable_compilation_cache", False)
     reset_cache()
     try:
-        return lowered.compile()
+        return compile()
     finally:
         jax.config.update("jax_enable_compilation_cache", enabled)
         reset_cache()

@@ -16,15 +16,17 @@ from gpjax import _aot
 from gpjax._integrate import enable_float64
 
 SCRIPT = textwrap.dedent("""
-    import sys, jax, jax.numpy as jnp
-    jax.config.update("jax_enable_x64", True)
+    import sys, jax.numpy as jnp
     from gpjax import _aot
+    from gpjax._integrate import enable_float64
+    enable_float64()  # as gpjax does before it computes: float64 and JAX's own cache
     traced = []
     def f(x, y):
         traced.append(1)
-        return jnp.sin(x) * y, jnp.linalg.solve(jnp.eye(3) + x[:3, None] * x[None, :3], x[:3])
+        z = jnp.sin(x[:, None] / (1.0 + y[None, :])).sum(0)
+        return z, jnp.linalg.solve(jnp.eye(3) + x[:3, None] * x[None, :3], x[:3])
     program = _aot.Program(f, name="test", key=_aot.fingerprint(sys.argv[1]))
-    a, b = program(jnp.linspace(0, 1, 5), jnp.asarray(2.0))
+    a, b = program(jnp.linspace(0, 1, 5), jnp.linspace(1, 2, 7))
     print(len(traced), float(a.sum()), float(b.sum()))
 """)
 
@@ -47,6 +49,17 @@ def test_a_second_process_loads_the_program_without_tracing_it(tmp_path):
     assert sorted((tmp_path / _aot.PROGRAMS).iterdir()) == files and len(files) == 1
     other = _run(tmp_path, "record-b")  # another key: traced and stored beside it
     assert other[0] == 1 and len(list((tmp_path / _aot.PROGRAMS).iterdir())) == 2
+
+
+def test_programs_stored_while_jax_holds_the_same_executables_still_load(tmp_path):
+    """JAX's own cache (same folder) has the program; gpjax's file of it is gone. The
+    file written then must run in a third process (an executable JAX's cache loaded
+    would have been stored without its kernels)."""
+    first = _run(tmp_path, "record-a")
+    for path in (tmp_path / _aot.PROGRAMS).iterdir():
+        path.unlink()
+    assert _run(tmp_path, "record-a")[0] == 1
+    assert _run(tmp_path, "record-a") == (0, first[1])
 
 
 def test_a_damaged_program_file_is_compiled_again_and_replaced(tmp_path):
@@ -103,7 +116,7 @@ def test_evaluators_on_other_data_or_settings_have_other_keys(change):
 
 def test_bypassing_the_persistent_cache_restores_the_settings(tmp_path):
     enabled = jax.config.jax_enable_compilation_cache
-    lowered = jax.jit(lambda x: (x + 1,)).lower(jnp.ones(2))
-    compiled = _aot._compile_bypassing_persistent_cache(lowered)
+    compiled = _aot._compile_bypassing_persistent_cache(
+        lambda: jax.jit(lambda x: (x + 1,)).lower(jnp.ones(2)).compile())
     assert float(compiled(jnp.ones(2))[0].sum()) == 4.0
     assert jax.config.jax_enable_compilation_cache == enabled
