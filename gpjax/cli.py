@@ -63,7 +63,7 @@ def _parser() -> argparse.ArgumentParser:
     diagnose.add_argument("data", help="CSV file with a header row")
     diagnose.add_argument("--model", required=True, help="model.json (constants are refitted)")
     diagnose.add_argument("--time", required=True, help="name of the time column (seconds)")
-    diagnose.add_argument("--response", required=True, help="name of the response column")
+    _response_option(diagnose)
     diagnose.add_argument("--input", action="append", default=[], dest="inputs",
                           help="name of an input column (repeat for several)")
     diagnose.add_argument("--out", default="gpjax-diagnose",
@@ -83,8 +83,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _fit_options(parser, *, out: str) -> None:
     parser.add_argument("--time", required=True, help="name of the time column (seconds)")
-    parser.add_argument("--response", required=True,
-                        help="name of the measured response column")
+    _response_option(parser)
     parser.add_argument("--input", action="append", default=[], dest="inputs",
                         help="name of an input column (repeat for several)")
     parser.add_argument("--config", help="TOML file of settings (see README)")
@@ -93,6 +92,20 @@ def _fit_options(parser, *, out: str) -> None:
     parser.add_argument("--seed", type=_non_negative, default=0,
                         help="random seed (default: 0)")
     parser.add_argument("--out", default=out, help=f"output folder (default: {out})")
+
+
+def _response_option(parser) -> None:
+    parser.add_argument("--response", action="append", required=True, dest="responses",
+                        help="name of a measured response column (repeat for the "
+                        "coordinates of a system with several degrees of freedom)")
+
+
+def _one_response(args) -> str:
+    """The one ``--response`` of a command that identifies one coordinate."""
+    if len(args.responses) > 1:
+        raise UserInputError(f"gpjax {args.command} takes one --response, got "
+                             f"{len(args.responses)} ({', '.join(args.responses)}); give one")
+    return args.responses[0]
 
 
 def _scheduler_option(parser) -> None:
@@ -190,7 +203,8 @@ def _fit(args) -> int:
 
     config = GPConfig.from_toml(args.config) if args.config else GPConfig()
     config = _config(args, config)
-    measurement = load_csv(args.data, time=args.time, response=args.response, inputs=args.inputs)
+    measurement = load_csv(args.data, time=args.time, responses=args.responses,
+                           inputs=args.inputs)
     _check_diagnose_options(args)
     islands = {}
     if any(getattr(args, k) is not None for k in ("islands", "scheduler", "every", "migrants",
@@ -226,8 +240,9 @@ def _diagnose(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UserInputError(f"--out {out} is a file; give a folder")
+    response = _one_response(args)
     model = Model.load(args.model)
-    measurement = load_csv(args.data, time=args.time, response=args.response, inputs=args.inputs)
+    measurement = load_csv(args.data, time=args.time, response=response, inputs=args.inputs)
     _run_diagnosis(args, measurement, model, out)
     return 0
 
@@ -294,7 +309,7 @@ def _fit_many(args) -> int:
     from ._fit_many import SUMMARY, fit_many
 
     config = _config(args, GPConfig.from_toml(args.config) if args.config else GPConfig())
-    rows = fit_many(args.source, time=args.time, response=args.response,
+    rows = fit_many(args.source, time=args.time, response=_one_response(args),
                     inputs=tuple(args.inputs), config=config, seed=args.seed, out=args.out,
                     scheduler=args.scheduler, workers=args.workers)
     for row in rows:
