@@ -99,31 +99,36 @@ def input_path(time: np.ndarray, inputs: list[np.ndarray], method: str):
     raise ValueError(f"unknown input interpolation {method!r}")
 
 
-def _structure(coefficients: Coefficients) -> tuple[sp.Expr, tuple[sp.Symbol, ...],
-                                                      np.ndarray]:
-    """x'' of one equation as one sympy expression in x, x', t, the inputs and one symbol
-    per constant, the symbols and their values."""
-    features = [(f, -value) for f, value in coefficients.state.items()]
-    features += list(coefficients.forcing.items())
-    constants = sp.symbols(f"_c0:{len(features) + 1}")
-    force = sum((c * f for c, (f, _) in zip(constants[1:], features)), sp.Integer(0))
-    values = np.array([1.0 / coefficients.mass] + [v for _, v in features])
-    return constants[0] * force, constants, values
+def _structure(equations: tuple[Coefficients, ...]) -> tuple[
+        tuple[sp.Expr, ...], tuple[sp.Symbol, ...], np.ndarray]:
+    """Each equation's second derivative as one sympy expression in the states, t, the
+    inputs and one symbol per constant; the symbols and their values."""
+    expressions, values, count = [], [], 0
+    for coefficients in equations:
+        features = [(f, -value) for f, value in coefficients.state.items()]
+        features += list(coefficients.forcing.items())
+        constants = sp.symbols(f"_c{count}:{count + len(features) + 1}")
+        force = sum((c * f for c, (f, _) in zip(constants[1:], features)), sp.Integer(0))
+        expressions.append(constants[0] * force)
+        values += [1.0 / coefficients.mass] + [v for _, v in features]
+        count += len(features) + 1
+    return tuple(expressions), sp.symbols(f"_c0:{count}"), np.array(values)
 
 
 @lru_cache(maxsize=64)
-def _field(expression: sp.Expr, names: tuple, constants: tuple):
-    """The scaled vector field ``field(t, y, (values, path, scale))`` of one structure;
-    cached, so models of one structure share a compiled solve."""
-    rhs = sp.lambdify((*names, constants), expression, modules="jax")
-    n_inputs = len(names) - 3
+def _field(expressions: tuple[sp.Expr, ...], names: tuple, constants: tuple):
+    """The scaled vector field ``field(t, y, (values, path, scale))`` of one structure,
+    y of shape (2, D); cached, so models of one structure share a compiled solve."""
+    rhs = sp.lambdify((*names, constants), list(expressions), modules="jax")
+    count = len(expressions)
+    n_inputs = len(names) - 2 * count - 1
 
     def field(time, y, args):
         values, path, scale = args
         position, velocity = y[0] * scale[0], y[1] * scale[1]
         inputs = path.evaluate(time)
-        acceleration = rhs(position, velocity, time,
-                           *(inputs[k] for k in range(n_inputs)), values)
+        acceleration = jnp.stack(rhs(*position, *velocity, time,
+                                     *(inputs[k] for k in range(n_inputs)), values))
         return jnp.stack([velocity, acceleration]) / scale
     return field
 
@@ -145,13 +150,42 @@ def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
     Returns:
         (response (N,), ok); a failed solve gives NaN and ``ok`` false.
     """
-    enable_float64()
     symbols = model.symbols
-    expression, constants, values = _structure(model.coefficients)
-    field = _field(expression, (symbols.x, symbols.x_dot, symbols.t, *symbols.u), constants)
-    path, step_ts, jump_ts = input_path(time, [inputs[name] for name in symbols.inputs],
-                                        model.input_interpolation)
-    scale = jnp.asarray([s if s > 0 else 1.0 for s in scale])
+    x, ok = reference_system_response(
+        (model.coefficients,), (symbols.response,), symbols.time, symbols.inputs, time, inputs,
+        [initial_conditions], interpolation=model.input_interpolation, scale=[scale],
+        solver=solver)
+    return x[:, 0], ok
+
+
+def reference_system_response(equations, coordinates: tuple[str, ...], time_name: str,
+                              input_names: tuple[str, ...], time: np.ndarray,
+                              inputs: dict[str, np.ndarray], initial_states, *,
+                              interpolation: str = "linear", scale=None,
+                              solver: ReferenceSolver = ReferenceSolver()
+                              ) -> tuple[np.ndarray, bool]:
+    """The response of a system of equations (one :class:`Coefficients` per coordinate,
+    features in the ``coordinates``' names, ``NAME_dot``, ``time_name`` and the inputs) at
+    uniformly spaced sample ``time`` by the reference solve.
+
+    Args:
+        initial_states: (D, 2) each coordinate's (x, x') at the first sample.
+        interpolation: the inputs between samples (the module docstring).
+        scale: (D, 2) typical sizes of each x and x' (default ones).
+
+    Returns:
+        (responses (N, D), ok); a failed solve gives NaN and ``ok`` false.
+    """
+    enable_float64()
+    expressions, constants, values = _structure(tuple(equations))
+    names = tuple(sp.Symbol(n) for n in coordinates) + tuple(
+        sp.Symbol(f"{n}_dot") for n in coordinates) + (sp.Symbol(time_name),) + tuple(
+        sp.Symbol(n) for n in input_names)
+    field = _field(expressions, names, constants)
+    path, step_ts, jump_ts = input_path(time, [inputs[name] for name in input_names],
+                                        interpolation)
+    scale = np.ones((len(coordinates), 2)) if scale is None else np.asarray(scale, float)
+    scale = jnp.asarray(np.where(scale > 0, scale, 1.0).T)
     controller = diffrax.PIDController(rtol=solver.rtol, atol=solver.atol)
     if step_ts is not None or jump_ts is not None:
         controller = diffrax.ClipStepSizeController(controller, step_ts=step_ts,
@@ -159,13 +193,13 @@ def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
     dt = float((time[-1] - time[0]) / (time.size - 1))
     solution = diffrax.diffeqsolve(
         diffrax.ODETerm(field), diffrax.Dopri8(), t0=float(time[0]), t1=float(time[-1]),
-        dt0=dt / 4, y0=jnp.asarray(initial_conditions) / scale,
+        dt0=dt / 4, y0=jnp.asarray(np.asarray(initial_states, float).T) / scale,
         args=(jnp.asarray(values), path, scale), saveat=diffrax.SaveAt(ts=jnp.asarray(time)),
         stepsize_controller=controller, max_steps=solver.max_steps_per_sample * time.size,
         throw=False)
-    x = np.asarray(solution.ys[:, 0]) * float(scale[0])
+    x = np.asarray(solution.ys[:, 0]) * np.asarray(scale[0])
     ok = bool(solution.result == diffrax.RESULTS.successful) and bool(np.all(np.isfinite(x)))
-    return (x if ok else np.full(time.shape, np.nan)), ok
+    return (x if ok else np.full(x.shape, np.nan)), ok
 
 
 def measurement_scale(measurement: Measurement) -> tuple[float, float]:

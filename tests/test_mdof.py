@@ -170,6 +170,7 @@ def test_system_variational_jacobian_matches_autodiff():
                                atol=1e-9 * float(jnp.max(jnp.abs(dx))))
 
 
+@pytest.mark.slow
 def test_refinement_recovers_the_chain_constants_and_initial_states():
     system, record, measurement = _chain()
     ev = _evaluator(measurement, substeps=2)
@@ -185,3 +186,28 @@ def test_refinement_recovers_the_chain_constants_and_initial_states():
         for feature, value in want.state.items():
             assert got.state[feature] == pytest.approx(value, rel=1e-4), feature
         assert abs(got.y0[0]) < 1e-4 * np.std(x) and abs(got.y0[1]) < 1e-3 * np.std(v)
+
+
+@pytest.mark.slow
+def test_fit_system_recovers_the_chain_with_converged_integration():
+    """Weak-form start, Levenberg–Marquardt on both coordinates, reference-solve check.
+    Equation 2 has no input, so it is normalised by its mass: constants / m2."""
+    from gpjax.engine import fit_system
+
+    system, record, measurement = _chain(duration=10.0)
+    structure = (((V1, X1, X1 - X2, (X1 - X2) ** 3), {U: 1.0}),
+                 ((V2, X2, X2 - X1, (X2 - X1) ** 3), {}))
+    fit = fit_system(measurement, structure, input_interpolation="bandlimited")
+    c = system.constants
+    first, second = fit.model.equations
+    assert first.mass == pytest.approx(c["m1"], rel=1e-3)
+    for feature, name in zip(structure[0][0], ("c", "k", "kc", "k3")):
+        assert first.state[feature] == pytest.approx(c[name], rel=1e-3), name
+    for feature, name in zip(structure[1][0], ("c", "k", "kc", "k3")):
+        assert second.state[feature] == pytest.approx(c[name] / c["m2"], rel=1e-3), name
+    assert fit.checks[-1].converged
+    reference = fit.model.simulate(measurement)
+    assert reference.shape == (measurement.n_samples, 2)
+    error = np.sqrt(np.mean((reference - record.response_true.T) ** 2, axis=0)
+                    / np.mean(record.response_true ** 2, axis=1))
+    assert np.all(error < 1e-3), error
