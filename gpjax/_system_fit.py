@@ -102,48 +102,71 @@ class SystemModel:
 
 
 def weak_form_start(measurement: Measurement, structure: Structure) -> list[Coefficients]:
-    """Per equation, constants by weak-form equation-error least squares: the features
-    evaluated on Savitzky–Golay-smoothed states of all coordinates, integrated against
-    :class:`gpjax._weak_form.WeakForm`'s test functions; the inertia column is exact
-    (∫ψ''·x_i). A forcing feature given a number keeps it (the equation's normalisation);
-    with none, the mass is 1."""
-    names = measurement.response_names
-    single = [measurement_of(measurement, d) for d in range(len(names))]
-    smooth = [smoothed_derivatives(m) for m in single]
-    values = {sp.Symbol(n): s.x for n, s in zip(names, smooth)}
-    values |= {sp.Symbol(f"{n}_dot"): s.x_dot for n, s in zip(names, smooth)}
-    values |= {sp.Symbol(measurement.time_name): measurement.time}
-    values |= {sp.Symbol(k): v for k, v in measurement.inputs.items()}
-    width = max(s.window for s in smooth)
-    out = []
-    for d, (state, forcing) in enumerate(structure):
-        weak = WeakForm(single[d], Symbols(names[d], measurement.time_name,
-                                           measurement.input_names), smooth[d].x_dot, width)
+    """Per equation, constants by weak-form equation-error least squares
+    (:class:`SystemWeakForm`)."""
+    weak = SystemWeakForm(measurement)
+    return [weak.equation(d, state, forcing) for d, (state, forcing) in enumerate(structure)]
 
-        def column(feature):
-            numbers = sp.lambdify(list(values), feature, modules="numpy")(*values.values())
-            return weak._integrate(np.broadcast_to(numbers, measurement.time.shape), 0)
 
+class SystemWeakForm:
+    """Weak-form equation-error least squares for the equations of a system: features are
+    evaluated on Savitzky–Golay-smoothed states of all coordinates and integrated against
+    :class:`gpjax._weak_form.WeakForm`'s test functions (one width for all coordinates);
+    the inertia column is exact (∫ψ''·x_i). Columns are cached per equation and feature."""
+
+    def __init__(self, measurement: Measurement):
+        names = measurement.response_names
+        self.measurement = measurement
+        single = [measurement_of(measurement, d) for d in range(len(names))]
+        smooth = [smoothed_derivatives(m) for m in single]
+        self._states = [s.initial_state for s in smooth]
+        values = {sp.Symbol(n): s.x for n, s in zip(names, smooth)}
+        values |= {sp.Symbol(f"{n}_dot"): s.x_dot for n, s in zip(names, smooth)}
+        values |= {sp.Symbol(measurement.time_name): measurement.time}
+        self._values = values | {sp.Symbol(k): v for k, v in measurement.inputs.items()}
+        width = max(s.window for s in smooth)
+        self._weak = [WeakForm(single[d], Symbols(names[d], measurement.time_name,
+                                                  measurement.input_names), smooth[d].x_dot,
+                               width) for d in range(len(names))]
+        self._columns: dict[tuple[int, sp.Expr], np.ndarray] = {}
+
+    def column(self, equation: int, feature: sp.Expr) -> np.ndarray:
+        """∫ψ_k·feature for every window of ``equation``'s coordinate (cached)."""
+        key = (equation, feature)
+        if key not in self._columns:
+            numbers = sp.lambdify(list(self._values), feature, modules="numpy")(
+                *self._values.values())
+            self._columns[key] = self._weak[equation]._integrate(
+                np.broadcast_to(numbers, self.measurement.time.shape), 0)
+        return self._columns[key]
+
+    def equation(self, d: int, state, forcing: dict) -> Coefficients:
+        """Constants of equation ``d`` with ``state`` and ``forcing`` features; a forcing
+        feature given a number keeps it (the normalisation; the signs flip if the mass
+        comes out negative), with none the mass is 1. y0: the smoothed first sample."""
+        weak = self._weak[d]
         fixed = {f: v for f, v in forcing.items() if v is not None}
         free = [f for f in forcing if f not in fixed]
-        target = sum((v * column(f) for f, v in fixed.items()), np.zeros(weak.centres.size))
-        columns = [column(f) for f in state] + [-column(f) for f in free]
+        target = sum((v * self.column(d, f) for f, v in fixed.items()),
+                     np.zeros(weak.centres.size))
+        columns = [self.column(d, f) for f in state] + [-self.column(d, f) for f in free]
         acceleration = weak.acceleration()
         if fixed:
             columns = [acceleration] + columns
         else:
             target = -acceleration
-        matrix = np.stack(columns, axis=1)
+        matrix = np.stack(columns, axis=1) if columns else np.zeros((target.size, 0))
         norm = np.linalg.norm(matrix, axis=0)
         norm[norm == 0] = 1.0
         solution = np.linalg.lstsq(matrix / norm, target, rcond=None)[0] / norm
+        sign = -1.0 if fixed and solution[0] < 0 else 1.0
         k = 1 if fixed else 0
-        mass = float(solution[0]) if fixed else 1.0
-        out.append(Coefficients(
-            mass=mass, state=dict(zip(state, map(float, solution[k:k + len(state)]))),
-            forcing={**fixed, **dict(zip(free, map(float, solution[k + len(state):])))},
-            y0=smooth[d].initial_state))
-    return out
+        return Coefficients(
+            mass=sign * float(solution[0]) if fixed else 1.0,
+            state={f: sign * float(v) for f, v in zip(state, solution[k:k + len(state)])},
+            forcing={**{f: sign * v for f, v in fixed.items()},
+                     **{f: sign * float(v) for f, v in zip(free, solution[k + len(state):])}},
+            y0=self._states[d])
 
 
 def measurement_of(measurement: Measurement, coordinate: int) -> Measurement:
@@ -196,6 +219,8 @@ def _refit(measurement, structure, start, steps, max_degree, interpolation, iter
     population = to_system_population([start], evaluator)
     fixed = np.array([[next((evaluator.forcing_index(f) for f, v in forcing.items()
                              if v is not None), -1) for _, forcing in structure]])
+    if not np.all(np.isfinite(evaluator.layout.pack(population))):
+        raise ValueError("the least-squares start of the system is not finite")
     free = sum(1 + len(s) + len(f) + 2 for s, f in structure)
     refiner = Refiner(evaluator, iterations=iterations, max_free=free + free % 2, batch=1)
     refined = refiner.refine(population, fixed).population
