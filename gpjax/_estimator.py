@@ -93,8 +93,8 @@ class Identifier:
         if measurement.n_coordinates > 1:
             raise UserInputError(
                 f"{measurement.n_coordinates} responses ({', '.join(measurement.response_names)})"
-                ": the GP search over systems of several equations is not built yet (the "
-                "evaluator simulates them); fit one --response at a time")
+                ": Identifier fits one response; identify a system with `gpjax fit` and "
+                "repeated --response, or gpjax.engine.search_system")
         if islands is not None or scheduler is not None or migration is not None:
             from ._islands import fit_islands
 

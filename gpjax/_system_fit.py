@@ -140,6 +140,19 @@ class SystemWeakForm:
                 np.broadcast_to(numbers, self.measurement.time.shape), 0)
         return self._columns[key]
 
+    def residual(self, d: int, state, forcing) -> float:
+        """Relative weak-form equation error of equation ``d`` with ``state`` and
+        ``forcing`` features (mass 1): how much of ∫ψ''·x_d the features leave unexplained."""
+        target = -self._weak[d].acceleration()
+        columns = [self.column(d, f) for f in state] + [-self.column(d, f) for f in forcing]
+        if not columns:
+            return 1.0
+        matrix = np.stack(columns, axis=1)
+        norm = np.linalg.norm(matrix, axis=0)
+        norm[norm == 0] = 1.0
+        solution = np.linalg.lstsq(matrix / norm, target, rcond=None)[0]
+        return float(np.linalg.norm(target - matrix / norm @ solution) / np.linalg.norm(target))
+
     def equation(self, d: int, state, forcing: dict) -> Coefficients:
         """Constants of equation ``d`` with ``state`` and ``forcing`` features; a forcing
         feature given a number keeps it (the normalisation; the signs flip if the mass

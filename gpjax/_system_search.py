@@ -35,6 +35,7 @@ converged integration (:func:`gpjax._system_fit.fit_system`).
 from __future__ import annotations
 
 import dataclasses
+import itertools
 from functools import lru_cache
 
 import numpy as np
@@ -362,7 +363,8 @@ def _local_search(trees, fitness, equations: _Equations, scorer: _Scorer,
         seen.add(key)
         current, value = key, fitness[index]
         for _ in range(settings.local_steps):
-            changed = list(_neighbours(current, equations))
+            changed = list(dict.fromkeys([*_neighbours(current, equations),
+                                          *_equation_error_steps(current, scorer)]))
             as_trees = [_as_trees(c, equations) for c in changed]
             scores = scorer(as_trees)
             best = int(np.argmin(scores))
@@ -389,6 +391,34 @@ def _neighbours(key, equations: _Equations):
                 part = (state, tuple(sorted(forcing + (feature,), key=str)))
                 yield key[:i] + (part,) + key[i + 1:]
         yield from _removals(key, i)
+
+
+def _equation_error_steps(key, scorer: "_Scorer", steps: int = 4):
+    """Multi-term moves by weak-form equation error, which is separable per equation and
+    never gets worse with a term more: per equation, forward selection from the equation as
+    it is and from nothing, every equation along the way (the others kept); and every
+    combination of the equations' selections from nothing (coupled equations are often
+    right only together: a coupling term helps in output error once both ends have it)."""
+    chains = []
+    for i, (state, forcing) in enumerate(key):
+        here = list(_forward(scorer, i, list(state), list(forcing), steps))
+        fresh = list(_forward(scorer, i, [], [], steps))
+        for part in here + fresh:
+            yield key[:i] + (part,) + key[i + 1:]
+        chains.append(fresh)
+    yield from itertools.product(*chains)
+
+
+def _forward(scorer: "_Scorer", i: int, state: list, forcing: list, steps: int):
+    """Equation ``i`` grown one feature at a time by the least weak-form residual."""
+    state_basis, forcing_basis = scorer.equations.basis(i)
+    for _ in range(steps):
+        options = [([*state, f], forcing) for f in state_basis if f not in state]
+        options += [(state, [*forcing, f]) for f in forcing_basis if f not in forcing]
+        if not options:
+            return
+        state, forcing = min(options, key=lambda o: scorer.weak.residual(i, *o))
+        yield tuple(sorted(state, key=str)), tuple(sorted(forcing, key=str))
 
 
 def _removals(key, i: int):
