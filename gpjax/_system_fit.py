@@ -74,7 +74,13 @@ class SystemModel:
         return out
 
     def latex(self) -> list[str]:
-        return [sp.latex(e) for e in self.sympy()]
+        """The equations in LaTeX, derivatives as dots."""
+        names = {}
+        for name in self.coordinates:
+            base = sp.latex(sp.Symbol(name))
+            names |= {sp.Symbol(f"{name}_dot"): rf"\dot{{{base}}}",
+                      sp.Symbol(f"{name}_ddot"): rf"\ddot{{{base}}}"}
+        return [sp.latex(e, symbol_names=names) for e in self.sympy()]
 
     def evaluator(self, measurement: Measurement, **options) -> PopulationEvaluator:
         return PopulationEvaluator(measurement, Symbols(self.coordinates[0], self.time_name,

@@ -393,20 +393,25 @@ def _neighbours(key, equations: _Equations):
         yield from _removals(key, i)
 
 
-def _equation_error_steps(key, scorer: "_Scorer", steps: int = 4):
+def _equation_error_steps(key, scorer: "_Scorer", steps: int = 4, longest: int = 8):
     """Multi-term moves by weak-form equation error, which is separable per equation and
     never gets worse with a term more: per equation, forward selection from the equation as
-    it is and from nothing, every equation along the way (the others kept); and every
-    combination of the equations' selections from nothing (coupled equations are often
-    right only together: a coupling term helps in output error once both ends have it)."""
-    chains = []
+    it is and from nothing, every equation along the way (the others kept); and jointly,
+    every combination of the equations' selections from nothing (up to ``longest`` terms)
+    that stop where the residual is within 5 % of the longest one's, one term less or one
+    more (coupled equations are often right only together: a coupling term pays in output
+    error once both ends have it)."""
+    joint = []
     for i, (state, forcing) in enumerate(key):
-        here = list(_forward(scorer, i, list(state), list(forcing), steps))
-        fresh = list(_forward(scorer, i, [], [], steps))
-        for part in here + fresh:
+        for part in _forward(scorer, i, list(state), list(forcing), steps):
             yield key[:i] + (part,) + key[i + 1:]
-        chains.append(fresh)
-    yield from itertools.product(*chains)
+        fresh = list(_forward(scorer, i, [], [], longest))
+        for part in fresh[:steps]:
+            yield key[:i] + (part,) + key[i + 1:]
+        residuals = [scorer.weak.residual(i, *part) for part in fresh]
+        stop = next(k for k, r in enumerate(residuals) if r <= 1.05 * residuals[-1])
+        joint.append(fresh[max(0, stop - 1):stop + 2])
+    yield from itertools.product(*joint)
 
 
 def _forward(scorer: "_Scorer", i: int, state: list, forcing: list, steps: int):

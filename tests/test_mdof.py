@@ -3,6 +3,8 @@ batched simulation of systems (issue 14)."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -211,3 +213,81 @@ def test_fit_system_recovers_the_chain_with_converged_integration():
     error = np.sqrt(np.mean((reference - record.response_true.T) ** 2, axis=0)
                     / np.mean(record.response_true ** 2, axis=1))
     assert np.all(error < 1e-3), error
+
+
+# --- files, exports and the command line ---------------------------------------------
+def _truth_model(system, record):
+    from gpjax.engine import SystemModel
+
+    equations = _equations(system.constants, y0=tuple(zip(record.response_true[:, 0],
+                                                          record.velocity_true[:, 0])))
+    return SystemModel(("x1", "x2"), "t", ("u",), tuple(equations), "linear", 2, 3)
+
+
+def test_system_model_file_round_trip_and_simulate_command(tmp_path, capsys):
+    from gpjax.cli import main
+    from gpjax.engine import load_model
+    from gpjax._system_file import save_system
+
+    system, record, measurement = _chain(duration=3.0)
+    model = _truth_model(system, record)
+    save_system(model, tmp_path / "model.json")
+    loaded = load_model(tmp_path / "model.json")
+    assert loaded == model
+    assert [str(e) for e in loaded.sympy()] == [str(e) for e in model.sympy()]
+    assert loaded.latex()[0].startswith("50.0 x_{1} + 1.0 \\ddot{x_{1}}")
+    measurement.to_csv(tmp_path / "data.csv")
+    assert main(["simulate", str(tmp_path / "model.json"), str(tmp_path / "data.csv"),
+                 "--out", str(tmp_path / "sim.csv")]) == 0
+    simulated = np.loadtxt(tmp_path / "sim.csv", delimiter=",", skiprows=1)
+    assert (tmp_path / "sim.csv").read_text().startswith("t,x1,x2\n")
+    from gpjax._weak_form import smoothed_derivatives
+    estimated = [smoothed_derivatives(gpjax.Measurement(time=record.time, response=x))
+                 .initial_state for x in record.response_true]  # the command's own estimate
+    np.testing.assert_allclose(simulated[:, 1:], loaded.simulate(
+        measurement, initial_conditions=estimated), rtol=0, atol=1e-14)
+    # from the true state; the model file's linear input interpolation vs the truth's
+    # continuous input costs ~1e-3
+    error = loaded.simulate(measurement) - record.response_true.T
+    assert np.sqrt(np.mean(error ** 2)) < 2e-3 * np.std(record.response_true)
+
+
+def test_system_model_file_refuses_a_feature_outside_its_equation(tmp_path):
+    from gpjax import ModelFileError
+    from gpjax._system_file import system_from_json, system_to_json
+
+    system, record, _ = _chain(duration=1.0)
+    data = system_to_json(_truth_model(system, record))
+    data["system"][0]["terms"].append({"feature": "(x2 - x1)**3", "coefficient": 1.0})
+    with pytest.raises(ModelFileError, match="not a power of x1, x1_dot or of their"):
+        system_from_json(data)
+    data["system"][0]["terms"][-1]["feature"] = "__import__('os')"
+    with pytest.raises(ModelFileError):
+        system_from_json(data)
+
+
+def test_one_coordinate_model_file_still_loads(tmp_path):
+    from gpjax.engine import load_model
+
+    text = ('{"variables": {"time": "t", "response": "x", "inputs": ["u"]}, "canonical": '
+            '{"mass": 1.0, "terms": [{"feature": "x", "coefficient": 4.0}], '
+            '"forcing": [{"feature": "u", "coefficient": 1.0}]}}')
+    (tmp_path / "m.json").write_text(text)
+    assert isinstance(load_model(tmp_path / "m.json"), gpjax.Model)
+
+
+@pytest.mark.slow
+def test_system_gp_finds_the_two_mass_chain():
+    """The GP over systems, from random trees, finds both equations of chain2 (its
+    structure: own and relative terms) and their constants within 2 %."""
+    from gpjax.engine import SystemSearch, search_system
+
+    data = generate("chain2", seed=3)
+    result = search_system(data.fit.system_measurement(),
+                           settings=SystemSearch(population=60, generations=2), seed=0)
+    first, second = result.model.equations
+    c = data.system.constants
+    assert set(first.state) == {V1, X1, X1 - X2, (X1 - X2) ** 3} and set(first.forcing) == {U}
+    assert set(second.state) == {V2, X2, X2 - X1, (X2 - X1) ** 3} and not second.forcing
+    assert first.state[(X1 - X2) ** 3] == pytest.approx(c["k3"], rel=0.02)
+    assert second.state[X2 - X1] == pytest.approx(c["kc"] / c["m2"], rel=0.02)
