@@ -3,8 +3,6 @@ batched simulation of systems (issue 14)."""
 
 from __future__ import annotations
 
-from pathlib import Path
-
 import numpy as np
 import pytest
 
