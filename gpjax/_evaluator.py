@@ -121,7 +121,9 @@ def split_state_features(features, symbols: Symbols, *, families: bool = True
 
 @dataclasses.dataclass(frozen=True)
 class Scores:
-    """Per-candidate results of :meth:`PopulationEvaluator.score` (all shape (P,))."""
+    """Per-candidate results of :meth:`PopulationEvaluator.score` (shape (P,); y0 (P, 2),
+    for a system (P, D, 2); rms of a system: the RMS over coordinates of the weighted
+    per-coordinate RMS errors)."""
 
     objective: np.ndarray
     f_time: np.ndarray
@@ -135,7 +137,8 @@ class PopulationEvaluator:
     """Simulates and scores populations against one measurement; compiles once.
 
     Args:
-        measurement: the data the models are scored against.
+        measurement: the data the models are scored against; with D responses the models
+            are systems of D equations (module docstring).
         symbols: names of response, time and inputs (for the feature expressions).
         max_degree: highest power of x and x' in the state basis.
         substeps: RK4 steps per sample interval.
@@ -410,7 +413,8 @@ class PopulationEvaluator:
         return self._batched(population, responses=False)[0]
 
     def simulate(self, population: Population) -> tuple[np.ndarray, Scores]:
-        """Simulated responses (P, N) at the sample times, and the scores."""
+        """Simulated responses (P, N) ((P, D, N) for a system) at the sample times, and the
+        scores."""
         scores, responses = self._batched(population, responses=True)
         return responses, scores
 
