@@ -16,12 +16,14 @@ they are compared with the truth divided by that mass. NRMS per coordinate on th
 extrapolation record (another input realisation, amplitude × 1.2), simulated by scipy's
 DOP853 from the true initial state with the true input (:func:`gpjax.systems.simulate_equations`).
 
-``gear``: the paper's 2-DOF gear pair (eqs. 21–22, :func:`gpjax.gear.simulate_two_dof`):
+``gear``: the paper's 2-DOF gear pair (eqs. 21–22), :func:`gpjax.gear.two_dof_record`:
 pinion J1 = 7.918e-5 kg·m² (eq. 14), a geometrically similar gear J2 = J1·(z2/z1)⁴, base radii
 of the paper's pair, the mean mesh stiffness k_m, mesh damping c_m for 5 % of critical; input
 torque T1 = 13 N·m plus a 1 N·m RMS random-phase multisine (2–25 kHz), load T2 =
 (r2/r1)·13 N·m plus a 0.5 N·m multisine, both applied at t = 0 to gears at rest; both
-angles measured (1 % noise), 300 kHz, 2,001 samples. In the angles, eq. 21 is
+angles measured (1 % noise), 300 kHz, 2,001 samples. Three fits: the angles with the
+structure given, the line-of-action displacements r1·Θ1, r2·Θ2 with the structure given,
+and the latter with the structure searched by the system GP. In the angles, eq. 21 is
 J1Θ1'' + a·Θ1' + b·(Θ1' − Θ2') + A·Θ1 + B·(Θ1 − Θ2) = T1 with B = r1·r2·k_m,
 A = r1·(r1 − r2)·k_m (likewise b, a with c_m), eq. 22 J2Θ2'' + … = −T2.
 
@@ -34,7 +36,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 import os
 import platform
 import time
@@ -42,7 +43,6 @@ import time
 import numpy as np
 import sympy as sp
 
-import gpjax
 from gpjax import Symbols
 from gpjax._coefficients import Coefficients, to_population, to_system_population
 from gpjax.engine import PopulationEvaluator, fit_system
@@ -112,50 +112,28 @@ def chains(seeds: int, search: bool, population: int, generations: int) -> list[
     return rows
 
 
-def _multisine(rng, low, high, rms, tones=40):
-    import jax.numpy as jnp
-
-    frequencies = np.linspace(low, high, tones)
-    phases = rng.uniform(0, 2 * np.pi, tones)
-    amplitude = rms * math.sqrt(2.0 / tones)
-    return lambda t: amplitude * jnp.sum(jnp.sin(2 * jnp.pi * frequencies * t + phases))
-
-
 def gear(seed: int = 0) -> dict:
-    import jax
-    import jax.numpy as jnp
-    from gpjax.gear import GearPair, TwoDofGearPair, average_mesh_stiffness, simulate_two_dof
+    from gpjax.engine import SystemSearch, search_system
+    from gpjax.gear import two_dof_record
 
-    pair = GearPair.paper()
-    r1, r2 = (r * 1e-3 for r in pair.geometry.base_radius_mm)
-    j1 = 7.918e-5
-    j2 = j1 * (pair.teeth2 / pair.teeth1) ** 4
-    k_m = average_mesh_stiffness(pair)
-    mu = (j1 / r1 ** 2) * (r2 ** 2 / j2)
-    c_m = 0.05 * 2 * math.sqrt(k_m / ((r1 ** 2 / j1) * (1 + mu)))
-    rng = np.random.default_rng(seed)
-    ripple1, ripple2 = _multisine(rng, 2e3, 25e3, 1.0), _multisine(rng, 2e3, 25e3, 0.5)
-
-    def torque1(t):
-        return 13.0 + ripple1(t)
-
-    def torque2(t):
-        return 13.0 * r2 / r1 + ripple2(t)
-
-    system = TwoDofGearPair(J1=j1, J2=j2, r1=r1, r2=r2, k_m=k_m, c_m=c_m, T1=torque1,
-                            T2=torque2)
-    fs, samples = 300e3, 2001
-    response = simulate_two_dof(system, t_end=(samples - 1) / fs, samples=samples)
-    t = np.asarray(response.t)
-    angles = np.stack([np.asarray(response.theta1), np.asarray(response.theta2)], axis=1)
-    noisy = angles + 0.01 * angles.std(axis=0) * rng.standard_normal(angles.shape)
-    inputs = {"T1": np.asarray(jax.vmap(torque1)(jnp.asarray(t))),
-              "T2": np.asarray(jax.vmap(torque2)(jnp.asarray(t)))}
-    setup = {"J1": j1, "J2": j2, "r1": r1, "r2": r2, "k_m": k_m, "c_m": c_m, "fs": fs,
-             "samples": samples, "noise": 0.01}
-    return {"angles": _gear_angles(t, noisy, inputs, r1, r2, j1, j2, k_m, c_m),
-            "line_of_action": _gear_line(t, noisy, inputs, r1, r2, j1, j2, k_m, c_m),
-            "setup": setup}
+    record = two_dof_record(seed=seed)
+    t = record.truth
+    args = (t["r1"], t["r2"], t["J1"], t["J2"], t["k_m"], t["c_m"])
+    out = {"angles": _gear_angles(record.measurement, *args),
+           "line_of_action": _gear_line(record.line_of_action(), *args)}
+    print("gear, line of action, structure searched by the system GP (population 60, "
+          "2 generations):")
+    began = time.perf_counter()
+    settings = SystemSearch(population=60, generations=2, input_interpolation="bandlimited")
+    result = search_system(record.line_of_action(), settings=settings, seed=seed)
+    out["line_of_action_search"] = _line_constants(result.fit, time.perf_counter() - began,
+                                                   *args)
+    out["line_of_action_search"]["structure"] = [
+        {"state": sorted(map(str, e.state)), "forcing": sorted(map(str, e.forcing))}
+        for e in result.model.equations]
+    print("  structure: " + "; ".join(str(e) for e in result.model.sympy()))
+    out["truth"] = t
+    return out
 
 
 def _report(fit, found, truth, seconds):
@@ -169,11 +147,9 @@ def _report(fit, found, truth, seconds):
             "equations": [str(e) for e in fit.model.sympy()]}
 
 
-def _gear_angles(t, angles, inputs, r1, r2, j1, j2, k_m, c_m):
+def _gear_angles(measurement, r1, r2, j1, j2, k_m, c_m):
     """Both angles as measured: eqs. 21–22 need own and relative terms per equation."""
-    print("gear, angles Θ1, Θ2 measured:")
-    measurement = gpjax.Measurement(time=t, responses=angles, response_names=("th1", "th2"),
-                                    inputs=inputs)
+    print("gear, angles Θ1, Θ2 measured, structure given:")
     x1, x2, v1, v2 = sp.symbols("th1 th2 th1_dot th2_dot")
     T1, T2 = sp.symbols("T1 T2")
     structure = (((v1, v1 - v2, x1, x1 - x2), {T1: 1.0}),
@@ -198,24 +174,26 @@ def _gear_angles(t, angles, inputs, r1, r2, j1, j2, k_m, c_m):
     return _report(fit, found, truth, seconds)
 
 
-def _gear_line(t, angles, inputs, r1, r2, j1, j2, k_m, c_m):
-    """The angles as displacements along the line of action, s1 = r1·Θ1, s2 = r2·Θ2 (the
-    base radii are known): δ = s1 − s2 is a relative coordinate, and eqs. 21–22 read
-    (J1/r1)·s1'' + r1·c_m·(s1' − s2') + r1·k_m·(s1 − s2) = T1 and
-    (J2/r2)·s2'' + r2·c_m·(s2' − s1') + r2·k_m·(s2 − s1) = −T2."""
-    print("gear, displacements along the line of action r1·Θ1, r2·Θ2:")
-    measurement = gpjax.Measurement(time=t, responses=angles * [r1, r2],
-                                    response_names=("s1", "s2"), inputs=inputs)
+def _gear_line(measurement, r1, r2, j1, j2, k_m, c_m):
+    """The line-of-action displacements s1 = r1·Θ1, s2 = r2·Θ2
+    (:meth:`gpjax.gear.TwoDofRecord.line_of_action`), structure given."""
+    print("gear, line-of-action displacements r1·Θ1, r2·Θ2, structure given:")
     x1, x2, v1, v2 = sp.symbols("s1 s2 s1_dot s2_dot")
     T1, T2 = sp.symbols("T1 T2")
     structure = (((v1 - v2, x1 - x2), {T1: 1.0}), ((v2 - v1, x2 - x1), {T2: -1.0}))
     began = time.perf_counter()
     fit = fit_system(measurement, structure, input_interpolation="bandlimited")
-    seconds = time.perf_counter() - began
+    return _line_constants(fit, time.perf_counter() - began, r1, r2, j1, j2, k_m, c_m)
+
+
+def _line_constants(fit, seconds, r1, r2, j1, j2, k_m, c_m):
+    x1, x2, v1, v2 = sp.symbols("s1 s2 s1_dot s2_dot")
     first, second = fit.model.equations
     found = {"J1": first.mass * r1, "J2": second.mass * r2,
-             "k_m (eq. 21)": first.state[x1 - x2] / r1, "k_m (eq. 22)": second.state[x2 - x1] / r2,
-             "c_m (eq. 21)": first.state[v1 - v2] / r1, "c_m (eq. 22)": second.state[v2 - v1] / r2}
+             "k_m (eq. 21)": first.state.get(x1 - x2, 0.0) / r1,
+             "k_m (eq. 22)": second.state.get(x2 - x1, 0.0) / r2,
+             "c_m (eq. 21)": first.state.get(v1 - v2, 0.0) / r1,
+             "c_m (eq. 22)": second.state.get(v2 - v1, 0.0) / r2}
     truth = {"J1": j1, "J2": j2, "k_m (eq. 21)": k_m, "k_m (eq. 22)": k_m,
              "c_m (eq. 21)": c_m, "c_m (eq. 22)": c_m}
     return _report(fit, found, truth, seconds)
