@@ -243,8 +243,10 @@ class PopulationEvaluator:
         responses = measurement.responses
         span = (np.ptp(responses, axis=0) + np.max(np.abs(responses), axis=0))[:, None]
         self._bound = (DIVERGENCE_RANGES * span, DIVERGENCE_RANGES * span / measurement.dt)
+        #: Per coordinate, (largest |x|, largest |x'|) a simulation is clipped to.
+        self._bounds = [(float(bx), float(bv)) for bx, bv in zip(*(b[:, 0] for b in self._bound))]
         if self.n_coordinates == 1:  # numbers: the one-coordinate program exactly as before
-            self._bound = tuple(float(b[0, 0]) for b in self._bound)
+            self._bound = self._bounds[0]
         #: Coordinate d's weight in the objective, s_1/s_d (see the module docstring).
         self.weights = np.std(responses[:, :1]) / np.std(responses, axis=0)
         self._dft = _dft_matrix(n, self.n_bins)
@@ -474,29 +476,31 @@ class PopulationEvaluator:
                 self._coordinates(forcing_matrix, -2), self._coordinates(y0, -2))
 
     def _acceleration_fn(self, mass, state, inner):
-        """x''(x, v, force, t) for all models and coordinates ((D, P) arrays; ``mass``
-        (D, P), ``state`` (P, D, F)), states clipped.
+        """x''(x, v, force, t) for all models: positions, velocities and forces given per
+        coordinate (sequences of D (P,) arrays, or (D, P) arrays), the accelerations
+        returned as a list of D (P,) arrays; ``mass`` (D, P), ``state`` (P, D, F); states
+        clipped. Coordinates stay separate arrays, so the scan carries no stacked state.
 
         The one right-hand side both integrators use (:meth:`_restoring_fn`).
         """
-        restoring = self._restoring_fn(state, inner)
-        bound_x, bound_v = self._bound
+        rows = self._restoring_fn(state, inner, stacked=False)
         inverse_mass = 1.0 / mass
 
-        def acceleration(x, v, force, t):
-            x = jnp.clip(x, -bound_x, bound_x)
-            v = jnp.clip(v, -bound_v, bound_v)
-            return (force - restoring(x, v, t)) * inverse_mass
+        def acceleration(xs, vs, forces, t):
+            xs = [jnp.clip(xs[e], -bx, bx) for e, (bx, _) in enumerate(self._bounds)]
+            vs = [jnp.clip(vs[e], -bv, bv) for e, (_, bv) in enumerate(self._bounds)]
+            return [(forces[e] - r) * inverse_mass[e] for e, r in enumerate(rows(xs, vs, t))]
 
         return acceleration
 
-    def _restoring_fn(self, state, inner):
+    def _restoring_fn(self, state, inner, *, stacked: bool = True):
         """Σ c·φ per equation for coefficients ``state`` of shape (..., P, D, F) and the
         families' inner constants ``inner`` (P, F_inner): Horner sums over the powers of each
         equation's variables (:func:`system_state_features`), plus, for D = 1, the compiled
         extra features and families. The function takes the positions and velocities as
-        (D, P) arrays or sequences of D (P,) arrays and returns (..., D, P). A family no
-        model of the call uses is skipped (``lax.cond`` on a loop-invariant flag)."""
+        (D, P) arrays or sequences of D (P,) arrays and returns (..., D, P) (``stacked``
+        False: a list of D (..., P) arrays). A family no model of the call uses is skipped
+        (``lax.cond`` on a loop-invariant flag)."""
         d, count = self.max_degree, self.n_coordinates
         coefficients = [[jnp.moveaxis(state[..., e, k * d:(k + 1) * d], -1, 0)
                          for k in range(2 * count)] for e in range(count)]
@@ -510,6 +514,9 @@ class PopulationEvaluator:
             for k in range(d - 2, -1, -1):
                 total = total * z + c[k]
             return total * z
+
+        if count > 1:
+            return self._system_restoring(state, stacked=stacked)
 
         def restoring(xs, vs, t):
             rows = []
@@ -530,9 +537,73 @@ class PopulationEvaluator:
                                     c * family(z, inner[..., slots]),
                                     lambda c=c: jnp.zeros(jnp.broadcast_shapes(c.shape, x.shape)))
                 total = total + term
-            return jnp.stack([total, *rows[1:]], axis=-2)
+            return [total, *rows[1:]]
+
+        if stacked:
+            return lambda xs, vs, t: jnp.stack(restoring(xs, vs, t), axis=-2)
+        return restoring
+
+    def _system_coefficients(self, state):
+        """(max_degree, D·2D, ..., P) coefficients of every equation's variables (the
+        powers' order of :func:`system_state_features`) from ``state`` (..., P, D, F)."""
+        d, count = self.max_degree, self.n_coordinates
+        lead = state.ndim - 3
+        shaped = state[..., :2 * count * d].reshape(state.shape[:-1] + (2 * count, d))
+        order = (lead + 3, lead + 1, lead + 2, *range(lead), lead)
+        return jnp.transpose(shaped, order).reshape(
+            (d, 2 * count * count) + shaped.shape[:lead] + shaped.shape[lead:lead + 1])
+
+    def _system_variables(self, xs, vs):
+        """(D·2D, P): per equation i, x_i, x_i − x_j (j ≠ i), x_i', x_i' − x_j'."""
+        count = self.n_coordinates
+        return jnp.stack([w[e] if j == e else w[e] - w[j] for e in range(count)
+                          for w in (xs, vs) for j in [e, *(j for j in range(count) if j != e)]])
+
+    def _system_restoring(self, state, *, stacked: bool):
+        """:meth:`_restoring_fn` of a system (D > 1, polynomial basis): all equations'
+        variables stacked into one (D·2D, P) array and one Horner sum over it — a few large
+        operations per RK4 stage instead of D·2D·max_degree small ones."""
+        d, count = self.max_degree, self.n_coordinates
+        lead = state.ndim - 3
+        c = self._system_coefficients(state)
+
+        def restoring(xs, vs, t):
+            z = self._system_variables(xs, vs)
+            z = z.reshape(z.shape[:1] + (1,) * lead + z.shape[1:])
+            total = c[d - 1]
+            for k in range(d - 2, -1, -1):
+                total = total * z + c[k]
+            total = (total * z).reshape((count, 2 * count) + total.shape[1:]).sum(axis=1)
+            return jnp.moveaxis(total, 0, -2) if stacked else [total[e] for e in range(count)]
 
         return restoring
+
+    def _system_partials(self, state):
+        """``partials(xs, vs)``: ∂r/∂x_j and ∂r/∂x_j' ((D, P) each, j = 1 … D) of a
+        system's restoring forces, from one Horner pass that carries each variable's
+        derivative (the chain rule through x_i − x_j is a constant 0/±1 matrix)."""
+        d, count = self.max_degree, self.n_coordinates
+        c = self._system_coefficients(state)
+        chain = np.zeros((2, count, 2, count, count))  # (x or x', eq., x or x', position, j)
+        for e in range(count):
+            for position, j in enumerate([e, *(j for j in range(count) if j != e)]):
+                for w in (0, 1):
+                    chain[w, e, w, position, e] += 1.0
+                    if j != e:
+                        chain[w, e, w, position, j] -= 1.0
+        chain = jnp.asarray(chain.reshape(2, count, 2 * count, count))
+
+        def partials(xs, vs):
+            z = self._system_variables(xs, vs)
+            value, slope = c[d - 1], jnp.zeros_like(z)
+            for k in range(d - 2, -1, -1):
+                slope = slope * z + value
+                value = value * z + c[k]
+            slope = (slope * z + value).reshape((count, 2 * count) + z.shape[1:])
+            out = jnp.einsum("wekj,ekp->wjep", chain, slope)
+            return [out[0, j] for j in range(count)], [out[1, j] for j in range(count)]
+
+        return partials
 
     def integrate(self, mass, state, forcing_matrix, y0, inner=None):
         """x at the sample times, shape (N, P) ((N, D, P) for D > 1), by the configured
@@ -559,14 +630,15 @@ class PopulationEvaluator:
         inner = _no_inner(inner, mass)
         mass, state, forcing_matrix, y0 = self._internal(mass, state, forcing_matrix, y0)
         acceleration = self._acceleration_fn(mass, state, inner)
+        count = self.n_coordinates
 
         def rates(y, force, t):
-            x, v = y
-            return v, acceleration(x, v, force, t)
+            xs, vs = y[:count], y[count:]
+            return (*vs, *acceleration(xs, vs, force, t))
 
-        (x,) = self._rk4_scan(rates, (y0[..., 0].T, y0[..., 1].T), forcing_matrix,
-                              lambda y: (y[0],))
-        return self._public(x, 1)
+        start = tuple(y0[:, e, k] for k in (0, 1) for e in range(count))
+        paths = self._rk4_scan(rates, start, forcing_matrix, lambda y: y[:count])
+        return paths[0] if count == 1 else jnp.stack(paths, axis=1)
 
     def scan_jvp(self, mass, state, forcing_matrix, y0, d_y0, *, inner=None, d_mass=None,
                  d_state=None, d_forcing=None, d_inner=None):
@@ -603,6 +675,7 @@ class PopulationEvaluator:
         d_restoring = self._restoring_fn(d_state, inner) if d_state is not None else None
         inverse_mass = 1.0 / mass
         count = self.n_coordinates
+        system_partials = self._system_partials(state) if count > 1 else None
 
         def partials(xs, vs, t, which):
             """∂r/∂x_j (which 0) or ∂r/∂x_j' (1), (D, P) each, for every coordinate j."""
@@ -620,9 +693,10 @@ class PopulationEvaluator:
             (y,) = y
             x, v, s, w = y[0, 0], y[1, 0], y[0, 1:], y[1, 1:]
             f, df = force
-            a = acceleration(x, v, f, t)
+            a = jnp.stack(acceleration(x, v, f, t))
             xs, vs = [x[e] for e in range(count)], [v[e] for e in range(count)]
-            r_x, r_v = partials(xs, vs, t, 0), partials(xs, vs, t, 1)
+            r_x, r_v = (system_partials(xs, vs) if count > 1 else
+                        (partials(xs, vs, t, 0), partials(xs, vs, t, 1)))
             explicit = df
             if d_restoring is not None:
                 explicit = explicit - d_restoring(x, v, t)
@@ -707,7 +781,8 @@ class PopulationEvaluator:
             index = jnp.clip(jnp.round((t - t0) / half).astype(jnp.int32), 0,
                              forcing_matrix.shape[0] - 1)
             velocity = jnp.clip(y[1], -self._bound[1], self._bound[1])
-            return jnp.stack([velocity, acceleration(y[0], y[1], forcing_matrix[index], t)])
+            return jnp.stack([velocity, jnp.stack(acceleration(y[0], y[1],
+                                                               forcing_matrix[index], t))])
 
         solution = diffrax.diffeqsolve(
             diffrax.ODETerm(field), RK4(), t0=t0, t1=float(self.stage_times[-1]), dt0=self.h,
