@@ -628,16 +628,17 @@ class PopulationEvaluator:
             inner: (P, F_inner) the families' inner constants (``None``: no families).
         """
         inner = _no_inner(inner, mass)
+        rows = forcing_matrix  # (n_stage, P) or (n_stage, D, P): scanned as given
         mass, state, forcing_matrix, y0 = self._internal(mass, state, forcing_matrix, y0)
         acceleration = self._acceleration_fn(mass, state, inner)
         count = self.n_coordinates
 
         def rates(y, force, t):
             xs, vs = y[:count], y[count:]
-            return (*vs, *acceleration(xs, vs, force, t))
+            return (*vs, *acceleration(xs, vs, (force,) if count == 1 else force, t))
 
         start = tuple(y0[:, e, k] for k in (0, 1) for e in range(count))
-        paths = self._rk4_scan(rates, start, forcing_matrix, lambda y: y[:count])
+        paths = self._rk4_scan(rates, start, rows, lambda y: y[:count])
         return paths[0] if count == 1 else jnp.stack(paths, axis=1)
 
     def scan_jvp(self, mass, state, forcing_matrix, y0, d_y0, *, inner=None, d_mass=None,
