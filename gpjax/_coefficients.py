@@ -85,7 +85,8 @@ class Coefficients:
 
 @dataclasses.dataclass(frozen=True)
 class Population:
-    """A batch of models as arrays (P models) over an evaluator's feature columns.
+    """A batch of models as arrays (P models) over an evaluator's feature columns; a
+    system of D > 1 equations has a coordinate axis after P in mass, state, forcing and y0.
 
     Attributes:
         mass: (P,) inertia coefficient m.
@@ -186,10 +187,54 @@ def from_population(population: Population, columns: Columns,
         for i, model in enumerate(like)]
 
 
+def to_system_population(systems: Sequence[Sequence[Coefficients]], columns) -> Population:
+    """The arrays of ``systems`` — each one :class:`Coefficients` per equation, in the
+    coordinates' order, y0 that coordinate's (x0, x0') — on a system evaluator's columns
+    (``columns.equation_index(feature, equation)``). A NaN mass becomes 1 and a NaN
+    initial state 0.
+
+    Raises:
+        ValueError: a state feature outside that equation's basis.
+    """
+    for system in systems:
+        for equation in system:
+            for feature in equation.forcing:
+                columns.forcing_index(feature)
+    population = columns.empty(len(systems))
+    for i, system in enumerate(systems):
+        for e, equation in enumerate(system):
+            population.mass[i, e] = equation.mass if math.isfinite(equation.mass) else 1.0
+            for feature, value in equation.state.items():
+                column = columns.equation_index(feature, e)
+                if column is None:
+                    raise ValueError(f"state feature {feature} is outside equation {e + 1}'s "
+                                     "basis")
+                population.state[i, e, column] = value
+            for feature, value in equation.forcing.items():
+                population.forcing[i, e, columns.forcing_index(feature)] = value
+            population.y0[i, e] = np.nan_to_num(equation.y0)
+    return population
+
+
+def from_system_population(population: Population, columns,
+                           like: Sequence[Sequence[Coefficients]]) -> list[list[Coefficients]]:
+    """Inverse of :func:`to_system_population` for the features of ``like``."""
+    return [[Coefficients(
+        mass=float(population.mass[i, e]),
+        state={f: float(population.state[i, e, columns.equation_index(f, e)])
+               for f in equation.state},
+        forcing={f: float(population.forcing[i, e, columns.forcing_index(f)])
+                 for f in equation.forcing},
+        y0=(float(population.y0[i, e, 0]), float(population.y0[i, e, 1])))
+        for e, equation in enumerate(system)] for i, system in enumerate(like)]
+
+
 @dataclasses.dataclass(frozen=True)
 class FlatLayout:
     """One model's constants as one vector
-    ``[m | c (n_state) | g (n_forcing) | θ (n_inner) | x0, x0']``.
+    ``[m | c (n_state) | g (n_forcing) | θ (n_inner) | x0, x0']``; for a system of
+    ``n_coordinates`` D > 1 equations ``[m_1 … m_D | c per equation | g per equation | θ |
+    (x0, x0') per coordinate]``.
 
     Works on numpy and JAX arrays alike; the last axis is the flat one.
     """
@@ -197,38 +242,55 @@ class FlatLayout:
     n_state: int
     n_forcing: int
     n_inner: int = 0
+    n_coordinates: int = 1
 
     @property
     def width(self) -> int:
-        return 1 + self.n_state + self.n_forcing + self.n_inner + 2
+        d = self.n_coordinates
+        return d * (1 + self.n_state + self.n_forcing + 2) + self.n_inner
 
-    def state_column(self, column: int) -> int:
-        return 1 + column
+    def mass_column(self, equation: int = 0) -> int:
+        return equation
 
-    def forcing_column(self, column: int) -> int:
-        return 1 + self.n_state + column
+    def state_column(self, column: int, equation: int = 0) -> int:
+        return self.n_coordinates + equation * self.n_state + column
+
+    def forcing_column(self, column: int, equation: int = 0) -> int:
+        d = self.n_coordinates
+        return d * (1 + self.n_state) + equation * self.n_forcing + column
 
     def inner_column(self, slot: int) -> int:
-        return 1 + self.n_state + self.n_forcing + slot
+        return self.n_coordinates * (1 + self.n_state + self.n_forcing) + slot
 
     def pack(self, population: Population) -> np.ndarray:
         """(P, width) from a population (forcing columns zero-padded to ``n_forcing``)."""
-        forcing = np.zeros((len(population), self.n_forcing))
-        forcing[:, : population.forcing.shape[1]] = population.forcing
-        return np.concatenate([population.mass[:, None], population.state, forcing,
-                               population.inner, population.y0], axis=1)
+        count = len(population)
+        forcing = np.zeros(population.forcing.shape[:-1] + (self.n_forcing,))
+        forcing[..., : population.forcing.shape[-1]] = population.forcing
+        return np.concatenate([population.mass.reshape(count, -1),
+                               population.state.reshape(count, -1), forcing.reshape(count, -1),
+                               population.inner, population.y0.reshape(count, -1)], axis=1)
 
     def split(self, flat):
-        """(mass, state, forcing, inner, y0) views along the last axis of ``flat``."""
-        s, g = 1 + self.n_state, 1 + self.n_state + self.n_forcing
+        """(mass, state, forcing, inner, y0) views along the last axis of ``flat``; for
+        D > 1 with a coordinate axis before the last: mass (..., D), state (..., D,
+        n_state), forcing (..., D, n_forcing), y0 (..., D, 2)."""
+        d = self.n_coordinates
+        s = d * (1 + self.n_state)
+        g = s + d * self.n_forcing
         i = g + self.n_inner
-        return flat[..., 0], flat[..., 1:s], flat[..., s:g], flat[..., g:i], flat[..., i:]
+        if d == 1:
+            return flat[..., 0], flat[..., 1:s], flat[..., s:g], flat[..., g:i], flat[..., i:]
+        lead = flat.shape[:-1]
+        return (flat[..., :d], flat[..., d:s].reshape(lead + (d, self.n_state)),
+                flat[..., s:g].reshape(lead + (d, self.n_forcing)), flat[..., g:i],
+                flat[..., i:].reshape(lead + (d, 2)))
 
     def population(self, flat: np.ndarray, n_forcing: int | None = None) -> Population:
         """A population from (P, width) rows, keeping the first ``n_forcing`` forcing
         columns (default all)."""
         mass, state, forcing, inner, y0 = self.split(np.asarray(flat))
-        return Population(mass=mass, state=state, forcing=forcing[:, :n_forcing], y0=y0,
+        return Population(mass=mass, state=state, forcing=forcing[..., :n_forcing], y0=y0,
                           inner=inner)
 
 

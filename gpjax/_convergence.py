@@ -73,7 +73,7 @@ def bandwidth_hz(measurement: Measurement) -> float:
     the response and of every input lies."""
     highest = 0.0
     frequency = np.fft.rfftfreq(measurement.n_samples, measurement.dt)
-    for values in (measurement.response, *measurement.inputs.values()):
+    for values in (*measurement.responses.T, *measurement.inputs.values()):
         power = np.abs(np.fft.rfft(values - np.mean(values))) ** 2
         total = power.sum()
         if total > 0:
@@ -102,20 +102,26 @@ def check_model(model, measurement: Measurement, *,
     """Simulate ``model`` (its fitted initial state, its ``substeps``) by RK4 and by the
     reference solve over the first :data:`CHECK_SAMPLES` samples at most, and compare
     them: (:class:`Convergence`, the reference response on those samples, NaN if that
-    solve failed)."""
+    solve failed). A system's responses (N, D) are compared with coordinate d weighted
+    by s_1/s_d as in the objective, so the figures are in the first response's units."""
     measurement = measurement.segment(0, min(measurement.n_samples, CHECK_SAMPLES))
     y0 = model.initial_conditions
     rk4 = model.simulate(measurement, initial_conditions=y0, solver="rk4")
     reference = model.simulate(measurement, initial_conditions=y0)
     ok = bool(np.all(np.isfinite(reference)))
-    measured = measurement.response
+    measured = measurement.response if np.ndim(rk4) == 1 else measurement.responses
+    returned = reference
+    if np.ndim(rk4) == 2:
+        spread = np.std(measured, axis=0)
+        weights = spread[0] / np.where(spread > 0, spread, 1.0)
+        measured, rk4, reference = measured * weights, rk4 * weights, reference * weights
     rms_rk4 = float(np.sqrt(np.mean((measured - rk4) ** 2)))
     if not ok:
         return Convergence(model.substeps, rms_rk4, math.inf, math.inf, math.inf,
-                           tolerance, measurement.n_samples), reference
+                           tolerance, measurement.n_samples), returned
     rms_reference = float(np.sqrt(np.mean((measured - reference) ** 2)))
     difference = float(np.sqrt(np.mean((rk4 - reference) ** 2)))
     ratio = difference / rms_reference if rms_reference > 0 else (0.0 if difference == 0
                                                                   else math.inf)
     return Convergence(model.substeps, rms_rk4, rms_reference, difference, ratio,
-                       tolerance, measurement.n_samples), reference
+                       tolerance, measurement.n_samples), returned

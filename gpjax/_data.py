@@ -1,4 +1,5 @@
-"""Measurements: a validated, uniformly sampled response with zero or more inputs.
+"""Measurements: validated, uniformly sampled responses (one or several coordinates) with
+zero or more inputs.
 
 Sampling must be uniform: gpjax integrates with a fixed step between samples and computes
 spectra with the DFT, so a non-uniform time axis is refused (resample it first, e.g. with
@@ -8,7 +9,6 @@ spectra with the DFT, so a non-uniform time axis is refused (resample it first, 
 from __future__ import annotations
 
 import csv
-import dataclasses
 import hashlib
 import keyword
 import math
@@ -33,51 +33,87 @@ BANDLIMITED_FACTOR = 16
 BANDLIMITED_REACH = 32
 
 
-@dataclasses.dataclass(frozen=True)
 class Measurement:
-    """A measured response x(t) and its inputs u_k(t) on one uniform time grid.
+    """Measured responses x_1(t) … x_D(t) and their inputs u_k(t) on one uniform time grid.
+
+    One response (D = 1) is the usual case: ``Measurement(time=t, response=x,
+    inputs={"u": u})``; several coordinates of one system are given as
+    ``responses`` (N, D) with ``response_names``.
 
     Attributes:
         time: sample times in seconds, shape (N,), strictly increasing and uniform.
-        response: measured response, shape (N,), in the user's units.
+        responses: measured responses, shape (N, D), in the user's units.
         inputs: input name -> samples, shape (N,) each, in the user's units.
-        time_name, response_name: the column names (used in equations and model files).
+        time_name, response_names: the column names (used in equations and model files).
+        response, response_name: the one response (N,) and its name (D = 1 only).
+
+    Raises:
+        DataError: bad arrays or names (see :func:`load_csv`); a response that is also an
+            input or named twice; coordinates of different lengths.
     """
 
-    time: np.ndarray
-    response: np.ndarray
-    inputs: dict[str, np.ndarray]
-    time_name: str = "t"
-    response_name: str = "x"
-
-    def __post_init__(self) -> None:
-        time = _as_vector(self.time, "time")
-        response = _as_vector(self.response, self.response_name)
-        inputs = {name: _as_vector(v, name) for name, v in self.inputs.items()}
+    def __init__(self, time, response=None, inputs=None, time_name: str = "t",
+                 response_name: str = "x", *, responses=None,
+                 response_names: tuple[str, ...] | list[str] | None = None):
+        if (response is None) == (responses is None):
+            raise ValueError("give either response (N,) or responses (N, D)")
+        if response is not None:
+            columns, names = [response], (response_name,)
+        else:
+            names = tuple(response_names or ())
+            array = np.asarray(responses, dtype=np.float64) if not isinstance(
+                responses, (list, tuple)) else None
+            columns = (list(responses) if array is None else
+                       [array] if array.ndim == 1 else list(array.T))
+            if len(names) != len(columns):
+                raise DataError(f"{len(columns)} response columns but {len(names)} names; "
+                                "name every response once")
+        time = _as_vector(time, "time")
+        columns = [_as_vector(c, name) for c, name in zip(columns, names)]
+        inputs = {name: _as_vector(v, name) for name, v in (inputs or {}).items()}
         n = time.size
-        for name, values in [(self.response_name, response), *inputs.items()]:
+        for name, values in [*zip(names, columns), *inputs.items()]:
             if values.size != n:
                 raise DataError(f"column {name!r} has {values.size} samples but time has {n}; "
                                 "give every column the same length")
-        names = [self.time_name, self.response_name, *inputs]
-        for name in names:
-            if not name.isidentifier() or name.startswith("_") or keyword.iskeyword(name):
-                raise DataError(f"column name {name!r} is not usable in equations; rename it to "
-                                "letters, digits and underscores, starting with a letter")
-        if len(set(names)) != len(names):
-            raise DataError(f"column names must differ, got {names}; name each column once")
-        if any(name.endswith("_dot") or name.endswith("_ddot") for name in names):
-            raise DataError("column names must not end in _dot or _ddot (reserved for derivatives); "
-                            "rename the column")
+        _check_names(time_name, names, tuple(inputs))
         check_time(time)
         if n < MIN_SAMPLES:
             raise DataError(f"only {n} samples; gpjax needs at least {MIN_SAMPLES}")
-        if np.ptp(response) == 0:
-            raise DataError(f"response {self.response_name!r} is constant; there is no dynamics "
-                            "to identify")
-        object.__setattr__(self, "time", time)
-        object.__setattr__(self, "response", response)
-        object.__setattr__(self, "inputs", inputs)
+        for name, values in zip(names, columns):
+            if np.ptp(values) == 0:
+                raise DataError(f"response {name!r} is constant; there is no dynamics "
+                                "to identify")
+        self.time = time
+        self.responses = np.stack(columns, axis=1)
+        self.inputs = inputs
+        self.time_name = time_name
+        self.response_names = names
+
+    @property
+    def n_coordinates(self) -> int:
+        """D, the number of measured coordinates."""
+        return len(self.response_names)
+
+    @property
+    def response(self) -> np.ndarray:
+        """The one response (N,).
+
+        Raises:
+            DataError: the measurement has several responses.
+        """
+        return self.responses[:, self._single()]
+
+    @property
+    def response_name(self) -> str:
+        """The one response's name (raises :class:`DataError` for several)."""
+        return self.response_names[self._single()]
+
+    def _single(self) -> int:
+        if self.n_coordinates != 1:
+            raise DataError(f"this step supports one response, got {self.n_coordinates} "
+                            f"({', '.join(self.response_names)}); give one --response")
+        return 0
 
     @property
     def n_samples(self) -> int:
@@ -95,26 +131,49 @@ class Measurement:
     def fingerprint(self) -> str:
         """SHA-256 of the arrays and names (to tell one data set from another)."""
         digest = hashlib.sha256()
-        for array in (self.time, self.response, *self.inputs.values()):
+        for array in (self.time, *self.responses.T, *self.inputs.values()):
             digest.update(np.ascontiguousarray(array, dtype=np.float64).tobytes())
-        digest.update(repr((self.time_name, self.response_name, self.input_names)).encode())
+        names = self.response_names[0] if self.n_coordinates == 1 else self.response_names
+        digest.update(repr((self.time_name, names, self.input_names)).encode())
         return digest.hexdigest()
 
     def segment(self, start: int, stop: int) -> "Measurement":
         """Samples ``start:stop`` (Python slice semantics) as a new measurement."""
         return Measurement(
-            time=self.time[start:stop], response=self.response[start:stop],
+            time=self.time[start:stop], responses=self.responses[start:stop],
             inputs={k: v[start:stop] for k, v in self.inputs.items()},
-            time_name=self.time_name, response_name=self.response_name)
+            time_name=self.time_name, response_names=self.response_names)
 
     def to_csv(self, path: str | Path) -> None:
-        """Write the columns as CSV with a header (time, response, inputs)."""
-        columns = [self.time, self.response, *self.inputs.values()]
-        header = [self.time_name, self.response_name, *self.inputs]
+        """Write the columns as CSV with a header (time, responses, inputs)."""
+        columns = [self.time, *self.responses.T, *self.inputs.values()]
+        header = [self.time_name, *self.response_names, *self.inputs]
         with open(path, "w", newline="", encoding="utf-8") as handle:
             writer = csv.writer(handle)
             writer.writerow(header)
             writer.writerows(zip(*(map(repr, map(float, c)) for c in columns)))
+
+
+def _check_names(time_name: str, responses: tuple[str, ...], inputs: tuple[str, ...]) -> None:
+    """Refuse column names that equations cannot use, or a name given twice (DataError)."""
+    names = [time_name, *responses, *inputs]
+    for name in names:
+        if not name.isidentifier() or name.startswith("_") or keyword.iskeyword(name):
+            raise DataError(f"column name {name!r} is not usable in equations; rename it to "
+                            "letters, digits and underscores, starting with a letter")
+    for name in responses:
+        if responses.count(name) > 1:
+            raise DataError(f"response {name!r} is named twice; name each column once")
+        if name in inputs:
+            raise DataError(f"{name!r} is named twice, as a response and as an input; name "
+                            "each column once")
+    for name in names:
+        if names.count(name) > 1:
+            raise DataError(f"column {name!r} is named twice (columns {names}); name each "
+                            "column once")
+    if any(name.endswith("_dot") or name.endswith("_ddot") for name in names):
+        raise DataError("column names must not end in _dot or _ddot (reserved for derivatives); "
+                        "rename the column")
 
 
 def between_samples(values: np.ndarray, factor: int, method: str = "linear") -> np.ndarray:
@@ -211,25 +270,35 @@ def check_time(time: np.ndarray) -> None:
                             "from the mean); resample to a uniform grid first")
 
 
-def load_csv(path: str | Path, *, time: str, response: str,
+def load_csv(path: str | Path, *, time: str, response: str | None = None,
+             responses: tuple[str, ...] | list[str] | None = None,
              inputs: tuple[str, ...] | list[str] = ()) -> Measurement:
     """Read a measurement from a CSV file with a header row.
 
     Args:
         path: the CSV file (comma-separated; a trailing comma on every row is accepted).
         time: name of the time column, in seconds.
-        response: name of the measured response column.
+        response: name of the measured response column (one coordinate), or
+        responses: names of several measured coordinates of one system, in order.
         inputs: names of the input (excitation) columns, in order; the first one is the
             input whose coefficient is normalised to 1 in the model.
 
     Raises:
         DataError: missing file or column, non-numeric cell, NaN/inf, fewer than 20 rows,
-            time not strictly increasing or not uniform.
+            time not strictly increasing or not uniform, a response named twice or also
+            an input, columns of different lengths (empty or NaN cells at the end of one).
+        ValueError: both or neither of ``response`` and ``responses``.
     """
-    data = read_columns(path, [time, response, *inputs])
+    if (response is None) == (responses is None):
+        raise ValueError("give either response= (one name) or responses= (a list of names)")
+    names = (response,) if response is not None else tuple(responses)
+    if not names:
+        raise DataError("no response named; give at least one --response")
+    _check_names(time, names, tuple(inputs))
+    data = read_columns(path, [time, *names, *inputs])
     return Measurement(
-        time=data[time], response=data[response],
-        inputs={name: data[name] for name in inputs}, time_name=time, response_name=response)
+        time=data[time], responses=[data[name] for name in names],
+        inputs={name: data[name] for name in inputs}, time_name=time, response_names=names)
 
 
 def read_columns(path: str | Path, wanted: list[str], *,
@@ -271,6 +340,7 @@ def read_columns(path: str | Path, wanted: list[str], *,
                     else f"columns are: {', '.join(map(repr, header))}")
             raise DataError(f"column {name!r} not found in {path}; {hint}")
     index = {name: header.index(name) for name in wanted}
+    _check_lengths(rows[1:], index, path)
     data = {name: [] for name in wanted}
     for line, row in enumerate(rows[1:], start=2):
         for name in wanted:
@@ -288,6 +358,25 @@ def read_columns(path: str | Path, wanted: list[str], *,
     if len(rows) - 1 < MIN_SAMPLES:
         raise DataError(f"{path} has {len(rows) - 1} data rows; gpjax needs at least {MIN_SAMPLES}")
     return {name: np.array(values) for name, values in data.items()}
+
+
+def _check_lengths(rows: list[list[str]], index: dict[str, int], path: Path) -> None:
+    """Refuse columns of different lengths: one whose cells are all empty or NaN from some
+    row to the end while another goes on (DataError)."""
+    def length(j: int) -> int:
+        for i in range(len(rows) - 1, -1, -1):
+            cell = rows[i][j].strip().lower() if j < len(rows[i]) else ""
+            if cell not in ("", "nan"):
+                return i + 1
+        return 0
+
+    lengths = {name: length(j) for name, j in index.items()}
+    longest = max(lengths, key=lengths.get)
+    for name, n in lengths.items():
+        if n < lengths[longest]:
+            raise DataError(f"column {name!r} of {path} has {n} samples but {longest!r} has "
+                            f"{lengths[longest]} (empty or NaN after line {n + 1}); give "
+                            "every column the same length (trim the rows to the shortest)")
 
 
 def _is_number(text: str) -> bool:

@@ -86,10 +86,15 @@ class Identifier:
 
         Raises:
             UserInputError: resuming without a checkpoint, or with other data or settings;
-                bad island settings or an unreachable scheduler.
+                bad island settings or an unreachable scheduler; several responses.
         """
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise UserInputError(f"seed must be a non-negative integer, got {seed!r}")
+        if measurement.n_coordinates > 1:
+            raise UserInputError(
+                f"{measurement.n_coordinates} responses ({', '.join(measurement.response_names)})"
+                ": Identifier fits one response; identify a system with `gpjax fit` and "
+                "repeated --response, or gpjax.engine.search_system")
         if islands is not None or scheduler is not None or migration is not None:
             from ._islands import fit_islands
 

@@ -9,7 +9,19 @@ The population enters as *data*: every model is ``mass·x'' + C·φ(x, x') = G·
   (rows: :meth:`PopulationEvaluator.stage_rows`).
 
 One fixed-step RK4 solve integrates the whole population; the same compiled function scores
-every model (eqs. 7–9). A model that blows up is marked ``DIVERGED`` and scored with a large
+every model (eqs. 7–9).
+
+**Several coordinates** (a measurement with D responses, a system of D Newton–Euler
+equations): the state is (x_1 … x_D, x_1' … x_D') for every model, so the population ×
+coordinates state goes through the same scan. Equation i's state basis holds the powers of
+its own x_i and x_i' and of the relative coordinates x_i − x_j and x_i' − x_j' (j ≠ i; the
+couplings of eqs. 21–22), so coefficients are (P, D, F); the masses (P, D); the forcing
+(P, D, F_forcing) over the shared forcing basis; the initial states (P, D, 2). With D = 1
+the coordinate axis is absent from every array a caller sees, and the computation is the
+one-coordinate one operation for operation. The objective sums eqs. 7–9 over the
+coordinates, coordinate d's part weighted by s_1/s_d (s: the response's standard
+deviation), so each is normalised by its own scale and f stays in the first response's
+units. A model that blows up is marked ``DIVERGED`` and scored with a large
 finite objective; it never aborts the population.
 
 Two integrators run the same RK4 tableau on the same stage grid: ``"scan"`` (default), a
@@ -40,6 +52,7 @@ from ._aot import Program, fingerprint
 from ._canonical import Symbols
 from ._coefficients import FlatLayout, Population, padded_chunks
 from ._data import Measurement, between_samples
+from ._evaluator_systems import SystemTerms, gauss_newton_step, system_state_features
 from ._features import Family, match
 from ._integrate import RK4, enable_float64, rk4_scan
 from ._objective import _amplitude, _dft_matrix, _objective_parts, default_n_bins
@@ -96,7 +109,9 @@ def split_state_features(features, symbols: Symbols, *, families: bool = True
 
 @dataclasses.dataclass(frozen=True)
 class Scores:
-    """Per-candidate results of :meth:`PopulationEvaluator.score` (all shape (P,))."""
+    """Per-candidate results of :meth:`PopulationEvaluator.score` (shape (P,); y0 (P, 2),
+    for a system (P, D, 2); rms of a system: the RMS over coordinates of the weighted
+    per-coordinate RMS errors)."""
 
     objective: np.ndarray
     f_time: np.ndarray
@@ -106,11 +121,12 @@ class Scores:
     y0: np.ndarray
 
 
-class PopulationEvaluator:
+class PopulationEvaluator(SystemTerms):
     """Simulates and scores populations against one measurement; compiles once.
 
     Args:
-        measurement: the data the models are scored against.
+        measurement: the data the models are scored against; with D responses the models
+            are systems of D equations (module docstring).
         symbols: names of response, time and inputs (for the feature expressions).
         max_degree: highest power of x and x' in the state basis.
         substeps: RK4 steps per sample interval.
@@ -137,7 +153,9 @@ class PopulationEvaluator:
 
     Raises:
         ValueError: for an unknown integrator or input interpolation, or ``"hold"`` with
-            the ``"diffrax"`` integrator.
+            the ``"diffrax"`` integrator; extra features or families with several
+            coordinates (systems have the polynomial basis of
+            :func:`system_state_features`).
     """
 
     def __init__(self, measurement: Measurement, symbols: Symbols, *, max_degree: int = 4,
@@ -150,13 +168,19 @@ class PopulationEvaluator:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
         if integrator == "diffrax" and input_interpolation == "hold":
             raise ValueError(HOLD_WITH_DIFFRAX)
+        self.n_coordinates = measurement.n_coordinates
+        if self.n_coordinates > 1 and (extra_state_features or families):
+            raise ValueError("a system of several coordinates has the polynomial basis only; "
+                             "give no extra_state_features or families")
         enable_float64()
         self.measurement = measurement
         self.symbols = symbols
         self.families = tuple(families)
         self._family_column = {}
         self._inner_slots = []
-        fixed = polynomial_state_features(symbols, max_degree) + list(extra_state_features)
+        fixed = (polynomial_state_features(symbols, max_degree) + list(extra_state_features)
+                 if self.n_coordinates == 1 else
+                 system_state_features(measurement.response_names, max_degree)[0])
         for j, family in enumerate(self.families):
             self._family_column[family] = len(fixed) + j
             start = self._inner_slots[-1].stop if self._inner_slots else 0
@@ -165,6 +189,11 @@ class PopulationEvaluator:
         self.state_features = fixed + [family.feature(symbols, (1.0, 0.0)[:family.n_inner])
                                        for family in self.families]
         self._state_index = {f: i for i, f in enumerate(fixed)}
+        #: Per equation, its state features in column order (D = 1: :attr:`state_features`).
+        self.equation_features = ((self.state_features,) if self.n_coordinates == 1 else
+                                  system_state_features(measurement.response_names, max_degree))
+        self._equation_index = [{f: i for i, f in enumerate(features)}
+                                for features in self.equation_features]
         self.max_degree = max_degree
         self.substeps = substeps
         self.integrator = integrator
@@ -188,7 +217,8 @@ class PopulationEvaluator:
         self.stage_times[-1] = measurement.time[-1]
         self._stage_inputs = {name: self._at_stages(values)
                               for name, values in measurement.inputs.items()}
-        self.n_bins = n_bins if n_bins is not None else default_n_bins(measurement.response)
+        self.n_bins = n_bins if n_bins is not None else max(map(default_n_bins,
+                                                                measurement.responses.T))
         self.n_bins = min(self.n_bins, n // 2 + 1)
         self._forcing_features: list[sp.Expr] = []
         self._forcing_columns: list[np.ndarray] = []
@@ -198,11 +228,17 @@ class PopulationEvaluator:
         self.compile_seconds = 0.0
         self._extra_fns = [sp.lambdify((symbols.x, symbols.x_dot, symbols.t), f, modules="jax")
                            for f in extra_state_features]
-        span = float(np.ptp(measurement.response)) + float(np.max(np.abs(measurement.response)))
+        responses = measurement.responses
+        span = (np.ptp(responses, axis=0) + np.max(np.abs(responses), axis=0))[:, None]
         self._bound = (DIVERGENCE_RANGES * span, DIVERGENCE_RANGES * span / measurement.dt)
+        #: Per coordinate, (largest |x|, largest |x'|) a simulation is clipped to.
+        self._bounds = [(float(bx), float(bv)) for bx, bv in zip(*(b[:, 0] for b in self._bound))]
+        if self.n_coordinates == 1:  # numbers: the one-coordinate program exactly as before
+            self._bound = self._bounds[0]
+        #: Coordinate d's weight in the objective, s_1/s_d (see the module docstring).
+        self.weights = np.std(responses[:, :1]) / np.std(responses, axis=0)
         self._dft = _dft_matrix(n, self.n_bins)
-        self._measured_amplitude = _amplitude(self._dft, measurement.response[:, None],
-                                              self.n_bins)
+        self._measured_amplitude = _amplitude(self._dft, responses, self.n_bins)
         run = self._simulate_and_score
         if len(self.devices) > 1:
             mesh = jax.make_mesh((len(self.devices),), ("population",),
@@ -245,6 +281,13 @@ class PopulationEvaluator:
             found = match(feature, self.symbols)
             column = None if found is None else self._family_column.get(found[0])
         return column
+
+    def equation_index(self, feature: sp.Expr, equation: int) -> int | None:
+        """Column of a state feature in ``equation``'s basis (:attr:`equation_features`),
+        or ``None``; for D = 1 :meth:`state_index`."""
+        if self.n_coordinates == 1:
+            return self.state_index(feature)
+        return self._equation_index[equation].get(feature)
 
     def inner_of(self, feature: sp.Expr) -> tuple[slice, tuple[float, ...]]:
         """The slots of a state feature's inner constants in :attr:`Population.inner` and
@@ -319,24 +362,26 @@ class PopulationEvaluator:
     @property
     def layout(self) -> FlatLayout:
         """The flat constant vector of one model on this evaluator's columns."""
-        return FlatLayout(len(self.state_features), self.forcing_capacity, self.n_inner)
+        return FlatLayout(len(self.state_features), self.forcing_capacity, self.n_inner,
+                          self.n_coordinates)
 
     @property
     def plain_layout(self) -> FlatLayout:
         """:attr:`layout` without the families' columns and inner constants (models that
         use no family; see :meth:`plain_rows`)."""
         return FlatLayout(len(self.state_features) - len(self.families),
-                          self.forcing_capacity, 0)
+                          self.forcing_capacity, 0, self.n_coordinates)
 
     def plain_rows(self, population: Population) -> np.ndarray:
         """(P,) whether each model uses no family: such models are simulated and refined
         without the bank's columns (the same compiled code traced for narrower arrays), so
         polynomial candidates never pay for the families' transcendental functions."""
-        return ~np.any(population.state[:, self.plain_layout.n_state:] != 0, axis=1)
+        used = population.state[..., self.plain_layout.n_state:] != 0
+        return ~np.any(used.reshape(len(population), -1), axis=1)
 
     def narrowed(self, population: Population) -> Population:
         """``population`` on :attr:`plain_layout` (its family columns dropped)."""
-        return Population(population.mass, population.state[:, :self.plain_layout.n_state],
+        return Population(population.mass, population.state[..., :self.plain_layout.n_state],
                           population.forcing, population.y0, population.inner[:, :0])
 
     def _layout_of(self, width: int) -> FlatLayout:
@@ -353,16 +398,18 @@ class PopulationEvaluator:
     # --- evaluation ---------------------------------------------------------------------
     def empty(self, count: int) -> Population:
         """A population of ``count`` placeholder models (m = 1, no terms, y0 = 0)."""
-        return Population(mass=np.ones(count), state=np.zeros((count, len(self.state_features))),
-                          forcing=np.zeros((count, self.forcing_capacity)), y0=np.zeros((count, 2)),
-                          inner=np.zeros((count, self.n_inner)))
+        rows = (count,) if self.n_coordinates == 1 else (count, self.n_coordinates)
+        return Population(mass=np.ones(rows), state=np.zeros(rows + (len(self.state_features),)),
+                          forcing=np.zeros(rows + (self.forcing_capacity,)),
+                          y0=np.zeros(rows + (2,)), inner=np.zeros((count, self.n_inner)))
 
     def score(self, population: Population) -> Scores:
         """Objective (eq. 7), its parts (eqs. 8–9), RMS and status for every model."""
         return self._batched(population, responses=False)[0]
 
     def simulate(self, population: Population) -> tuple[np.ndarray, Scores]:
-        """Simulated responses (P, N) at the sample times, and the scores."""
+        """Simulated responses (P, N) ((P, D, N) for a system) at the sample times, and the
+        scores."""
         scores, responses = self._batched(population, responses=True)
         return responses, scores
 
@@ -373,8 +420,8 @@ class PopulationEvaluator:
         count = len(population)
         if count == 0:
             empty = np.zeros(0)
-            return (Scores(empty, empty, empty, empty, empty.astype(int), np.zeros((0, 2))),
-                    np.zeros((0, 0)))
+            return (Scores(empty, empty, empty, empty, empty.astype(int),
+                           self.empty(0).y0), np.zeros((0, 0)))
         plain = self.plain_rows(population)
         parts, paths, order = [], [], []
         for rows in (np.flatnonzero(plain), np.flatnonzero(~plain)):
@@ -397,7 +444,7 @@ class PopulationEvaluator:
         return scores, (np.concatenate(paths)[back] if responses else None)
 
     def _call(self, mass, state, forcing, y0, inner):
-        key = (self.forcing_capacity, state.shape[1])
+        key = (self.forcing_capacity, state.shape[-1])
         start = time.perf_counter()
         out = jax.block_until_ready(self._run(
             *map(jnp.asarray, (mass, state, forcing, y0, inner, self._forcing_basis))))
@@ -406,34 +453,53 @@ class PopulationEvaluator:
             self.compile_seconds += time.perf_counter() - start
         return out
 
-    def _acceleration_fn(self, mass, state, inner):
-        """x''(x, v, force, t) for all models (vectors of length P), states clipped.
+    # --- the compiled computation: arrays carry a coordinate axis (length D) ---------------
+    def _coordinates(self, array, axis: int):
+        """``array`` with the coordinate axis at ``axis`` (inserted when D = 1)."""
+        return jnp.expand_dims(array, axis) if self.n_coordinates == 1 else array
 
-        The one right-hand side both integrators use: Horner sums over the powers of x and
-        x', plus the compiled extra features and families.
+    def _public(self, array, axis: int):
+        """``array`` without the coordinate axis at ``axis`` when D = 1."""
+        return jnp.squeeze(array, axis) if self.n_coordinates == 1 else array
+
+    def _internal(self, mass, state, forcing_matrix, y0):
+        """Caller arrays with the coordinate axis: mass (D, P), state (P, D, F), forcing
+        rows (n_stage, D, P), y0 (P, D, 2)."""
+        return (jnp.swapaxes(self._coordinates(mass, -1), -1, -2), self._coordinates(state, -2),
+                self._coordinates(forcing_matrix, -2), self._coordinates(y0, -2))
+
+    def _acceleration_fn(self, mass, state, inner):
+        """x''(x, v, force, t) for all models: positions, velocities and forces given per
+        coordinate (sequences of D (P,) arrays, or (D, P) arrays), the accelerations
+        returned as a list of D (P,) arrays; ``mass`` (D, P), ``state`` (P, D, F); states
+        clipped. Coordinates stay separate arrays, so the scan carries no stacked state.
+
+        The one right-hand side both integrators use (:meth:`_restoring_fn`).
         """
-        restoring = self._restoring_fn(state, inner)
-        bound_x, bound_v = self._bound
+        rows = self._restoring_fn(state, inner, stacked=False)
         inverse_mass = 1.0 / mass
 
-        def acceleration(x, v, force, t):
-            x = jnp.clip(x, -bound_x, bound_x)
-            v = jnp.clip(v, -bound_v, bound_v)
-            return (force - restoring(x, v, t)) * inverse_mass
+        def acceleration(xs, vs, forces, t):
+            xs = [jnp.clip(xs[e], -bx, bx) for e, (bx, _) in enumerate(self._bounds)]
+            vs = [jnp.clip(vs[e], -bv, bv) for e, (_, bv) in enumerate(self._bounds)]
+            return [(forces[e] - r) * inverse_mass[e] for e, r in enumerate(rows(xs, vs, t))]
 
         return acceleration
 
-    def _restoring_fn(self, state, inner):
-        """Σ c·φ(x, x', t) for coefficients ``state`` of shape (..., P, F) and the families'
-        inner constants ``inner`` (P, F_inner): Horner sums over the powers of x and x',
-        plus the compiled extra features and families; x and x' have shape (P,). A family
-        no model of the call uses is skipped (``lax.cond`` on a loop-invariant flag)."""
-        d = self.max_degree
-        cx = jnp.moveaxis(state[..., :d], -1, 0)
-        cv = jnp.moveaxis(state[..., d:2 * d], -1, 0)
-        n_extra = len(self._extra_fns)
-        extra = jnp.moveaxis(state[..., 2 * d:2 * d + n_extra], -1, 0)
-        bank = jnp.moveaxis(state[..., 2 * d + n_extra:], -1, 0)
+    def _restoring_fn(self, state, inner, *, stacked: bool = True):
+        """Σ c·φ per equation for coefficients ``state`` of shape (..., P, D, F) and the
+        families' inner constants ``inner`` (P, F_inner): Horner sums over the powers of each
+        equation's variables (:func:`system_state_features`), plus, for D = 1, the compiled
+        extra features and families. The function takes the positions and velocities as
+        (D, P) arrays or sequences of D (P,) arrays and returns (..., D, P) (``stacked``
+        False: a list of D (..., P) arrays). A family no model of the call uses is skipped
+        (``lax.cond`` on a loop-invariant flag)."""
+        d, count = self.max_degree, self.n_coordinates
+        coefficients = [[jnp.moveaxis(state[..., e, k * d:(k + 1) * d], -1, 0)
+                         for k in range(2 * count)] for e in range(count)]
+        n_poly, n_extra = 2 * count * d, len(self._extra_fns)
+        extra = jnp.moveaxis(state[..., 0, n_poly:n_poly + n_extra], -1, 0)
+        bank = jnp.moveaxis(state[..., 0, n_poly + n_extra:], -1, 0)
         used = [jnp.any(c != 0) for c in bank]
 
         def horner(c, z):
@@ -442,8 +508,20 @@ class PopulationEvaluator:
                 total = total * z + c[k]
             return total * z
 
-        def restoring(x, v, t):
-            total = horner(cx, x) + horner(cv, v)
+        if count > 1:
+            return self._system_restoring(state, stacked=stacked)
+
+        def restoring(xs, vs, t):
+            rows = []
+            for e in range(count):
+                order = [e, *(j for j in range(count) if j != e)]
+                variables = [z[e] if j == e else z[e] - z[j] for z in (xs, vs) for j in order]
+                total = horner(coefficients[e][0], variables[0])
+                for c, z in zip(coefficients[e][1:], variables[1:]):
+                    total = total + horner(c, z)
+                rows.append(total)
+            x, v = xs[0], vs[0]
+            total = rows[0]
             for c, fn in zip(extra, self._extra_fns):
                 total = total + c * fn(x, v, t)
             for c, flag, family, slots in zip(bank, used, self.families, self._inner_slots):
@@ -452,12 +530,15 @@ class PopulationEvaluator:
                                     c * family(z, inner[..., slots]),
                                     lambda c=c: jnp.zeros(jnp.broadcast_shapes(c.shape, x.shape)))
                 total = total + term
-            return total
+            return [total, *rows[1:]]
 
+        if stacked:
+            return lambda xs, vs, t: jnp.stack(restoring(xs, vs, t), axis=-2)
         return restoring
 
     def integrate(self, mass, state, forcing_matrix, y0, inner=None):
-        """x at the sample times, shape (N, P), by the configured integrator.
+        """x at the sample times, shape (N, P) ((N, D, P) for D > 1), by the configured
+        integrator.
 
         Differentiable in forward and reverse mode (the diffrax path in forward mode).
         """
@@ -467,56 +548,87 @@ class PopulationEvaluator:
         return self.scan_solve(mass, state, forcing_matrix, y0, inner)
 
     def scan_solve(self, mass, state, forcing_matrix, y0, inner=None):
-        """Integrate all models with RK4 in ``lax.scan``; x at the sample times, (N, P).
+        """Integrate all models with RK4 in ``lax.scan``; x at the sample times, (N, P)
+        ((N, D, P) for D > 1).
 
         Args:
-            mass: (P,); state: (P, F_state) coefficients; y0: (P, 2).
-            forcing_matrix: (n_stage, P) forcing of every model at every RK4 stage time.
+            mass: (P,); state: (P, F_state) coefficients; y0: (P, 2) — for D > 1 with a
+                coordinate axis after P: (P, D), (P, D, F_state), (P, D, 2).
+            forcing_matrix: (n_stage, P) ((n_stage, D, P)) forcing of every model (and
+                equation) at every RK4 stage time.
             inner: (P, F_inner) the families' inner constants (``None``: no families).
         """
-        acceleration = self._acceleration_fn(mass, state, _no_inner(inner, mass))
+        inner = _no_inner(inner, mass)
+        rows = forcing_matrix  # (n_stage, P) or (n_stage, D, P): scanned as given
+        mass, state, forcing_matrix, y0 = self._internal(mass, state, forcing_matrix, y0)
+        acceleration = self._acceleration_fn(mass, state, inner)
+        count = self.n_coordinates
 
         def rates(y, force, t):
-            x, v = y
-            return v, acceleration(x, v, force, t)
+            xs, vs = y[:count], y[count:]
+            return (*vs, *acceleration(xs, vs, (force,) if count == 1 else force, t))
 
-        (x,) = self._rk4_scan(rates, (y0[:, 0], y0[:, 1]), forcing_matrix, lambda y: (y[0],))
-        return x
+        start = tuple(y0[:, e, k] for k in (0, 1) for e in range(count))
+        paths = self._rk4_scan(rates, start, rows, lambda y: y[:count])
+        return paths[0] if count == 1 else jnp.stack(paths, axis=1)
 
     def scan_jvp(self, mass, state, forcing_matrix, y0, d_y0, *, inner=None, d_mass=None,
                  d_state=None, d_forcing=None, d_inner=None):
-        """x at the sample times (N, P) and its derivatives (N, Q, P) along Q directions.
+        """x at the sample times (N, P) and its derivatives (N, Q, P) along Q directions
+        (D > 1: (N, D, P) and (N, D, Q, P)).
 
         The variational equations s' = w, w' = ∂a/∂x·s + ∂a/∂x'·w + ∂a/∂θ·dθ run in the same
-        RK4 scan as the model. RK4 commutes with linearisation, so this is the exact
-        derivative of the discrete solution — what forward-mode autodiff of
-        :meth:`scan_solve` gives (tested) — without differentiating through the scan.
+        RK4 scan as the model (∂a/∂x a D × D matrix per model, one forward derivative per
+        coordinate). RK4 commutes with linearisation, so this is the exact derivative of the
+        discrete solution — what forward-mode autodiff of :meth:`scan_solve` gives
+        (tested) — without differentiating through the scan.
 
         Args:
             mass, state, forcing_matrix, y0: as :meth:`scan_solve`.
-            d_y0: (Q, P, 2) directions of the initial state.
+            d_y0: (Q, P, 2) ((Q, P, D, 2)) directions of the initial state.
             inner: (P, F_inner) the families' inner constants (``None``: no families).
             d_mass: (Q, P), d_state: (Q, P, F_state), d_forcing: (n_stage, Q, P),
-                d_inner: (Q, P, F_inner) directions of the constants (``None``: zero).
-                Directions come first so the population axis stays the minor one that XLA
-                vectorises.
+                d_inner: (Q, P, F_inner) directions of the constants (``None``: zero); for
+                D > 1 with a coordinate axis before F (after P for d_mass, before P for
+                d_forcing). Directions come first so the population axis stays the minor
+                one that XLA vectorises.
         """
         inner = _no_inner(inner, mass)
+        mass, state, forcing_matrix, y0 = self._internal(mass, state, forcing_matrix, y0)
+        d_y0 = self._coordinates(d_y0, -2)
+        if d_mass is not None:
+            d_mass = jnp.swapaxes(self._coordinates(d_mass, -1), -1, -2)
+        if d_state is not None:
+            d_state = self._coordinates(d_state, -2)
+        d_forcing = (jnp.zeros((forcing_matrix.shape[0], 1, 1, 1)) if d_forcing is None
+                     else self._coordinates(d_forcing, -2))
         acceleration = self._acceleration_fn(mass, state, inner)
         restoring = self._restoring_fn(state, inner)
         d_restoring = self._restoring_fn(d_state, inner) if d_state is not None else None
         inverse_mass = 1.0 / mass
-        if d_forcing is None:
-            d_forcing = jnp.zeros((forcing_matrix.shape[0], 1, 1))
+        count = self.n_coordinates
+        system_partials = self._system_partials(state) if count > 1 else None
+
+        def partials(xs, vs, t, which):
+            """∂r/∂x_j (which 0) or ∂r/∂x_j' (1), (D, P) each, for every coordinate j."""
+            ones = jnp.ones_like(xs[0])
+            out = []
+            for j in range(count):
+                def moved(z, j=j):
+                    states = [list(xs), list(vs)]
+                    states[which][j] = z
+                    return restoring(*states, t)
+                out.append(jax.jvp(moved, ((xs, vs)[which][j],), (ones,))[1])
+            return out
 
         def rates(y, force, t):
             (y,) = y
             x, v, s, w = y[0, 0], y[1, 0], y[0, 1:], y[1, 1:]
             f, df = force
-            a = acceleration(x, v, f, t)
-            ones = jnp.ones_like(x)
-            _, r_x = jax.jvp(lambda z: restoring(z, v, t), (x,), (ones,))
-            _, r_v = jax.jvp(lambda z: restoring(x, z, t), (v,), (ones,))
+            a = jnp.stack(acceleration(x, v, f, t))
+            xs, vs = [x[e] for e in range(count)], [v[e] for e in range(count)]
+            r_x, r_v = (system_partials(xs, vs) if count > 1 else
+                        (partials(xs, vs, t, 0), partials(xs, vs, t, 1)))
             explicit = df
             if d_restoring is not None:
                 explicit = explicit - d_restoring(x, v, t)
@@ -525,43 +637,52 @@ class PopulationEvaluator:
                     lambda th: restoring_at(th, x, v, t), (inner,), (d,))[1])(d_inner)
             if d_mass is not None:
                 explicit = explicit - a * d_mass
-            dw = (explicit - r_x * s - r_v * w) * inverse_mass
+            for j, r in enumerate(r_x):
+                explicit = explicit - r * s[:, j:j + 1]
+            for j, r in enumerate(r_v):
+                explicit = explicit - r * w[:, j:j + 1]
+            dw = explicit * inverse_mass
             return (jnp.stack([jnp.concatenate([v[None], w]),
                                jnp.concatenate([a[None], jnp.broadcast_to(dw, s.shape)])]),)
 
         def restoring_at(theta, x, v, t):
             return self._restoring_fn(state, theta)(x, v, t)
 
-        # One carried array [[x, s], [x', w]], (2, 1 + Q, P): fewer loops and copies per
+        # One carried array [[x, s], [x', w]], (2, 1 + Q, D, P): fewer loops and copies per
         # step than four separate states (the initial-condition step runs ~2× faster).
-        start = jnp.concatenate([y0.T[:, None], jnp.moveaxis(d_y0, -1, 0)], axis=1)
+        start = jnp.concatenate([jnp.transpose(y0, (2, 1, 0))[:, None],
+                                 jnp.swapaxes(jnp.moveaxis(d_y0, -1, 0), -1, -2)], axis=1)
         (path,) = self._rk4_scan(rates, (start,), (forcing_matrix, d_forcing),
                                  lambda y: (y[0][0],))
-        return path[:, 0], path[:, 1:]
+        if count == 1:
+            return path[:, 0, 0], path[:, 1:, 0]
+        return path[:, 0], jnp.swapaxes(path[:, 1:], 1, 2)
 
     def unpack(self, constants, forcing_basis):
         """Flat constant vectors (:attr:`layout`), one model's (W,) or a population's
         (P, W), as :meth:`scan_solve` arguments (a population of one for one vector):
         mass (P,), state (P, F_state), forcing (n_stage, P) from the rows of
-        ``forcing_basis`` (which set n_stage), y0 (P, 2), inner (P, F_inner)."""
+        ``forcing_basis`` (which set n_stage), y0 (P, 2), inner (P, F_inner) (for D > 1
+        with the coordinate axis, :meth:`scan_solve`)."""
         mass, state, forcing, inner, y0 = self._layout_of(constants.shape[-1]).split(
             jnp.atleast_2d(constants))
-        return mass, state, forcing_basis @ forcing.T, y0, inner
+        return mass, state, _forcing_rows(forcing_basis, forcing), y0, inner
 
     def constant_jacobian(self, constants, directions, forcing_basis):
         """x at the sample times and its derivatives along ``directions`` of the flat
         constant vector, by :meth:`scan_jvp`: one model's constants (W,) and directions
         (Q, W) give (N,) and (N, Q); a population's (P, W) and (P, Q, W) give (N, P) and
-        (N, Q, P) (:meth:`unpack`)."""
+        (N, Q, P) (:meth:`unpack`); for D > 1 a coordinate axis follows N."""
         single = constants.ndim == 1
         directions = jnp.swapaxes(directions[None] if single else directions, 0, 1)
         d_mass, d_state, d_forcing, d_inner, d_y0 = self._layout_of(
             constants.shape[-1]).split(directions)
         mass, state, forcing_matrix, y0, inner = self.unpack(constants, forcing_basis)
+        rows = ("qpk,sk->sqp" if self.n_coordinates == 1 else "qpdk,sk->sqdp")
         x, dx = self.scan_jvp(mass, state, forcing_matrix, y0, d_y0, inner=inner,
                               d_mass=d_mass, d_state=d_state, d_inner=d_inner,
-                              d_forcing=jnp.einsum("qpk,sk->sqp", d_forcing, forcing_basis))
-        return (x[:, 0], dx[:, :, 0]) if single else (x, dx)
+                              d_forcing=jnp.einsum(rows, d_forcing, forcing_basis))
+        return (x[..., 0], dx[..., 0]) if single else (x, dx)
 
     def _rk4_scan(self, rates, y0, forces, saved):
         """:func:`gpjax._integrate.rk4_scan` on this evaluator's stage grid."""
@@ -569,7 +690,8 @@ class PopulationEvaluator:
                         substeps=self.substeps, split_stages=self.split_stages)
 
     def solve(self, mass, state, forcing_matrix, y0, inner=None, *, adjoint=None):
-        """Integrate all models with diffrax; returns x at the sample times, shape (N, P).
+        """Integrate all models with diffrax; returns x at the sample times, shape (N, P)
+        ((N, D, P) for D > 1).
 
         ``adjoint=diffrax.ForwardMode()`` makes the solve forward-differentiable (for
         Levenberg–Marquardt); the default suits plain evaluation.
@@ -583,30 +705,38 @@ class PopulationEvaluator:
             raise ValueError(HOLD_WITH_DIFFRAX)
         t0 = float(self.stage_times[0])
         half = 0.5 * self.h
-        acceleration = self._acceleration_fn(mass, state, _no_inner(inner, mass))
+        inner = _no_inner(inner, mass)
+        mass, state, forcing_matrix, y0 = self._internal(mass, state, forcing_matrix, y0)
+        acceleration = self._acceleration_fn(mass, state, inner)
 
-        def field(t, y, args):
+        def field(t, y, args):  # y: (2, D, P)
             index = jnp.clip(jnp.round((t - t0) / half).astype(jnp.int32), 0,
                              forcing_matrix.shape[0] - 1)
-            velocity = jnp.clip(y[:, 1], -self._bound[1], self._bound[1])
-            return jnp.stack([velocity, acceleration(y[:, 0], y[:, 1], forcing_matrix[index], t)],
-                             axis=1)
+            velocity = jnp.clip(y[1], -self._bound[1], self._bound[1])
+            return jnp.stack([velocity, jnp.stack(acceleration(y[0], y[1],
+                                                               forcing_matrix[index], t))])
 
         solution = diffrax.diffeqsolve(
             diffrax.ODETerm(field), RK4(), t0=t0, t1=float(self.stage_times[-1]), dt0=self.h,
-            y0=y0, saveat=diffrax.SaveAt(t0=True, steps=True),
+            y0=jnp.transpose(y0, (2, 1, 0)), saveat=diffrax.SaveAt(t0=True, steps=True),
             stepsize_controller=diffrax.ConstantStepSize(), max_steps=self.n_steps,
             throw=False, adjoint=adjoint or diffrax.RecursiveCheckpointAdjoint())
-        states = solution.ys[:: self.substeps, :, 0]
-        return states[: self.measurement.n_samples]
+        states = solution.ys[:: self.substeps, 0]
+        return self._public(states[: self.measurement.n_samples], 1)
 
     def _fitted_initial_conditions(self, mass, state, forcing_matrix, y0, inner):
-        """One Gauss–Newton step on (x0, x0') per model; the sensitivities dx/dx0 and
-        dx/dx0' come from the variational equations in the same scan (:meth:`scan_jvp`)."""
-        measured = jnp.asarray(self.measurement.response)[:, None]
-        directions = jnp.broadcast_to(jnp.eye(2)[:, None, :], (2,) + y0.shape)
+        """One Gauss–Newton step on the initial states per model; the sensitivities to
+        them come from the variational equations in the same scan (:meth:`scan_jvp`).
+        For D > 1 the residuals are weighted as in the objective (:attr:`weights`)."""
+        count = self.n_coordinates
+        directions = jnp.broadcast_to(jnp.eye(2 * count).reshape(
+            (2 * count,) + y0.shape[1:])[:, None], (2 * count,) + y0.shape)
         base, sensitivity = self.scan_jvp(mass, state, forcing_matrix, y0, directions,
                                           inner=inner)
+        if count > 1:
+            return y0 + gauss_newton_step(self.measurement.responses, self.weights, base,
+                                           sensitivity).reshape(y0.shape)
+        measured = jnp.asarray(self.measurement.response)[:, None]
         sx, sv = sensitivity[:, 0], sensitivity[:, 1]
         residual = measured - base
         a11, a12, a22 = jnp.sum(sx * sx, 0), jnp.sum(sx * sv, 0), jnp.sum(sv * sv, 0)
@@ -618,25 +748,43 @@ class PopulationEvaluator:
         return jnp.where(usable[:, None], y0 + delta, y0)
 
     def _simulate_and_score(self, mass, state, forcing, y0, inner, forcing_basis):
-        forcing_matrix = forcing_basis @ forcing.T  # (n_stage, P)
+        forcing_matrix = _forcing_rows(forcing_basis, forcing)  # (n_stage, [D,] P)
         if self.fit_initial_conditions:
             y0 = self._fitted_initial_conditions(mass, state, forcing_matrix, y0, inner)
         if self.integrator == "diffrax":
-            x = self.solve(mass, state, forcing_matrix, y0, inner)  # (N, P)
+            x = self.solve(mass, state, forcing_matrix, y0, inner)  # (N, [D,] P)
         else:
             x = self.scan_solve(mass, state, forcing_matrix, y0, inner)
-        finite = jnp.all(jnp.isfinite(x), axis=0)
-        bounded = jnp.all(jnp.abs(x) < self._bound[0], axis=0)
-        status = jnp.where(mass > 0, jnp.where(finite & bounded, OK, DIVERGED), NONPOSITIVE_MASS)
+        paths = jnp.transpose(x)  # (P, [D,] N)
+        x = self._coordinates(x, 1)
+        finite = jnp.all(jnp.isfinite(x), axis=(0, 1))
+        bounded = jnp.all(jnp.abs(x) < self._bound[0], axis=(0, 1))
+        positive = jnp.all(self._coordinates(mass, -1) > 0, axis=-1)
+        status = jnp.where(positive, jnp.where(finite & bounded, OK, DIVERGED), NONPOSITIVE_MASS)
         x = jnp.where(jnp.isfinite(x), x, 0.0)
-        f_time, f_freq, rms = _objective_parts(
-            jnp.asarray(self.measurement.response)[:, None], x, jnp.asarray(self._dft),
-            jnp.asarray(self._measured_amplitude), self.n_bins)
+        measured = jnp.asarray(self.measurement.responses)
+        parts = [_objective_parts(measured[:, d, None], x[:, d], jnp.asarray(self._dft),
+                                  jnp.asarray(self._measured_amplitude[:, d:d + 1]), self.n_bins)
+                 for d in range(self.n_coordinates)]
+        if self.n_coordinates == 1:
+            f_time, f_freq, rms = parts[0]
+        else:
+            f_time, f_freq = (sum(w * p[k] for w, p in zip(self.weights, parts)) for k in (0, 1))
+            rms = jnp.sqrt(sum((w * p[2]) ** 2 for w, p in zip(self.weights, parts))
+                           / self.n_coordinates)
         objective = self.w_time * f_time + self.w_freq * f_freq
         good = status == OK
         out = (jnp.where(good, objective, PENALTY), jnp.where(good, f_time, PENALTY),
                jnp.where(good, f_freq, PENALTY), jnp.where(good, rms, PENALTY), status, y0)
-        return out + (x.T,)
+        return out + (paths,)
+
+
+def _forcing_rows(forcing_basis, forcing):
+    """Forcing of every model at every stage row: (n_stage, P) from coefficients (P, K),
+    (n_stage, D, P) from a system's (P, D, K)."""
+    if forcing.ndim == 2:
+        return forcing_basis @ forcing.T
+    return jnp.einsum("sk,pdk->sdp", forcing_basis, forcing)
 
 
 def _no_inner(inner, mass):
@@ -652,8 +800,9 @@ def _capacity(count: int) -> int:
 
 
 def _pad_columns(array: np.ndarray, columns: int) -> np.ndarray:
-    if array.shape[1] == columns:
+    """``array`` zero-padded to ``columns`` along its last axis."""
+    if array.shape[-1] == columns:
         return array
-    out = np.zeros((array.shape[0], columns))
-    out[:, : array.shape[1]] = array
+    out = np.zeros(array.shape[:-1] + (columns,))
+    out[..., : array.shape[-1]] = array
     return out

@@ -111,10 +111,13 @@ class Refiner:
         self.batch = refine_batch(batch, n_samples=n, substeps=evaluator.substeps,
                                   max_free=max_free)
         self.max_free = max_free
-        response = evaluator.measurement.response
-        self._noise_scale = float(np.std(response)) or 1.0
-        self._state_scale = np.array([np.std(response), np.std(np.diff(response))
-                                      / evaluator.measurement.dt]) + 1e-300
+        responses = evaluator.measurement.responses
+        self._noise_scale = np.std(responses, axis=0)
+        self._noise_scale[self._noise_scale == 0] = 1.0
+        self._state_scale = np.stack([np.std(responses, axis=0), np.std(np.diff(
+            responses, axis=0), axis=0) / evaluator.measurement.dt], axis=1).ravel() + 1e-300
+        if evaluator.n_coordinates == 1:  # a number: the one-coordinate program as before
+            self._noise_scale = float(self._noise_scale[0])
         self._run = Program(jax.vmap(self._refine_one, in_axes=(0, 0, 0, None)), name="refine",
                             key=fingerprint(evaluator.key, iterations, self.horizon_samples,
                                             self.batch, max_free, jacobian))
@@ -137,7 +140,9 @@ class Refiner:
         Args:
             population: start values (typically from equation-error least squares).
             fixed_forcing: (P,) column of each model's forcing coefficient held at 1 (the
-                first input), or −1 where the mass is the normalised constant instead.
+                first input), or −1 where the mass is the normalised constant instead; for
+                a system of D equations (P, D), one per equation (each equation's scale is
+                free on its own).
         """
         ev = self.evaluator
         plain = ev.plain_rows(population)
@@ -161,11 +166,15 @@ class Refiner:
         layout = ev.plain_layout if plain else ev.layout
         start = layout.pack(ev.narrowed(population) if plain else population)
         scale = np.abs(start)
-        scale[:, -2:] = self._state_scale
+        states = 2 * ev.n_coordinates
+        scale[:, -states:] = self._state_scale
         free = scale > 0
-        free[:, -2:] = True
-        for i, column in enumerate(np.asarray(fixed_forcing)):
-            free[i, layout.forcing_column(column) if column >= 0 else 0] = False
+        free[:, -states:] = True
+        fixed = np.asarray(fixed_forcing).reshape(count, -1)
+        for i, row in enumerate(fixed):
+            for e, column in enumerate(row):
+                free[i, layout.forcing_column(column, e) if column >= 0 else
+                     layout.mass_column(e)] = False
         for column, slots in ([] if plain else ev.inner_columns()):  # θ move where used
             used = population.state[:, column] != 0
             free[:, [layout.inner_column(k) for k in range(slots.start, slots.stop)]] = \
@@ -189,15 +198,17 @@ class Refiner:
                 self.compile_seconds += time.perf_counter() - began
             outputs.append([np.asarray(o)[:size] for o in out])
         params, ok, steps = (np.concatenate(p) for p in zip(*outputs))
-        refined = layout.population(params, population.forcing.shape[1])
+        refined = layout.population(params, population.forcing.shape[-1])
         if plain:  # back on the full layout: the family columns and θ as they were
             refined = Population(refined.mass, np.concatenate(
-                [refined.state, population.state[:, layout.n_state:]], axis=1),
+                [refined.state, population.state[..., layout.n_state:]], axis=-1),
                 refined.forcing, refined.y0, population.inner)
         return Refinement(population=refined, succeeded=ok.astype(bool), steps=steps)
 
     def _refine_one(self, start, index, index_scale, forcing_basis):
-        measured = jnp.asarray(self.evaluator.measurement.response)
+        ev = self.evaluator
+        measured = jnp.asarray(ev.measurement.responses if ev.n_coordinates > 1 else
+                               ev.measurement.response)
         # The normal equations need Jᵀ: a matrix with the variational Jacobian, but autodiff
         # through a while loop (diffrax) cannot be transposed, so that path keeps QR.
         linear_solver = LINEAR_SOLVER if self.jacobian == "variational" else lx.QR()
@@ -234,13 +245,13 @@ class Refiner:
         if self.jacobian == "autodiff":
             def plain(delta, start, index, index_scale, forcing_basis):
                 constants = _moved(start, index, index_scale, delta)
-                return ev.integrate(*ev.unpack(constants, forcing_basis))[:samples, 0]
+                return ev.integrate(*ev.unpack(constants, forcing_basis))[:samples, ..., 0]
             return plain
 
         @jax.custom_jvp
         def response(delta, start, index, index_scale, forcing_basis):
             constants = _moved(start, index, index_scale, delta)
-            return ev.scan_solve(*ev.unpack(constants, forcing_basis[:n_stage]))[:, 0]
+            return ev.scan_solve(*ev.unpack(constants, forcing_basis[:n_stage]))[..., 0]
 
         @jax.custom_batching.custom_vmap
         def augmented(constants, directions, forcing_basis):
@@ -254,9 +265,10 @@ class Refiner:
                                  "constants and directions only")
             constants, directions = (a if batched else jnp.broadcast_to(a, (axis_size,) + a.shape)
                                      for a, batched in zip((constants, directions), in_batched))
-            x, jacobian = _split_over(ev.devices, ev.constant_jacobian, axis_size)(
+            x, jacobian = _split_over(ev.devices, ev.constant_jacobian, axis_size,
+                                      2 + (ev.n_coordinates > 1))(
                 constants, directions, forcing_basis[:n_stage])
-            return (x.T, jnp.moveaxis(jacobian, -1, 0)), (True, True)
+            return (jnp.moveaxis(x, -1, 0), jnp.moveaxis(jacobian, -1, 0)), (True, True)
 
         @response.defjvp
         def response_jvp(primals, tangents):
@@ -270,18 +282,19 @@ class Refiner:
         return response
 
 
-def _split_over(devices, fn, count):
+def _split_over(devices, fn, count, x_rank: int = 2):
     """``fn(constants, directions, basis)`` with the models (first axis of the first two,
-    last of the outputs) split over ``devices`` by ``shard_map`` where there are several
-    and ``count`` divides evenly."""
+    last of the outputs, x of rank ``x_rank``, its Jacobian one more) split over
+    ``devices`` by ``shard_map`` where there are several and ``count`` divides evenly."""
     if len(devices) < 2 or count % len(devices):
         return fn
     mesh = jax.make_mesh((len(devices),), ("population",), axis_types=(AxisType.Auto,),
                          devices=devices)
     models = PartitionSpec("population")
     return jax.shard_map(fn, mesh=mesh, in_specs=(models, models, PartitionSpec()),
-                         out_specs=(PartitionSpec(None, "population"),
-                                    PartitionSpec(None, None, "population")), check_vma=False)
+                         out_specs=(PartitionSpec(*[None] * (x_rank - 1), "population"),
+                                    PartitionSpec(*[None] * x_rank, "population")),
+                         check_vma=False)
 
 
 def _moved(start, index, index_scale, delta):

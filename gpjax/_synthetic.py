@@ -79,6 +79,12 @@ class Record:
         return Measurement(time=self.time, response=self.response_measured[row],
                            inputs={"u": self.input_measured}, response_name=coordinate)
 
+    def system_measurement(self) -> Measurement:
+        """Every coordinate's measured response and the measured input as one
+        :class:`~gpjax.Measurement` (D = number of coordinates)."""
+        return Measurement(time=self.time, responses=self.response_measured.T,
+                           inputs={"u": self.input_measured}, response_names=self.coordinates)
+
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
 class SyntheticRecord:

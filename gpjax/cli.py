@@ -63,7 +63,7 @@ def _parser() -> argparse.ArgumentParser:
     diagnose.add_argument("data", help="CSV file with a header row")
     diagnose.add_argument("--model", required=True, help="model.json (constants are refitted)")
     diagnose.add_argument("--time", required=True, help="name of the time column (seconds)")
-    diagnose.add_argument("--response", required=True, help="name of the response column")
+    _response_option(diagnose)
     diagnose.add_argument("--input", action="append", default=[], dest="inputs",
                           help="name of an input column (repeat for several)")
     diagnose.add_argument("--out", default="gpjax-diagnose",
@@ -83,8 +83,7 @@ def _parser() -> argparse.ArgumentParser:
 
 def _fit_options(parser, *, out: str) -> None:
     parser.add_argument("--time", required=True, help="name of the time column (seconds)")
-    parser.add_argument("--response", required=True,
-                        help="name of the measured response column")
+    _response_option(parser)
     parser.add_argument("--input", action="append", default=[], dest="inputs",
                         help="name of an input column (repeat for several)")
     parser.add_argument("--config", help="TOML file of settings (see README)")
@@ -93,6 +92,20 @@ def _fit_options(parser, *, out: str) -> None:
     parser.add_argument("--seed", type=_non_negative, default=0,
                         help="random seed (default: 0)")
     parser.add_argument("--out", default=out, help=f"output folder (default: {out})")
+
+
+def _response_option(parser) -> None:
+    parser.add_argument("--response", action="append", required=True, dest="responses",
+                        help="name of a measured response column (repeat for the "
+                        "coordinates of a system with several degrees of freedom)")
+
+
+def _one_response(args) -> str:
+    """The one ``--response`` of a command that identifies one coordinate."""
+    if len(args.responses) > 1:
+        raise UserInputError(f"gpjax {args.command} takes one --response, got "
+                             f"{len(args.responses)} ({', '.join(args.responses)}); give one")
+    return args.responses[0]
 
 
 def _scheduler_option(parser) -> None:
@@ -190,8 +203,11 @@ def _fit(args) -> int:
 
     config = GPConfig.from_toml(args.config) if args.config else GPConfig()
     config = _config(args, config)
-    measurement = load_csv(args.data, time=args.time, response=args.response, inputs=args.inputs)
+    measurement = load_csv(args.data, time=args.time, responses=args.responses,
+                           inputs=args.inputs)
     _check_diagnose_options(args)
+    if measurement.n_coordinates > 1:
+        return _fit_system(args, config, measurement)
     islands = {}
     if any(getattr(args, k) is not None for k in ("islands", "scheduler", "every", "migrants",
                                                   "topology")):
@@ -212,6 +228,44 @@ def _fit(args) -> int:
     return 0
 
 
+def _fit_system(args, config, measurement) -> int:
+    """``gpjax fit`` with several responses: the GP over systems (one equation each)."""
+    import numpy as np
+
+    from ._system_file import save_system
+    from ._system_search import SystemSearch, search_system
+
+    used = [flag for flag, on in (("--resume", args.resume), ("--diagnose", args.diagnose),
+                                  ("--islands", args.islands is not None),
+                                  ("--scheduler", args.scheduler is not None)) if on]
+    if used:
+        raise UserInputError(f"{', '.join(used)} work on one response; drop them to identify "
+                             f"the system of {measurement.n_coordinates} responses")
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UserInputError(f"--out {out} is a file; give a folder")
+    settings = SystemSearch(population=config.population, generations=config.generations,
+                            max_degree=config.max_degree,
+                            input_interpolation=config.input_interpolation)
+    result = search_system(measurement, settings=settings, seed=args.seed)
+    model = result.model
+    simulated = model.simulate(measurement)
+    rms = np.sqrt(np.mean((measurement.responses - simulated) ** 2, axis=0))
+    check = result.fit.checks[-1]
+    save_system(model, out / "model.json",
+                metrics={"rms": dict(zip(measurement.response_names, map(float, rms))),
+                         "objective": float(result.fit.scores.objective[0])},
+                convergence=check.to_json())
+    print(f"System of {measurement.n_coordinates} equations (GP over systems, "
+          f"{len(result.history)} generations):")
+    for name, equation, value in zip(measurement.response_names, model.sympy(), rms):
+        print(f"  {equation}    RMS({name}) {value:.4g} (reference solve)")
+    print(f"RK4 at {model.substeps} step(s) per sample differs from the reference solve by "
+          f"{check.ratio:.2%} of the residual ({'converged' if check.converged else 'NOT converged'})"
+          f". Model in {out / 'model.json'}")
+    return 0
+
+
 def _check_diagnose_options(args) -> None:
     if not 0.05 <= args.holdout <= 0.5:
         raise UserInputError(f"--holdout must lie in [0.05, 0.5], got {args.holdout}; "
@@ -226,8 +280,9 @@ def _diagnose(args) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UserInputError(f"--out {out} is a file; give a folder")
+    response = _one_response(args)
     model = Model.load(args.model)
-    measurement = load_csv(args.data, time=args.time, response=args.response, inputs=args.inputs)
+    measurement = load_csv(args.data, time=args.time, response=response, inputs=args.inputs)
     _run_diagnosis(args, measurement, model, out)
     return 0
 
@@ -257,13 +312,16 @@ def _simulate(args) -> int:
     import numpy as np
 
     from ._data import Measurement, check_time, read_columns
-    from ._model import Model
     from ._report import write_text_atomic
+    from ._system_file import load_model
+    from ._system_fit import SystemModel
 
     out = Path(args.out)
     if out.is_dir():
         raise UserInputError(f"--out {out} is a folder; give a CSV file name")
-    model = Model.load(args.model)
+    model = load_model(args.model)
+    if isinstance(model, SystemModel):
+        return _simulate_system(args, model, out)
     names = model.symbols
     data = read_columns(args.data, [names.time, *names.inputs], optional=(names.response,))
     check_time(data[names.time])
@@ -290,11 +348,41 @@ def _simulate(args) -> int:
     return 0
 
 
+def _simulate_system(args, model, out: Path) -> int:
+    """``gpjax simulate`` of a system file: one column per coordinate."""
+    import numpy as np
+
+    from ._data import Measurement, read_columns
+    from ._report import write_text_atomic
+    from ._weak_form import smoothed_derivatives
+
+    if args.initial is not None:
+        raise UserInputError("a system's initial states are estimated from its response "
+                             "columns in the data; drop --initial")
+    data = read_columns(args.data, [model.time_name, *model.coordinates, *model.input_names])
+    measurement = Measurement(time=data[model.time_name],
+                              responses=[data[n] for n in model.coordinates],
+                              inputs={u: data[u] for u in model.input_names},
+                              time_name=model.time_name, response_names=model.coordinates)
+    y0 = [smoothed_derivatives(Measurement(time=measurement.time, response=data[n])).initial_state
+          for n in model.coordinates]
+    responses = model.simulate(measurement, initial_conditions=y0)
+    if not np.all(np.isfinite(responses)):
+        raise UserInputError("the system diverged on this input (the reference solve failed); "
+                             "check the input's units and the initial state")
+    lines = [",".join([model.time_name, *model.coordinates])] + [
+        ",".join(map(repr, map(float, (t, *row)))) for t, row in zip(measurement.time, responses)]
+    write_text_atomic(out, "\n".join(lines) + "\n")
+    print(f"Simulated the system of {len(model.coordinates)} equations on {len(responses)} "
+          f"samples (reference solve); wrote {out}")
+    return 0
+
+
 def _fit_many(args) -> int:
     from ._fit_many import SUMMARY, fit_many
 
     config = _config(args, GPConfig.from_toml(args.config) if args.config else GPConfig())
-    rows = fit_many(args.source, time=args.time, response=args.response,
+    rows = fit_many(args.source, time=args.time, response=_one_response(args),
                     inputs=tuple(args.inputs), config=config, seed=args.seed, out=args.out,
                     scheduler=args.scheduler, workers=args.workers)
     for row in rows:

@@ -7,19 +7,30 @@
   :func:`to_population`, :func:`from_population`, :class:`FlatLayout`;
 * the batched simulator and objective: :class:`PopulationEvaluator`, :class:`Scores`,
   :class:`Status`, :func:`objective_parts`, and :func:`simulate_model` (a model by the
-  evaluator's fixed-step RK4).
+  evaluator's fixed-step RK4);
+* systems of several coordinates (issue 14): :func:`to_system_population`,
+  :func:`from_system_population`, :func:`system_state_features`, :class:`SystemModel`,
+  :func:`fit_system` (constants of a given system structure, converged),
+  :func:`weak_form_start`, :func:`search_system` (the GP over systems) and
+  :func:`load_model` (a model file of either kind).
 """
 
 from ._canonical import (CanonicalForm, StructureCheck, Symbols, check_structure, check_tree,
                          tree_to_sympy)
 from ._coefficients import (Coefficients, FlatLayout, Population, from_population,
-                            to_population)
-from ._evaluator import PopulationEvaluator, Scores, Status
+                            from_system_population, to_population, to_system_population)
+from ._evaluator import PopulationEvaluator, Scores, Status, system_state_features
 from ._expressions import parse_expression
 from ._model import simulate_model
 from ._objective import objective_parts
+from ._system_file import load_model
+from ._system_fit import SystemFit, SystemModel, fit_system, weak_form_start
+from ._system_search import SystemSearch, search_system
 
 __all__ = ["CanonicalForm", "Coefficients", "FlatLayout", "Population", "PopulationEvaluator",
            "Scores", "Status", "StructureCheck", "Symbols", "check_structure", "check_tree",
-           "from_population", "objective_parts", "parse_expression", "simulate_model",
-           "to_population", "tree_to_sympy"]
+           "SystemFit", "SystemModel", "SystemSearch", "fit_system", "from_population",
+           "load_model", "search_system",
+           "from_system_population", "objective_parts", "parse_expression", "simulate_model",
+           "system_state_features", "to_population", "to_system_population",
+           "tree_to_sympy", "weak_form_start"]

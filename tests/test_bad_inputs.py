@@ -86,6 +86,19 @@ def truncate_row(text: str, row: int, keep: int) -> str:
     return "\n".join(lines)
 
 
+def ragged_coordinates(length: int) -> str:
+    """The valid CSV with a second coordinate ``x2`` (a 2 Hz sine) measured for its first
+    ``length`` rows, then empty and NaN cells (a NaN-padded export)."""
+    lines = VALID_CSV.rstrip("\n").split("\n")
+    cells = [repr(math.sin(4 * math.pi * t)) if i < length else ("nan" if i % 2 else "")
+             for i, t in enumerate(_times())]
+    return "\n".join([f"{lines[0]},x2", *(f"{a},{b}" for a, b in zip(lines[1:], cells))]) + "\n"
+
+
+TWO_RESPONSES = ("fit", "data.csv", "--time", "t", "--response", "x", "--response", "x2",
+                 "--input", "u")
+
+
 def toml_config(text: str) -> dict[str, object]:
     """Files for a config case: the valid CSV and ``cfg.toml`` holding ``text``."""
     return {"data.csv": VALID_CSV, "cfg.toml": text}
@@ -159,6 +172,22 @@ CLI_CASES = [
     case("input-is-the-response", ("fit", "data.csv", "--time", "t", "--response", "x",
                                    "--input", "x", *SMALL),
          {"data.csv": VALID_CSV}, ["named twice", "name each column once"]),
+    # --- several responses (the coordinates of one system) ------------------------------
+    case("response-named-twice", ("fit", "data.csv", "--time", "t", "--response", "x",
+                                  "--response", "x", "--input", "u", *SMALL),
+         {"data.csv": VALID_CSV}, ["response 'x' is named twice", "name each column once"]),
+    case("response-is-also-an-input", ("fit", "data.csv", "--time", "t", "--response", "x",
+                                       "--response", "u", "--input", "u", *SMALL),
+         {"data.csv": VALID_CSV}, ["'u' is named twice, as a response and as an input"]),
+    data_case("coordinates-of-different-lengths", ragged_coordinates(30),
+              ["'x2'", "30 samples but 't' has 50", "empty or NaN after line 31",
+               "same length"], args=TWO_RESPONSES),
+    data_case("several-responses-with-islands", ragged_coordinates(N_ROWS),
+              ["--islands work on one response", "drop them"],
+              args=(*TWO_RESPONSES, "--islands", "2")),
+    case("fit-many-takes-one-response", ("fit-many", "records", "--time", "t", "--response",
+                                         "x", "--response", "x2", "--out", "many"),
+         {"records/a.csv": VALID_CSV}, ["fit-many takes one --response", "give one"]),
     data_case("column-name-with-space", csv_text("t,my col,u"),
               ["'my col'", "not usable", "rename"],
               args=("fit", "data.csv", "--time", "t", "--response", "my col", "--input", "u")),

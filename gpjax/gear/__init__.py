@@ -1,5 +1,6 @@
 """Gear-pair physics: the bundled example (eqs. 13–14), mesh stiffness (eqs. 15–20), the
-2-DOF gear-pair model (eqs. 21–23), the linear eq. 23 fit (the paper's Fig. 12) and gear
+2-DOF gear-pair model (eqs. 21–23) and a measured record of it with known truth, the
+linear eq. 23 fit (the paper's Fig. 12) and gear
 data with an effect the model does not declare (the diagnosis checks)."""
 
 from ._example import (PAPER_TRUTH, GearExample, Torque, generate_gear_example,
@@ -15,6 +16,7 @@ from ._undeclared import (EFFECTS, NOISE_PHI, UndeclaredEffectCase,
 from ._two_dof import (OneDofResponse, TwoDofGearPair, TwoDofResponse, mesh_stiffness_signal,
                        reduction_error, reduction_scenarios, simulate_one_dof,
                        simulate_two_dof)
+from ._two_dof_record import TwoDofRecord, two_dof_record
 
 __all__ = [
     "PAPER_TRUTH", "GearExample", "Torque", "generate_gear_example", "load_bundled_example",
@@ -24,5 +26,6 @@ __all__ = [
     "mesh_stiffness", "pair_stiffness", "stiffness_report", "torsional_stiffness",
     "OneDofResponse", "TwoDofGearPair", "TwoDofResponse", "mesh_stiffness_signal",
     "reduction_error", "reduction_scenarios", "simulate_one_dof", "simulate_two_dof",
+    "TwoDofRecord", "two_dof_record",
     "EFFECTS", "NOISE_PHI", "UndeclaredEffectCase", "undeclared_effect_case",
 ]

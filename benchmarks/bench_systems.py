@@ -1,0 +1,280 @@
+"""Systems of several degrees of freedom (issue 14): identification evidence and speed.
+
+    python benchmarks/bench_systems.py chains [--seeds 5] [--json benchmarks/systems_chains.json]
+    python benchmarks/bench_systems.py gear [--json benchmarks/systems_gear.json]
+    python benchmarks/bench_systems.py speed [--json benchmarks/systems_speed.json]
+
+``chains``: ``chain2`` and ``chain3`` of :mod:`gpjax.systems` (cubic coupling springs, 1 %
+noise on every response and on the input), every coordinate measured. The structure is
+given (the truth's), or with ``--search`` found by the system GP
+(:func:`gpjax.engine.search_system`, ``--population`` 100, ``--generations`` 3,
+max_degree 4, seed = the record's seed); the
+constants and initial states come from :func:`gpjax.engine.fit_system` (weak-form start,
+Levenberg–Marquardt over all coordinates, converged integration). Constants: equation 1 is
+normalised by the input (coefficient 1), the others, which have no input, by their mass, so
+they are compared with the truth divided by that mass. NRMS per coordinate on the
+extrapolation record (another input realisation, amplitude × 1.2), simulated by scipy's
+DOP853 from the true initial state with the true input (:func:`gpjax.systems.simulate_equations`).
+
+``gear``: the paper's 2-DOF gear pair (eqs. 21–22), :func:`gpjax.gear.two_dof_record`:
+pinion J1 = 7.918e-5 kg·m² (eq. 14), a geometrically similar gear J2 = J1·(z2/z1)⁴, base radii
+of the paper's pair, the mean mesh stiffness k_m, mesh damping c_m for 5 % of critical; input
+torque T1 = 13 N·m plus a 1 N·m RMS random-phase multisine (2–25 kHz), load T2 =
+(r2/r1)·13 N·m plus a 0.5 N·m multisine, both applied at t = 0 to gears at rest; both
+angles measured (1 % noise), 300 kHz, 2,001 samples. Three fits: the angles with the
+structure given, the line-of-action displacements r1·Θ1, r2·Θ2 with the structure given,
+and the latter with the structure searched by the system GP. In the angles, eq. 21 is
+J1Θ1'' + a·Θ1' + b·(Θ1' − Θ2') + A·Θ1 + B·(Θ1 − Θ2) = T1 with B = r1·r2·k_m,
+A = r1·(r1 − r2)·k_m (likewise b, a with c_m), eq. 22 J2Θ2'' + … = −T2.
+
+``speed``: one population of 500 on the ``chain2`` record (2,001 samples, max_degree 3):
+the 1-DOF evaluator on x1 against the 2-DOF evaluator on (x1, x2), with and without the
+initial-state Gauss–Newton step; best of 5 ``score`` calls after a warm-up.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+
+import numpy as np
+import sympy as sp
+
+from gpjax import Symbols
+from gpjax._coefficients import Coefficients, to_population, to_system_population
+from gpjax.engine import PopulationEvaluator, fit_system
+from gpjax.systems import generate, get_system, simulate_equations
+
+
+def chain_structure(n: int):
+    """The truth's features: own x_i', x_i, and per neighbour (x_i − x_j), (x_i − x_j)³."""
+    x = [sp.Symbol(f"x{i + 1}") for i in range(n)]
+    v = [sp.Symbol(f"x{i + 1}_dot") for i in range(n)]
+    out = []
+    for i in range(n):
+        state = [v[i], x[i]]
+        for j in (i - 1, i + 1):
+            if 0 <= j < n:
+                state += [x[i] - x[j], (x[i] - x[j]) ** 3]
+        out.append((tuple(state), {sp.Symbol("u"): 1.0} if i == 0 else {}))
+    return tuple(out)
+
+
+def chain_truth(n: int, constants: dict) -> list[dict]:
+    """Per equation the true coefficient of every feature, normalised as fitted."""
+    truth = []
+    for i, (state, _) in enumerate(chain_structure(n)):
+        scale = 1.0 if i == 0 else constants[f"m{i + 1}"]
+        values = {state[0]: constants["c"], state[1]: constants["k"]}
+        for d, d3 in zip(state[2::2], state[3::2]):
+            values |= {d: constants["kc"], d3: constants["k3"]}
+        truth.append({"mass": constants[f"m{i + 1}"] / scale,
+                      **{str(f): v / scale for f, v in values.items()}})
+    return truth
+
+
+def chains(seeds: int, search: bool, population: int, generations: int) -> list[dict]:
+    rows = []
+    for name in ("chain2", "chain3"):
+        n = len(get_system(name).coordinates)
+        for seed in range(seeds):
+            data = generate(name, seed=seed)
+            measurement = data.fit.system_measurement()
+            began = time.perf_counter()
+            if search:
+                from gpjax.engine import SystemSearch, search_system
+                settings = SystemSearch(population=population, generations=generations,
+                                        max_degree=4)
+                model = search_system(measurement, settings=settings, seed=seed).model
+            else:
+                model = fit_system(measurement, chain_structure(n)).model
+            seconds = time.perf_counter() - began
+            truth = chain_truth(n, data.system.constants)
+            found = [{"mass": e.mass, **{str(f): v for f, v in e.state.items()}}
+                     for e in model.equations]
+            structure_ok = all(set(f) == set(t) for f, t in zip(found, truth))
+            errors = [abs(f.get(k, 0.0) / t[k] - 1) for f, t in zip(found, truth) for k in t]
+            record = data.extrapolation
+            simulated = simulate_equations(model.sympy(), record.coordinates, record.time,
+                                           record.input_true, state0=record.initial_state)
+            nrms = np.sqrt(np.mean((simulated - record.response_true) ** 2, axis=1)
+                           / np.mean(record.response_true ** 2, axis=1))
+            rows.append({"system": name, "seed": seed, "structure_right": structure_ok,
+                         "max_constant_error": max(errors), "nrms": nrms.tolist(),
+                         "seconds": seconds, "found": found, "truth": truth,
+                         "substeps": model.substeps})
+            print(f"{name} seed {seed}: structure {'right' if structure_ok else 'WRONG'}, "
+                  f"max constant error {max(errors):.3%}, extrapolation NRMS "
+                  f"{', '.join(f'{e:.3%}' for e in nrms)}, {seconds:.1f} s", flush=True)
+    return rows
+
+
+def gear(seed: int = 0) -> dict:
+    from gpjax.engine import SystemSearch, search_system
+    from gpjax.gear import two_dof_record
+
+    record = two_dof_record(seed=seed)
+    t = record.truth
+    args = (t["r1"], t["r2"], t["J1"], t["J2"], t["k_m"], t["c_m"])
+    out = {"angles": _gear_angles(record.measurement, *args),
+           "line_of_action": _gear_line(record.line_of_action(), *args)}
+    print("gear, line of action, structure searched by the system GP (population 60, "
+          "2 generations):")
+    began = time.perf_counter()
+    settings = SystemSearch(population=60, generations=2, input_interpolation="bandlimited")
+    result = search_system(record.line_of_action(), settings=settings, seed=seed)
+    out["line_of_action_search"] = _line_constants(result.fit, time.perf_counter() - began,
+                                                   *args)
+    out["line_of_action_search"]["structure"] = [
+        {"state": sorted(map(str, e.state)), "forcing": sorted(map(str, e.forcing))}
+        for e in result.model.equations]
+    print("  structure: " + "; ".join(str(e) for e in result.model.sympy()))
+    out["truth"] = t
+    return out
+
+
+def _report(fit, found, truth, seconds):
+    errors = {k: found[k] / truth[k] - 1 for k in truth}
+    for k in truth:
+        print(f"  {k:<26} found {found[k]:.6g}  truth {truth[k]:.6g}  ({errors[k]:+.3%})")
+    print(f"  {seconds:.1f} s; {fit.model.substeps} RK4 steps per sample, reference check "
+          f"ratio {fit.checks[-1].ratio:.3%}")
+    return {"found": found, "truth": truth, "errors": errors, "seconds": seconds,
+            "substeps": fit.model.substeps, "convergence": fit.checks[-1].to_json(),
+            "equations": [str(e) for e in fit.model.sympy()]}
+
+
+def _gear_angles(measurement, r1, r2, j1, j2, k_m, c_m):
+    """Both angles as measured: eqs. 21–22 need own and relative terms per equation."""
+    print("gear, angles Θ1, Θ2 measured, structure given:")
+    x1, x2, v1, v2 = sp.symbols("th1 th2 th1_dot th2_dot")
+    T1, T2 = sp.symbols("T1 T2")
+    structure = (((v1, v1 - v2, x1, x1 - x2), {T1: 1.0}),
+                 ((v2, v2 - v1, x2, x2 - x1), {T2: -1.0}))
+    began = time.perf_counter()
+    fit = fit_system(measurement, structure, input_interpolation="bandlimited")
+    seconds = time.perf_counter() - began
+    first, second = fit.model.equations
+    found = {"J1": first.mass, "J2": second.mass,
+             "k_m (eq. 21)": first.state[x1 - x2] / (r1 * r2),
+             "k_m (eq. 22)": second.state[x2 - x1] / (r1 * r2),
+             "c_m (eq. 21)": first.state[v1 - v2] / (r1 * r2),
+             "c_m (eq. 22)": second.state[v2 - v1] / (r1 * r2),
+             "A/(r1(r1-r2)) (eq. 21)": first.state[x1] / (r1 * (r1 - r2)),
+             "A/(r2(r2-r1)) (eq. 22)": second.state[x2] / (r2 * (r2 - r1)),
+             "a/(r1(r1-r2)) (eq. 21)": first.state[v1] / (r1 * (r1 - r2)),
+             "a/(r2(r2-r1)) (eq. 22)": second.state[v2] / (r2 * (r2 - r1))}
+    truth = {"J1": j1, "J2": j2, "k_m (eq. 21)": k_m, "k_m (eq. 22)": k_m,
+             "c_m (eq. 21)": c_m, "c_m (eq. 22)": c_m, "A/(r1(r1-r2)) (eq. 21)": k_m,
+             "A/(r2(r2-r1)) (eq. 22)": k_m, "a/(r1(r1-r2)) (eq. 21)": c_m,
+             "a/(r2(r2-r1)) (eq. 22)": c_m}
+    return _report(fit, found, truth, seconds)
+
+
+def _gear_line(measurement, r1, r2, j1, j2, k_m, c_m):
+    """The line-of-action displacements s1 = r1·Θ1, s2 = r2·Θ2
+    (:meth:`gpjax.gear.TwoDofRecord.line_of_action`), structure given."""
+    print("gear, line-of-action displacements r1·Θ1, r2·Θ2, structure given:")
+    x1, x2, v1, v2 = sp.symbols("s1 s2 s1_dot s2_dot")
+    T1, T2 = sp.symbols("T1 T2")
+    structure = (((v1 - v2, x1 - x2), {T1: 1.0}), ((v2 - v1, x2 - x1), {T2: -1.0}))
+    began = time.perf_counter()
+    fit = fit_system(measurement, structure, input_interpolation="bandlimited")
+    return _line_constants(fit, time.perf_counter() - began, r1, r2, j1, j2, k_m, c_m)
+
+
+def _line_constants(fit, seconds, r1, r2, j1, j2, k_m, c_m):
+    x1, x2, v1, v2 = sp.symbols("s1 s2 s1_dot s2_dot")
+    first, second = fit.model.equations
+    found = {"J1": first.mass * r1, "J2": second.mass * r2,
+             "k_m (eq. 21)": first.state.get(x1 - x2, 0.0) / r1,
+             "k_m (eq. 22)": second.state.get(x2 - x1, 0.0) / r2,
+             "c_m (eq. 21)": first.state.get(v1 - v2, 0.0) / r1,
+             "c_m (eq. 22)": second.state.get(v2 - v1, 0.0) / r2}
+    truth = {"J1": j1, "J2": j2, "k_m (eq. 21)": k_m, "k_m (eq. 22)": k_m,
+             "c_m (eq. 21)": c_m, "c_m (eq. 22)": c_m}
+    return _report(fit, found, truth, seconds)
+
+
+def speed(count: int = 500) -> dict:
+    data = generate("chain2", seed=0)
+    c = data.system.constants
+    x1, x2, v1, v2, u = sp.symbols("x1 x2 x1_dot x2_dot u")
+    rng = np.random.default_rng(0)
+
+    def s():
+        return 1 + 0.05 * rng.standard_normal()
+
+    def best(evaluator, population):
+        evaluator.score(population)
+        times = []
+        for _ in range(5):
+            began = time.perf_counter()
+            evaluator.score(population)
+            times.append(time.perf_counter() - began)
+        return min(times)
+
+    out = {}
+    for fit_ic in (False, True):
+        one = PopulationEvaluator(data.fit.measurement("x1"), Symbols("x1", "t", ("u",)),
+                                  max_degree=3, fit_initial_conditions=fit_ic, batch=count)
+        pop1 = to_population([Coefficients(c["m1"] * s(), {v1: c["c"] * s(), x1: 50 * s(),
+                                                            x1 ** 3: c["k3"] * s()}, {u: 1.0})
+                              for _ in range(count)], one)
+        two = PopulationEvaluator(data.fit.system_measurement(), Symbols("x1", "t", ("u",)),
+                                  max_degree=3, fit_initial_conditions=fit_ic, batch=count)
+        pop2 = to_system_population([[
+            Coefficients(c["m1"] * s(), {v1: c["c"] * s(), x1: c["k"] * s(),
+                                         x1 - x2: c["kc"] * s(), (x1 - x2) ** 3: c["k3"] * s()},
+                         {u: 1.0}),
+            Coefficients(c["m2"], {v2: c["c"] * s(), x2: c["k"] * s(), x2 - x1: c["kc"] * s(),
+                                   (x2 - x1) ** 3: c["k3"] * s()}, {})] for _ in range(count)],
+            two)
+        t1, t2 = best(one, pop1), best(two, pop2)
+        key = "with_initial_state_step" if fit_ic else "plain"
+        out[key] = {"one_dof_s": t1, "two_dof_s": t2, "ratio": t2 / t1}
+        print(f"{key:<26} 1-DOF {t1 * 1e3:7.1f} ms  2-DOF {t2 * 1e3:7.1f} ms  "
+              f"ratio {t2 / t1:.2f}", flush=True)
+    return {"P": count, "N": data.fit.time.size, **out}
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("what", choices=("chains", "gear", "speed"))
+    parser.add_argument("--seeds", type=int, default=5)
+    parser.add_argument("--search", action="store_true",
+                        help="chains: search the structure with the system GP")
+    parser.add_argument("--population", type=int, default=100)
+    parser.add_argument("--generations", type=int, default=3)
+    parser.add_argument("--json", help="write the results here")
+    args = parser.parse_args()
+    result = {"machine": platform.platform(), "cpus": os.cpu_count(),
+              "load_average": os.getloadavg()}
+    if args.what == "chains":
+        rows = chains(args.seeds, args.search, args.population, args.generations)
+        result["search"] = args.search and {"population": args.population,
+                                            "generations": args.generations, "max_degree": 4}
+        result["rows"] = rows
+        print(f"\n{'system':<8} {'structure right':>16} {'constants ≤ 2 %':>16} "
+              f"{'all coordinates NRMS ≤ 2 %':>28} {'median NRMS':>12}")
+        for name in ("chain2", "chain3"):
+            mine = [r for r in rows if r["system"] == name]
+            good = sum(max(r["nrms"]) <= 0.02 for r in mine)
+            print(f"{name:<8} {sum(r['structure_right'] for r in mine):>13}/{len(mine)} "
+                  f"{sum(r['max_constant_error'] <= 0.02 for r in mine):>13}/{len(mine)} "
+                  f"{good:>25}/{len(mine)} "
+                  f"{np.median([max(r['nrms']) for r in mine]):>12.3%}")
+    elif args.what == "gear":
+        result["gear"] = gear()
+    else:
+        result["speed"] = speed()
+    if args.json:
+        with open(args.json, "w", encoding="utf-8") as handle:
+            json.dump(result, handle, indent=1, default=float)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,467 @@
+"""Genetic programming over systems: one Newton–Euler equation per measured coordinate.
+
+A candidate is a tuple of D trees, tree i read as equation i (``tree = 0``). Tree i's
+terminals are its own coordinate x_i, x_i', x_i'', the relative coordinates d_ij = x_i − x_j
+and d_ij' (j ≠ i; the couplings of eqs. 21–22), the inputs, t and random constants; the
+function set is eq. 10's (add, sub, mul). The structure rules hold per equation: x_i'' only
+as (non-zero constant)·x_i'' (constant inertia), every other term a power of one state
+variable (x_i, x_i', d_ij or d_ij' alone: eqs. 5–6 per argument, up to ``max_degree``) or a
+function of time and inputs; anything else makes the candidate invalid.
+
+The initial population is half ramped half-and-half trees (the paper's) and half random
+sums of valid terms (1–4 state features, inputs): with several variables per equation few
+random trees are valid (a product of two variables is a cross term).
+
+Constants are GP's structure's, set by least squares: each equation's by weak-form equation
+error on its own (:class:`gpjax._system_fit.SystemWeakForm`, normalised by its first input,
+else by its mass), the initial states by the evaluator's Gauss–Newton step. The best
+``refine_top`` new systems of a generation are refined by Levenberg–Marquardt on all
+coordinates together and keep the refined constants. Fitness is eqs. 7–9 summed over the
+coordinates, each normalised by its scale (:class:`gpjax.engine.PopulationEvaluator`).
+
+Operators. Crossover, mutation and perturbation (the paper's, probabilities 0.63 / 0.27 /
+0.09, reproduction 0.01) act within one equation at a time: equation i of the child comes
+from equation i of its parents, since equation i's terminals (x_i, d_ij) mean something
+only for coordinate i. A crossover swaps a whole equation instead with probability
+``p_swap``: the objective is a sum over coordinates and equation i mostly decides how well
+coordinate i fits, so a parent's good equation is a building block that subtree crossover
+would mostly break. Each generation the ``local_search`` best systems also offer their
+one-term changes (a power of one variable or an input added to one equation, or a term
+dropped). The reported system is the simplest whose objective is within
+``selection_tolerance`` of the best found (one-term removals, refitted), refitted at
+converged integration (:func:`gpjax._system_fit.fit_system`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+from functools import lru_cache
+
+import numpy as np
+import sympy as sp
+
+from ._canonical import Symbols
+from ._coefficients import Coefficients, from_system_population, to_system_population
+from ._data import Measurement
+from ._evaluator import PopulationEvaluator
+from ._operators import Grammar, crossover, initial_population, mutation, perturbation
+from ._refine import Refiner
+from ._system_fit import SystemFit, SystemWeakForm, fit_system
+
+PENALTY = 1e12
+#: Systems per compiled refinement call.
+REFINE_BATCH = 4
+
+
+@dataclasses.dataclass(frozen=True, kw_only=True)
+class SystemSearch:
+    """Settings of the search over systems (module docstring)."""
+
+    population: int = 200
+    generations: int = 10
+    max_degree: int = 3
+    max_depth: int = 5
+    max_size: int = 30
+    init_depth: tuple[int, int] = (2, 4)
+    tournament_size: int = 7
+    p_swap: float = 0.3
+    refine_top: int = 3
+    local_search: int = 2
+    local_steps: int = 4
+    selection_tolerance: float = 0.05
+    input_interpolation: str = "linear"
+
+
+@dataclasses.dataclass(frozen=True)
+class SearchResult:
+    """The reported system, the best objective of every generation, and the final fit."""
+
+    fit: SystemFit
+    history: list[float]
+
+    @property
+    def model(self):
+        return self.fit.model
+
+
+class _Equations:
+    """Terminals, tree reading and structure rules of every equation of one measurement."""
+
+    def __init__(self, measurement: Measurement, max_degree: int):
+        names = measurement.response_names
+        self.names, self.max_degree = names, max_degree
+        self.inputs = tuple(sp.Symbol(u) for u in measurement.input_names)
+        self.t = sp.Symbol(measurement.time_name)
+        self.tables, self.meaning = [], []
+        for i, name in enumerate(names):
+            x, v, a = sp.symbols(f"{name} {name}_dot {name}_ddot")
+            table = {f"{name}": x, f"{name}_dot": v, f"{name}_ddot": a}
+            meaning = {x: x, v: v}
+            for j, other in enumerate(names):
+                if j != i:
+                    d, dv = sp.symbols(f"d_{name}_{other} d_{name}_{other}_dot")
+                    table[str(d)], table[str(dv)] = d, dv
+                    meaning[d] = x - sp.Symbol(other)
+                    meaning[dv] = v - sp.Symbol(f"{other}_dot")
+            self.tables.append(table)
+            self.meaning.append(meaning)
+
+    def grammar(self, i: int, settings: SystemSearch) -> Grammar:
+        variables = tuple(("s", name) for name in self.tables[i]) + tuple(
+            ("u", k) for k in range(len(self.inputs)))
+        return Grammar(functions=("add", "sub", "mul"), variables=variables,
+                       named_constants=(), interval_constants={}, real_interval=(-10.0, 10.0),
+                       int_interval=(1, 5), max_depth=settings.max_depth,
+                       max_size=settings.max_size)
+
+    def structure(self, i: int, tree) -> tuple | None:
+        """(state features, forcing features) of equation ``i``, or ``None`` if invalid."""
+        return _structure(self, i, tree)
+
+    def tree(self, i: int, state, forcing):
+        """A tree whose structure is (``state``, ``forcing``) (for local search)."""
+        inverse = {m: s for s, m in self.meaning[i].items()}
+        name = self.names[i]
+        terms = [("s", f"{name}_ddot")]
+        for feature in state:
+            base, power = feature.as_base_exp()
+            leaf = ("s", str(inverse[base]))
+            term = leaf
+            for _ in range(int(power) - 1):
+                term = ("mul", term, leaf)
+            terms.append(term)
+        for feature in forcing:
+            terms.append(("u", self.inputs.index(feature)) if feature in self.inputs
+                         else ("n", 1.0))
+        tree = terms[0]
+        for term in terms[1:]:
+            tree = ("add", tree, term)
+        return tree
+
+    def basis(self, i: int) -> tuple[list[sp.Expr], list[sp.Expr]]:
+        """Equation ``i``'s possible state and forcing features (local search)."""
+        state = [m ** k for m in self.meaning[i].values()
+                 for k in range(1, self.max_degree + 1)]
+        return state, list(self.inputs) + [sp.Integer(1)]
+
+
+@lru_cache(maxsize=200_000)
+def _structure(equations: _Equations, i: int, tree) -> tuple | None:
+    table, meaning = equations.tables[i], equations.meaning[i]
+    expression = sp.expand(_expression(tree, table, equations.inputs, equations.t))
+    ddot = table[f"{equations.names[i]}_ddot"]
+    states = list(meaning)
+    generators = [ddot, *states, equations.t, *equations.inputs]
+    try:
+        terms = sp.Poly(expression, *generators).terms()
+    except sp.PolynomialError:
+        return None
+    mass, state, forcing = 0.0, [], []
+    for exponents, coefficient in terms:
+        used = [g for g, e in zip(generators, exponents) if e]
+        if abs(float(coefficient)) < 1e-12:
+            continue
+        if ddot in used:
+            if used != [ddot] or exponents[0] != 1:
+                return None
+            mass += float(coefficient)
+        elif set(used) & set(states):
+            power = sum(exponents)
+            if len(used) > 1 or power > equations.max_degree:
+                return None
+            state.append(meaning[used[0]] ** power)
+        else:
+            forcing.append(sp.Mul(*(g ** e for g, e in zip(generators, exponents) if e)))
+    if mass == 0.0:
+        return None
+    return tuple(sorted(state, key=str)), tuple(sorted(forcing, key=str))
+
+
+def _expression(tree, table, inputs, t):
+    head = tree[0]
+    if head in ("add", "sub", "mul"):
+        a, b = (_expression(c, table, inputs, t) for c in tree[1:])
+        return a + b if head == "add" else a - b if head == "sub" else a * b
+    if head == "s":
+        return table[tree[1]]
+    if head == "u":
+        return inputs[tree[1]]
+    if head == "t":
+        return t
+    return sp.Float(tree[-1])
+
+
+def search_system(measurement: Measurement, *, settings: SystemSearch = SystemSearch(),
+                  seed: int = 0) -> SearchResult:
+    """Identify one equation per coordinate of ``measurement`` by GP (module docstring).
+
+    Raises:
+        ValueError: no valid system was found.
+    """
+    rng = np.random.default_rng(seed)
+    equations = _Equations(measurement, settings.max_degree)
+    count = len(equations.names)
+    grammars = [equations.grammar(i, settings) for i in range(count)]
+    evaluator = PopulationEvaluator(
+        measurement, Symbols(equations.names[0], measurement.time_name,
+                             measurement.input_names),
+        max_degree=settings.max_degree, fit_initial_conditions=True,
+        input_interpolation=settings.input_interpolation, batch=settings.population)
+    scorer = _Scorer(measurement, equations, evaluator)
+    trees = list(zip(*(initial_population(g, rng, settings.population, settings.init_depth)
+                       for g in grammars)))
+    for k in range(0, len(trees), 2):  # half of them sums of valid terms (see the docstring)
+        trees[k] = _as_trees(tuple(_random_terms(i, equations, rng) for i in range(count)),
+                             equations)
+    fitness = scorer(trees)
+    history = []
+    for _ in range(settings.generations):
+        offspring = [_offspring(trees, fitness, grammars, rng, settings)
+                     for _ in range(settings.population)]
+        offspring += _local_search(trees, fitness, equations, scorer, settings)
+        pool = trees + offspring
+        scores = np.concatenate([fitness, scorer(offspring)])
+        scorer.refine_best(pool, scores, settings.refine_top)
+        scores = scorer(pool)
+        trees, fitness = _survivors(pool, scores, scorer, settings.population)
+        history.append(float(fitness.min()))
+    best = scorer.key(trees[int(np.argmin(fitness))])
+    if best is None:
+        raise ValueError("no valid system was found; widen the search")
+    best = _simplest(best, scorer, settings.selection_tolerance)
+    structure = tuple((state, {f: (1.0 if f == _normaliser(forcing, equations) else None)
+                               for f in forcing}) for state, forcing in best)
+    start = scorer.coefficients(best)
+    fit = fit_system(measurement, structure, max_degree=settings.max_degree,
+                     input_interpolation=settings.input_interpolation, start=start)
+    return SearchResult(fit, history)
+
+
+def _random_terms(i: int, equations: _Equations, rng) -> tuple:
+    """A random valid structure of equation ``i``: 1–4 state features, each input with
+    probability 1/2, a constant force with probability 1/5."""
+    state_basis, _ = equations.basis(i)
+    picked = rng.choice(len(state_basis), size=int(rng.integers(1, 5)), replace=False)
+    state = tuple(sorted((state_basis[k] for k in picked), key=str))
+    forcing = [u for u in equations.inputs if rng.random() < 0.5]
+    forcing += [sp.Integer(1)] if rng.random() < 0.2 else []
+    return state, tuple(sorted(forcing, key=str))
+
+
+def _normaliser(forcing, equations: _Equations):
+    return next((u for u in equations.inputs if u in forcing), None)
+
+
+class _Scorer:
+    """Objective of systems by structure, with least-squares and refined constants cached."""
+
+    def __init__(self, measurement, equations: _Equations, evaluator: PopulationEvaluator):
+        self.equations, self.evaluator = equations, evaluator
+        self.weak = SystemWeakForm(measurement)
+        self.objective: dict[tuple, float] = {}
+        self.refined: dict[tuple, list[Coefficients]] = {}
+        self._refiners: dict[int, Refiner] = {}
+
+    def key(self, system) -> tuple | None:
+        parts = [self.equations.structure(i, tree) for i, tree in enumerate(system)]
+        return None if any(p is None for p in parts) else tuple(parts)
+
+    def coefficients(self, key) -> list[Coefficients]:
+        if key in self.refined:
+            return self.refined[key]
+        out = []
+        for i, (state, forcing) in enumerate(key):
+            normaliser = _normaliser(forcing, self.equations)
+            out.append(self.weak.equation(i, state, {f: 1.0 if f == normaliser else None
+                                                     for f in forcing}))
+        return out
+
+    def __call__(self, systems) -> np.ndarray:
+        keys = [self.key(s) for s in systems]
+        new = list({k for k in keys if k is not None and k not in self.objective})
+        if new:
+            starts = [self.coefficients(k) for k in new]
+            usable = [all(np.isfinite(c.mass) and all(np.isfinite(list(c.state.values())))
+                          for c in start) for start in starts]
+            chosen = [k for k, ok in zip(new, usable) if ok]
+            for k, ok in zip(new, usable):
+                if not ok:
+                    self.objective[k] = PENALTY
+            if chosen:
+                population = to_system_population([self.coefficients(k) for k in chosen],
+                                                  self.evaluator)
+                scores = self.evaluator.score(population)
+                for k, value in zip(chosen, scores.objective):
+                    self.objective[k] = float(value)
+        return np.array([PENALTY if k is None else self.objective[k] for k in keys])
+
+    def refine_best(self, systems, scores, top: int) -> None:
+        """Levenberg–Marquardt on the best ``top`` distinct systems not refined yet."""
+        chosen = []
+        for index in np.argsort(scores):
+            key = self.key(systems[index])
+            if scores[index] >= PENALTY or len(chosen) == top:
+                break
+            if key is not None and key not in self.refined and key not in chosen:
+                chosen.append(key)
+        if not chosen:
+            return
+        starts = [self.coefficients(k) for k in chosen]
+        population = to_system_population(starts, self.evaluator)
+        fixed = np.array([[self.evaluator.forcing_index(u) if (u := _normaliser(
+            forcing, self.equations)) is not None else -1 for _, forcing in k] for k in chosen])
+        free = max(sum(1 + len(s) + len(f) + 2 for s, f in k) for k in chosen)
+        width = -(-free // 8) * 8  # few distinct Jacobian widths: few compiles
+        if width not in self._refiners:
+            self._refiners[width] = Refiner(self.evaluator, iterations=20, max_free=width,
+                                            batch=REFINE_BATCH)
+        refined = self._refiners[width].refine(population, fixed).population
+        scores = self.evaluator.score(refined)
+        for k, start, coefficients, value in zip(
+                chosen, starts, from_system_population(refined, self.evaluator, starts),
+                scores.objective):
+            if value < self.objective[k]:
+                self.refined[k], self.objective[k] = coefficients, float(value)
+            else:
+                self.refined[k] = start
+
+
+def _offspring(trees, fitness, grammars, rng, settings: SystemSearch):
+    parent = list(trees[_tournament(fitness, rng, settings.tournament_size)])
+    i = int(rng.integers(len(parent)))
+    draw = rng.random()
+    if draw < 0.63:
+        other = trees[_tournament(fitness, rng, settings.tournament_size)]
+        if rng.random() < settings.p_swap:
+            parent[i] = other[i]
+        else:
+            parent[i] = crossover(parent[i], other[i], grammars[i], rng)
+    elif draw < 0.90:
+        parent[i] = mutation(parent[i], grammars[i], rng)
+    elif draw < 0.99:
+        parent[i] = perturbation(parent[i], grammars[i], rng)
+    return tuple(parent)
+
+
+def _tournament(fitness, rng, size: int) -> int:
+    entrants = rng.integers(len(fitness), size=min(size, len(fitness)))
+    return int(entrants[np.argmin(fitness[entrants])])
+
+
+def _local_search(trees, fitness, equations: _Equations, scorer: _Scorer,
+                  settings: SystemSearch) -> list:
+    """Descent by one-term changes from the ``local_search`` best distinct systems, at
+    most ``local_steps`` steps each; every system it moves to, as trees."""
+    out, seen = [], set()
+    for index in np.argsort(fitness):
+        key = scorer.key(trees[index])
+        if len(seen) == settings.local_search or fitness[index] >= PENALTY:
+            break
+        if key is None or key in seen:
+            continue
+        seen.add(key)
+        current, value = key, fitness[index]
+        for _ in range(settings.local_steps):
+            changed = list(dict.fromkeys([*_neighbours(current, equations),
+                                          *_equation_error_steps(current, scorer)]))
+            as_trees = [_as_trees(c, equations) for c in changed]
+            scores = scorer(as_trees)
+            best = int(np.argmin(scores))
+            if not scores[best] < value * (1 - 1e-3):
+                break
+            current, value = changed[best], scores[best]
+            out.append(as_trees[best])
+    return out
+
+
+def _as_trees(key, equations: _Equations) -> tuple:
+    return tuple(equations.tree(i, *part) for i, part in enumerate(key))
+
+
+def _neighbours(key, equations: _Equations):
+    for i, (state, forcing) in enumerate(key):
+        state_basis, forcing_basis = equations.basis(i)
+        for feature in state_basis:
+            if feature not in state:
+                part = (tuple(sorted(state + (feature,), key=str)), forcing)
+                yield key[:i] + (part,) + key[i + 1:]
+        for feature in forcing_basis:
+            if feature not in forcing:
+                part = (state, tuple(sorted(forcing + (feature,), key=str)))
+                yield key[:i] + (part,) + key[i + 1:]
+        yield from _removals(key, i)
+
+
+def _equation_error_steps(key, scorer: "_Scorer", steps: int = 4, longest: int = 8):
+    """Multi-term moves by weak-form equation error, which is separable per equation and
+    never gets worse with a term more: per equation, forward selection from the equation as
+    it is and from nothing, every equation along the way (the others kept); and jointly,
+    every combination of the equations' selections from nothing (up to ``longest`` terms)
+    that stop where the residual is within 5 % of the longest one's, one term less or one
+    more (coupled equations are often right only together: a coupling term pays in output
+    error once both ends have it)."""
+    joint = []
+    for i, (state, forcing) in enumerate(key):
+        for part in _forward(scorer, i, list(state), list(forcing), steps):
+            yield key[:i] + (part,) + key[i + 1:]
+        fresh = list(_forward(scorer, i, [], [], longest))
+        for part in fresh[:steps]:
+            yield key[:i] + (part,) + key[i + 1:]
+        residuals = [scorer.weak.residual(i, *part) for part in fresh]
+        stop = next(k for k, r in enumerate(residuals) if r <= 1.05 * residuals[-1])
+        joint.append(fresh[max(0, stop - 1):stop + 2])
+    yield from itertools.product(*joint)
+
+
+def _forward(scorer: "_Scorer", i: int, state: list, forcing: list, steps: int):
+    """Equation ``i`` grown one feature at a time by the least weak-form residual."""
+    state_basis, forcing_basis = scorer.equations.basis(i)
+    for _ in range(steps):
+        options = [([*state, f], forcing) for f in state_basis if f not in state]
+        options += [(state, [*forcing, f]) for f in forcing_basis if f not in forcing]
+        if not options:
+            return
+        state, forcing = min(options, key=lambda o: scorer.weak.residual(i, *o))
+        yield tuple(sorted(state, key=str)), tuple(sorted(forcing, key=str))
+
+
+def _removals(key, i: int):
+    state, forcing = key[i]
+    for k in range(len(state)):
+        yield key[:i] + ((state[:k] + state[k + 1:], forcing),) + key[i + 1:]
+    for k in range(len(forcing)):
+        yield key[:i] + ((state, forcing[:k] + forcing[k + 1:]),) + key[i + 1:]
+
+
+def _survivors(pool, scores, scorer: _Scorer, count: int):
+    """The best ``count`` of ``pool``: distinct structures first, then repeats."""
+    order = np.argsort(scores, kind="stable")
+    seen, first, repeats = set(), [], []
+    for index in order:
+        key = scorer.key(pool[index])
+        (repeats if key in seen else first).append(index)
+        seen.add(key)
+    chosen = (first + repeats)[:count]
+    return [pool[i] for i in chosen], scores[chosen]
+
+
+def _simplest(best, scorer: _Scorer, tolerance: float):
+    """One-term removals from ``best`` while the objective stays within ``tolerance`` of
+    the best objective seen (each candidate least-squares fitted, then refined)."""
+    limit = min(scorer.objective.values()) * (1 + tolerance)
+    current = best
+    while True:
+        candidates = [c for i in range(len(current)) for c in _removals(current, i)
+                      if all(part[0] or part[1] for part in c)]
+        if not candidates:
+            return current
+        trees = [_as_trees(c, scorer.equations) for c in candidates]
+        scores = scorer(trees)
+        scorer.refine_best(trees, scores, len(trees))
+        scores = scorer(trees)
+        index = int(np.argmin([s + 1e-9 * n for s, n in zip(
+            scores, [sum(len(a) + len(b) for a, b in c) for c in candidates])]))
+        if scores[index] > limit:
+            return current
+        current = candidates[index]

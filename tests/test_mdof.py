@@ -1,0 +1,291 @@
+"""Several degrees of freedom: measurements with several responses and the coupled,
+batched simulation of systems (issue 14)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import gpjax
+from gpjax import DataError
+from gpjax.systems import generate, write_csv
+
+
+def _two(n=200):
+    t = np.arange(n) * 0.01
+    return t, np.stack([np.sin(5 * t), np.cos(3 * t)], axis=1), {"u": np.cos(t)}
+
+
+def test_measurement_holds_several_responses_and_keeps_the_one_response_view():
+    t, responses, inputs = _two()
+    one = gpjax.Measurement(time=t, response=responses[:, 0], inputs=inputs)
+    assert one.n_coordinates == 1 and one.responses.shape == (200, 1)
+    np.testing.assert_array_equal(one.response, responses[:, 0])
+    two = gpjax.Measurement(time=t, responses=responses, response_names=("a", "b"),
+                            inputs=inputs)
+    assert two.n_coordinates == 2 and two.response_names == ("a", "b")
+    np.testing.assert_array_equal(two.segment(10, 50).responses, responses[10:50])
+    assert two.fingerprint() != one.fingerprint()
+    with pytest.raises(DataError, match="supports one response, got 2"):
+        two.response
+
+
+@pytest.mark.parametrize("names, inputs, message", [
+    (("a", "a"), {"u": None}, "response 'a' is named twice"),
+    (("a", "u"), {"u": None}, "'u' is named twice, as a response and as an input"),
+])
+def test_bad_response_names_are_refused(names, inputs, message):
+    t, responses, _ = _two()
+    with pytest.raises(DataError, match=message):
+        gpjax.Measurement(time=t, responses=responses, response_names=names,
+                          inputs={k: np.cos(t) for k in inputs})
+
+
+def test_load_csv_reads_several_responses(tmp_path):
+    data = generate("chain2", seed=0)
+    write_csv(data.fit, tmp_path / "chain.csv")
+    measurement = gpjax.load_csv(tmp_path / "chain.csv", time="t", responses=["x2", "x1"],
+                                 inputs=["u"])
+    assert measurement.response_names == ("x2", "x1")
+    np.testing.assert_allclose(measurement.responses, data.fit.response_measured[::-1].T,
+                               rtol=1e-15)
+    with pytest.raises(DataError, match="'x1' is named twice"):
+        gpjax.load_csv(tmp_path / "chain.csv", time="t", responses=["x1", "x1"])
+
+
+def test_columns_of_different_lengths_are_refused(tmp_path):
+    rows = ["t,x1,x2"] + [f"{i * 0.01},{np.sin(i / 5)},{np.cos(i / 7) if i < 40 else 'nan'}"
+                          for i in range(60)]
+    (tmp_path / "r.csv").write_text("\n".join(rows) + "\n")
+    with pytest.raises(DataError, match="'x2' of .* has 40 samples but 't' has 60"):
+        gpjax.load_csv(tmp_path / "r.csv", time="t", responses=["x1", "x2"])
+
+
+# --- the batched coupled simulation --------------------------------------------------
+import dataclasses  # noqa: E402
+
+import jax  # noqa: E402
+import jax.numpy as jnp  # noqa: E402
+import sympy as sp  # noqa: E402
+
+from gpjax import Symbols  # noqa: E402
+from gpjax._coefficients import (Coefficients, from_system_population,  # noqa: E402
+                                 to_population, to_system_population)
+from gpjax._refine import Refiner  # noqa: E402
+from gpjax.engine import PopulationEvaluator  # noqa: E402
+from gpjax.systems import get_system  # noqa: E402
+
+X1, X2, V1, V2, U = sp.symbols("x1 x2 x1_dot x2_dot u")
+
+
+def _chain(duration=5.0, **constants):
+    system = get_system("chain2")
+    system = dataclasses.replace(system, duration=duration,
+                                 constants={**system.constants, **constants})
+    record = generate(system, seed=1, noise=0.0, input_noise=0.0).fit
+    measurement = gpjax.Measurement(time=record.time, responses=record.response_true.T,
+                                    inputs={"u": record.input_true},
+                                    response_names=record.coordinates)
+    return system, record, measurement
+
+
+def _equations(c, scale=(1.0,) * 9, y0=((0.0, 0.0), (0.0, 0.0))):
+    """The chain's two equations with constants ``c`` (eq. 1 normalised by u, eq. 2 by
+    its mass), each constant times its ``scale``."""
+    s = iter(scale)
+    first = Coefficients(c["m1"] * next(s), {V1: c["c"] * next(s), X1: c["k"] * next(s),
+                                            X1 - X2: c["kc"] * next(s),
+                                            (X1 - X2) ** 3: c["k3"] * next(s)}, {U: 1.0}, y0[0])
+    second = Coefficients(c["m2"], {V2: c["c"] * next(s), X2: c["k"] * next(s),
+                                    X2 - X1: c["kc"] * next(s),
+                                    (X2 - X1) ** 3: c["k3"] * next(s)}, {}, y0[1])
+    return [first, second]
+
+
+def _evaluator(measurement, **options):
+    return PopulationEvaluator(measurement, Symbols("x1", "t", ("u",)), max_degree=3,
+                               input_interpolation="bandlimited", **options)
+
+
+def test_system_basis_holds_own_and_relative_coordinates():
+    _, _, measurement = _chain(duration=1.0)
+    features = _evaluator(measurement).equation_features
+    assert features[0][:6] == [X1, X1 ** 2, X1 ** 3, X1 - X2, (X1 - X2) ** 2, (X1 - X2) ** 3]
+    assert features[1][3] == X2 - X1 and features[1][9] == V2 - V1 and len(features[1]) == 12
+
+
+def test_coupled_simulation_matches_the_truth():
+    system, record, measurement = _chain()
+    ev = _evaluator(measurement, substeps=4)
+    responses, scores = ev.simulate(to_system_population([_equations(system.constants)], ev))
+    assert responses.shape == (1, 2, record.time.size) and scores.status[0] == 0
+    error = responses[0] - record.response_true
+    nrms = np.sqrt(np.mean(error ** 2, axis=1) / np.mean(record.response_true ** 2, axis=1))
+    assert np.all(nrms < 1e-4), nrms  # scipy DOP853 truth; band-limited input between samples
+
+
+@pytest.mark.parametrize("fit_initial", [False, True])
+def test_uncoupled_system_is_two_one_coordinate_models(fit_initial):
+    """With no coupling the D = 2 program gives each coordinate's D = 1 result: to 1e-15
+    (XLA's fusion) for the simulation, to the 4 × 4 solve's rounding with the
+    initial-state step."""
+    system, record, measurement = _chain()
+    ev = _evaluator(measurement, substeps=2, fit_initial_conditions=fit_initial)
+    y0 = ((0.01, -0.02), (0.005, 0.03))
+    uncoupled = {**system.constants, "kc": 0.0, "k3": 0.0}
+    system_responses, system_scores = ev.simulate(to_system_population(
+        [_equations(uncoupled, y0=y0)], ev))
+    tolerance = dict(rtol=1e-8, atol=1e-12) if fit_initial else dict(rtol=0, atol=1e-15)
+    objective = 0.0
+    for d, name in enumerate(("x1", "x2")):
+        one = gpjax.Measurement(time=record.time, response=record.response_true[d],
+                                inputs={"u": record.input_true}, response_name=name)
+        single = PopulationEvaluator(one, Symbols(name, "t", ("u",)), max_degree=3,
+                                     substeps=2, n_bins=ev.n_bins,
+                                     fit_initial_conditions=fit_initial,
+                                     input_interpolation="bandlimited")
+        x, v = sp.symbols(f"{name} {name}_dot")
+        c = system.constants
+        equation = Coefficients(c[f"m{d + 1}"], {v: c["c"], x: c["k"]},
+                                {U: 1.0} if d == 0 else {}, y0[d])
+        responses, scores = single.simulate(to_population([equation], single))
+        np.testing.assert_allclose(system_responses[0, d], responses[0], **tolerance)
+        np.testing.assert_allclose(system_scores.y0[0, d], scores.y0[0], **tolerance)
+        objective += ev.weights[d] * scores.objective[0]
+    assert system_scores.objective[0] == pytest.approx(objective, rel=1e-8)
+
+
+def test_system_variational_jacobian_matches_autodiff():
+    system, _, measurement = _chain(duration=2.0)
+    ev = _evaluator(measurement)
+    pop = to_system_population([_equations(system.constants, y0=((0.01, 0.1), (0.0, -0.1)))],
+                               ev)
+    flat = jnp.asarray(ev.layout.pack(pop)[0])
+    basis = jnp.asarray(ev.forcing_basis)
+    directions = jnp.asarray(np.random.default_rng(0).standard_normal((3, flat.size)))
+    x, dx = ev.constant_jacobian(flat, directions, basis)
+    assert x.shape == (measurement.n_samples, 2) and dx.shape == x.shape + (3,)
+    expected = jax.jacfwd(lambda c: ev.scan_solve(*ev.unpack(c, basis))[..., 0])(flat)
+    np.testing.assert_allclose(dx, expected @ directions.T, rtol=1e-9,
+                               atol=1e-9 * float(jnp.max(jnp.abs(dx))))
+
+
+@pytest.mark.slow
+def test_refinement_recovers_the_chain_constants_and_initial_states():
+    system, record, measurement = _chain()
+    ev = _evaluator(measurement, substeps=2)
+    off = (1.04, 0.95, 1.03, 0.97, 1.05, 1.05, 0.96, 1.03, 0.95)
+    start = [_equations(system.constants, off, y0=((0.002, 0.01), (-0.002, 0.01)))]
+    refiner = Refiner(ev, iterations=30, max_free=16)
+    fixed = np.array([[ev.forcing_index(U), -1]])  # eq. 1: u's coefficient; eq. 2: m2
+    refined = refiner.refine(to_system_population(start, ev), fixed)
+    found = from_system_population(refined.population, ev, start)[0]
+    truth = _equations(system.constants)
+    for got, want, x, v in zip(found, truth, record.response_true, record.velocity_true):
+        assert got.mass == pytest.approx(want.mass, rel=1e-4)  # started 4 % off
+        for feature, value in want.state.items():
+            assert got.state[feature] == pytest.approx(value, rel=1e-4), feature
+        assert abs(got.y0[0]) < 1e-4 * np.std(x) and abs(got.y0[1]) < 1e-3 * np.std(v)
+
+
+@pytest.mark.slow
+def test_fit_system_recovers_the_chain_with_converged_integration():
+    """Weak-form start, Levenberg–Marquardt on both coordinates, reference-solve check.
+    Equation 2 has no input, so it is normalised by its mass: constants / m2."""
+    from gpjax.engine import fit_system
+
+    system, record, measurement = _chain(duration=10.0)
+    structure = (((V1, X1, X1 - X2, (X1 - X2) ** 3), {U: 1.0}),
+                 ((V2, X2, X2 - X1, (X2 - X1) ** 3), {}))
+    fit = fit_system(measurement, structure, input_interpolation="bandlimited")
+    c = system.constants
+    first, second = fit.model.equations
+    assert first.mass == pytest.approx(c["m1"], rel=1e-3)
+    for feature, name in zip(structure[0][0], ("c", "k", "kc", "k3")):
+        assert first.state[feature] == pytest.approx(c[name], rel=1e-3), name
+    for feature, name in zip(structure[1][0], ("c", "k", "kc", "k3")):
+        assert second.state[feature] == pytest.approx(c[name] / c["m2"], rel=1e-3), name
+    assert fit.checks[-1].converged
+    reference = fit.model.simulate(measurement)
+    assert reference.shape == (measurement.n_samples, 2)
+    error = np.sqrt(np.mean((reference - record.response_true.T) ** 2, axis=0)
+                    / np.mean(record.response_true ** 2, axis=1))
+    assert np.all(error < 1e-3), error
+
+
+# --- files, exports and the command line ---------------------------------------------
+def _truth_model(system, record):
+    from gpjax.engine import SystemModel
+
+    equations = _equations(system.constants, y0=tuple(zip(record.response_true[:, 0],
+                                                          record.velocity_true[:, 0])))
+    return SystemModel(("x1", "x2"), "t", ("u",), tuple(equations), "linear", 2, 3)
+
+
+def test_system_model_file_round_trip_and_simulate_command(tmp_path, capsys):
+    from gpjax.cli import main
+    from gpjax.engine import load_model
+    from gpjax._system_file import save_system
+
+    system, record, measurement = _chain(duration=3.0)
+    model = _truth_model(system, record)
+    save_system(model, tmp_path / "model.json")
+    loaded = load_model(tmp_path / "model.json")
+    assert loaded == model
+    assert [str(e) for e in loaded.sympy()] == [str(e) for e in model.sympy()]
+    assert loaded.latex()[0].startswith("50.0 x_{1} + 1.0 \\ddot{x_{1}}")
+    measurement.to_csv(tmp_path / "data.csv")
+    assert main(["simulate", str(tmp_path / "model.json"), str(tmp_path / "data.csv"),
+                 "--out", str(tmp_path / "sim.csv")]) == 0
+    simulated = np.loadtxt(tmp_path / "sim.csv", delimiter=",", skiprows=1)
+    assert (tmp_path / "sim.csv").read_text().startswith("t,x1,x2\n")
+    from gpjax._weak_form import smoothed_derivatives
+    estimated = [smoothed_derivatives(gpjax.Measurement(time=record.time, response=x))
+                 .initial_state for x in record.response_true]  # the command's own estimate
+    np.testing.assert_allclose(simulated[:, 1:], loaded.simulate(
+        measurement, initial_conditions=estimated), rtol=0, atol=1e-14)
+    # from the true state; the model file's linear input interpolation vs the truth's
+    # continuous input costs ~1e-3
+    error = loaded.simulate(measurement) - record.response_true.T
+    assert np.sqrt(np.mean(error ** 2)) < 2e-3 * np.std(record.response_true)
+
+
+def test_system_model_file_refuses_a_feature_outside_its_equation(tmp_path):
+    from gpjax import ModelFileError
+    from gpjax._system_file import system_from_json, system_to_json
+
+    system, record, _ = _chain(duration=1.0)
+    data = system_to_json(_truth_model(system, record))
+    data["system"][0]["terms"].append({"feature": "(x2 - x1)**3", "coefficient": 1.0})
+    with pytest.raises(ModelFileError, match="not a power of x1, x1_dot or of their"):
+        system_from_json(data)
+    data["system"][0]["terms"][-1]["feature"] = "__import__('os')"
+    with pytest.raises(ModelFileError):
+        system_from_json(data)
+
+
+def test_one_coordinate_model_file_still_loads(tmp_path):
+    from gpjax.engine import load_model
+
+    text = ('{"variables": {"time": "t", "response": "x", "inputs": ["u"]}, "canonical": '
+            '{"mass": 1.0, "terms": [{"feature": "x", "coefficient": 4.0}], '
+            '"forcing": [{"feature": "u", "coefficient": 1.0}]}}')
+    (tmp_path / "m.json").write_text(text)
+    assert isinstance(load_model(tmp_path / "m.json"), gpjax.Model)
+
+
+@pytest.mark.slow
+def test_system_gp_finds_the_two_mass_chain():
+    """The GP over systems, from random trees, finds both equations of chain2 (its
+    structure: own and relative terms) and their constants within 2 %."""
+    from gpjax.engine import SystemSearch, search_system
+
+    data = generate("chain2", seed=3)
+    result = search_system(data.fit.system_measurement(),
+                           settings=SystemSearch(population=60, generations=2), seed=0)
+    first, second = result.model.equations
+    c = data.system.constants
+    assert set(first.state) == {V1, X1, X1 - X2, (X1 - X2) ** 3} and set(first.forcing) == {U}
+    assert set(second.state) == {V2, X2, X2 - X1, (X2 - X1) ** 3} and not second.forcing
+    assert first.state[(X1 - X2) ** 3] == pytest.approx(c["k3"], rel=0.02)
+    assert second.state[X2 - X1] == pytest.approx(c["kc"] / c["m2"], rel=0.02)
