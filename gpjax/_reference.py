@@ -55,7 +55,7 @@ class ReferenceSolver:
 
     rtol: float = 1e-12
     atol: float = 1e-12
-    max_steps_per_sample: int = 64
+    max_steps_per_sample: int = 256
 
     def __post_init__(self):
         if not (self.rtol > 0 and self.atol > 0 and self.max_steps_per_sample >= 1):
