@@ -92,16 +92,18 @@ def main() -> None:
     tuning = sorted(set(args.seeds) & set(TUNING_SEEDS))
     if tuning:
         parser.error(f"seeds {tuning} were used for tuning; report on {REPORTING_SEEDS}")
-    names = ([] if args.no_controls else ["control"]) + list(args.effects)
+    # controls first, then seed by seed, so that a cut-short run covers every effect
+    order = [("control", noise, seed) for noise in args.noise for seed in args.seeds
+             if not args.no_controls]
+    order += [(name, noise, seed) for seed in args.seeds for noise in args.noise
+              for name in args.effects]
     rows = []
     print("| effect | seed | torque noise | added | first? | after / σ | true model / σ | "
           "passed | s |")
-    for name in names:
-        for noise in args.noise:
-            for seed in args.seeds:
-                rows.append(run(name, seed, noise))
-                _print(rows[-1])
-                _write(args.json, rows)
+    for name, noise, seed in order:
+        rows.append(run(name, seed, noise))
+        _print(rows[-1])
+        _write(args.json, rows)
     print(json.dumps(totals(rows), indent=1))
 
 

@@ -40,7 +40,7 @@ Each round:
 5. **Acceptance by a held-out predictive test at level ``alpha``** (default 0.05;
    :mod:`gpjax._diagnose_acceptance`): a Diebold–Mariano test that the candidate predicts
    the held-out segment better than the current model (loss differential of squared
-   residuals, Newey–West variance with Andrews' bandwidth rule, one-sided), Bonferroni over
+   residuals, batch means longer than Andrews' bandwidth, one-sided), Bonferroni over
    the candidates of the round: a correct model gains a spurious term with probability at
    most ``alpha``. The best-ranked passing candidate is added (equation-error mode: the
    passing one with the lowest charged held-out error). Rounds stop when none passes.
@@ -68,6 +68,9 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
+from scipy.optimize import minimize
+
 from ._canonical import Symbols
 from ._convergence import MAX_SUBSTEPS, check_model, initial_substeps, next_substeps
 from ._data import INPUT_INTERPOLATIONS, Measurement
@@ -80,6 +83,7 @@ from ._diagnose_residual import FAR_ABOVE, describe_residual
 from ._effects import Effect, effects
 from ._errors import ModelFileError, UserInputError
 from ._model import Model
+from ._weak_form import least_squares_residual
 
 
 @dataclasses.dataclass
@@ -160,7 +164,7 @@ class Diagnosis:
                 "convergence": self.convergence, "model": self.model().to_json()}
 
 
-_TEST = ("a one-sided Diebold-Mariano test (squared-error loss, Newey-West variance with "
+_TEST = ("a one-sided Diebold-Mariano test (squared-error loss, batch means longer than "
          "Andrews' AR(1) bandwidth, Student t) that it predicts the held-out segment better "
          "than the current model, Bonferroni over the candidates of the round, at level alpha")
 CRITERION = {
@@ -261,7 +265,8 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
     input_noise = None
     if denoise_inputs:
         measurement, input_noise = input_lines_only(measurement, alpha=alpha)
-    structure = structure_of(model)
+    structure = start = structure_of(model)
+    chosen: list[Candidate] = []
     drifting = drifts(structure, symbols)
     chosen_mode = "equation_error" if mode == "equation_error" or (
         mode == "auto" and drifting) else "simulation"
@@ -310,7 +315,10 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         steps.append(_step(shortlisted[best], ranked, current, results[best], chosen_mode)
                      | {"test": tests[best]})
         structure, current = results[best].structure, results[best]
+        chosen.append(shortlisted[best])
         fits.append(current)
+    if chosen_mode == "equation_error" and chosen:
+        fits[-1] = _repolished(problem, start, chosen, steps, lines)
     settings = {"holdout": holdout, "max_steps": max_steps, "shortlist": shortlist,
                 "min_gain": min_gain, "alpha": alpha, "iterations": iterations,
                 "input_interpolation": input_interpolation, "input_noise": input_noise}
@@ -362,6 +370,50 @@ def _unexplained(d: Diagnosis, problem: FitProblem, alpha: float) -> dict | None
     return describe_residual(d.measurement.response - d.after.simulated,
                              x=problem.derivatives.x, x_dot=problem.derivatives.x_dot,
                              dt=d.measurement.dt, input_lines=lines, alpha=alpha)
+
+
+def _repolished(problem: FitProblem, start: Structure, chosen: list[Candidate],
+                steps: list[dict], lines: tuple[float, ...]) -> Fit:
+    """Equation-error mode: the fit of the final structure with the chosen effects'
+    numeric nonlinear parameters searched again, jointly (Nelder–Mead on the weak-form
+    least-squares residual of the whole record, within bounds): each was set in the round
+    that found it, before the later effects were in the model (a friction smoothing chosen
+    while an offset is missing absorbs part of it). ``steps`` get the new parameters."""
+    context = problem.context(start, lines)
+    slots = [(k, p.name) for k, c in enumerate(chosen) for p in c.effect.parameters
+             if isinstance(c.parameters.get(p.name), float)]
+
+    def structure_at(values) -> Structure | None:
+        parameters = [dict(c.parameters) for c in chosen]
+        for (k, name), value in zip(slots, values):
+            low, high = chosen[k].effect.bounds(context)[name]
+            parameters[k][name] = float(np.clip(value, low, high))
+        structure = start
+        for c, p in zip(chosen, parameters):
+            terms = c.effect.build(context, p)
+            if terms is None:
+                return None
+            structure = structure.plus(terms)
+        return structure, parameters
+
+    def residual(values) -> float:
+        built = structure_at(values)
+        if built is None:
+            return math.inf
+        return least_squares_residual(problem.weak_full, built[0].lhs, built[0].forcing)
+
+    start_values = np.array([chosen[k].parameters[name] for k, name in slots])
+    if slots:
+        simplex = np.vstack([start_values] + [start_values * (1 + 0.5 * np.eye(len(slots))[i])
+                                              for i in range(len(slots))])
+        found = minimize(residual, start_values, method="Nelder-Mead",
+                         options={"initial_simplex": simplex, "maxfev": 60 * len(slots)})
+        if found.fun < residual(start_values):
+            structure, parameters = structure_at(found.x)
+            for step, p in zip(steps, parameters):
+                step["parameters"] = step["parameters"] | p
+            return fit_structures(problem, "equation_error", [structure])[0]
+    return fit_structures(problem, "equation_error", [structure_at(start_values)[0]])[0]
 
 
 def _frozen(candidate: Candidate) -> Effect:

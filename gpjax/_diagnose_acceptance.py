@@ -6,11 +6,14 @@ the candidate predicts it better. That is the Diebold–Mariano (1995) compariso
 forecasts: the loss differential d_t = e_current,t² − e_candidate,t² over the held-out
 samples (or held-out weak-form windows), its mean tested against zero, one-sided. The
 residuals of a simulated response are strongly autocorrelated (a resonance rings for many
-samples), so the mean's variance is the long-run variance of d: a Newey–West (Bartlett)
-estimate with Andrews' (1991) AR(1) plug-in bandwidth L = ⌈1.1447·(α̂·n)^⅓⌉,
-α̂ = 4ρ²/((1 − ρ)²(1 + ρ)²), ρ the lag-1 autocorrelation of d — a stated, data-driven rule,
-no constant tuned to a sweep. The statistic is referred to Student's t with n − 1 degrees
-of freedom (Harvey, Leybourne & Newbold 1997). The m candidates tested in one round are
+samples), so d is cut into B contiguous batches of 2L + 1 samples or more, L being
+Andrews' (1991) AR(1) plug-in bandwidth L = ⌈1.1447·(α̂·n)^⅓⌉, α̂ = 4ρ²/((1 − ρ)²(1 + ρ)²),
+ρ the lag-1 autocorrelation of d: beyond L lags d's autocorrelation is negligible, so the
+batch means are nearly independent and their one-sided t test has B − 1 degrees of freedom
+(batch means, Conway 1963; a stated, data-driven rule, no constant tuned to a sweep). A
+Newey–West variance with the same bandwidth referred to the normal rejects a true null ~9 %
+of the time at 5 % on 334 samples of an AR(1) with ρ = 0.9; the batch means hold the
+level (``tests/test_diagnose_statistics.py``). The m candidates tested in one round are
 Bonferroni-corrected (p·m), so a round adds a term that does not belong with probability at
 most ``alpha``: a correct model gains a spurious term with probability ≤ α, the stated
 false-discovery rate of the diagnosis. A candidate nests the current model, so under the
@@ -50,20 +53,25 @@ def long_run_variance(d: np.ndarray) -> tuple[float, int]:
 
 def predictive_test(current: np.ndarray, candidate: np.ndarray) -> dict:
     """Diebold–Mariano test that ``candidate``'s held-out residuals (same samples as
-    ``current``'s) have a lower mean square: statistic, one-sided p-value, bandwidth.
+    ``current``'s) have a lower mean square, by batch means: statistic, one-sided p-value,
+    bandwidth L, batches B.
     A candidate whose residual is not finite gets p = 1."""
     if candidate.shape != current.shape or not np.all(np.isfinite(candidate)):
         return {"statistic": -math.inf, "p_value": 1.0, "bandwidth": 0, "n": int(current.size)}
     d = current ** 2 - candidate ** 2
     n = d.size
-    variance, bandwidth = long_run_variance(d)
+    bandwidth = long_run_variance(d)[1]
+    batches = max(2, n // (2 * bandwidth + 1))
+    means = np.array([np.mean(b) for b in np.array_split(d, batches)]) if n >= 2 else d
+    spread = float(np.std(means, ddof=1)) if means.size > 1 else 0.0
     mean = float(np.mean(d)) if n else 0.0
-    if n < 2 or variance <= 0.0:
+    if spread <= 0.0:
         statistic = math.inf if mean > 0 else -math.inf
     else:
-        statistic = mean / math.sqrt(variance / n)
-    p = float(stats.t.sf(statistic, df=max(n - 1, 1)))
-    return {"statistic": statistic, "p_value": p, "bandwidth": bandwidth, "n": int(n)}
+        statistic = float(np.mean(means)) / (spread / math.sqrt(means.size))
+    p = float(stats.t.sf(statistic, df=max(means.size - 1, 1)))
+    return {"statistic": statistic, "p_value": p, "bandwidth": bandwidth,
+            "batches": int(means.size), "n": int(n)}
 
 
 def accepted(current: np.ndarray, candidates: list[np.ndarray], *, alpha: float

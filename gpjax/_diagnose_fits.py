@@ -94,6 +94,15 @@ class Fit:
             provenance=provenance)
 
 
+def at_rest(response: np.ndarray) -> np.ndarray:
+    """Samples where the measured response is unchanged over the two intervals before them
+    (a drifting stage at rest to its encoder's resolution): there dry friction is
+    set-valued (any force up to the static limit), which no single-valued friction term of
+    the equation of motion matches, so their windows are left out of the equation error."""
+    still = np.r_[False, np.diff(response) == 0]
+    return still & np.r_[False, still[:-1]]
+
+
 def drifts(structure: Structure, symbols: Symbols) -> bool:
     """Whether the model drifts in open loop: it has no restoring term (no term in x alone
     or g(t)·h(x)) — a free mass or an integrator."""
@@ -102,8 +111,9 @@ def drifts(structure: Structure, symbols: Symbols) -> bool:
 
 class FitProblem:
     """Data, split and settings shared by all fits of one diagnosis (``holdout`` = 0: fits
-    on the whole record, with criterion 0; ``rate_band``: derivatives and weak-form windows
-    sized by the band of the response's rate, for drifting models)."""
+    on the whole record, with criterion 0; ``rate_band``: for drifting models, derivatives
+    and weak-form windows sized by the band of the response's rate, and windows where the
+    response is at rest left out (:func:`at_rest`))."""
 
     def __init__(self, measurement: Measurement, symbols: Symbols, *, holdout: float,
                  iterations: int, substeps: int, batch: int,
@@ -121,9 +131,13 @@ class FitProblem:
         self.derivatives = smoothed_derivatives(measurement, cutoff)
         train_derivatives = (self.derivatives if self.n_train == measurement.n_samples
                              else smoothed_derivatives(self.train, cutoff))
-        self.weak_full = WeakForm(measurement, symbols, self.derivatives.x_dot, window)
+        resting = at_rest(measurement.response) if rate_band else None
+        self.weak_full = WeakForm(measurement, symbols, self.derivatives.x_dot, window,
+                                  excluded=resting)
         self.weak = (self.weak_full if self.n_train == measurement.n_samples
-                     else WeakForm(self.train, symbols, train_derivatives.x_dot, window))
+                     else WeakForm(self.train, symbols, train_derivatives.x_dot, window,
+                                   excluded=None if resting is None
+                                   else resting[: self.n_train]))
         self.u0 = symbols.u[0] if symbols.u else None
         self.y0 = self.derivatives.initial_state
         self.iterations, self.substeps, self.batch = iterations, substeps, batch

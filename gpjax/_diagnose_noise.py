@@ -17,7 +17,7 @@ false discovery). Where the input is a sum of lines (a periodic or multisine dri
 noise is removed: lines are fitted (frequency, amplitude, phase, by least squares — no
 leakage, unlike zeroing DFT bins of a record that is not a whole number of periods) while
 the strongest remaining periodogram peak exceeds the noise floor (median periodogram / ln 2)
-at level α with a Bonferroni bound over all bins, P > density · ln(bins/α). The median is
+at level α with a Bonferroni bound over the 8× padded bins, P > density · ln(8·bins/α). The median is
 the noise's only while the lines hold a minority of the bins, so an input that needs lines
 in more than a quarter of them (a broadband input) is left as measured.
 """
@@ -64,14 +64,16 @@ def noise_floor(residual: np.ndarray, dt: float, band_hz: float) -> dict | None:
             "band_hz": float(band_hz), "p_excess": p}
 
 
-def signal_band_hz(values: np.ndarray, dt: float) -> float:
+def signal_band_hz(values: np.ndarray, dt: float, *, alpha: float = 0.05) -> float:
     """The frequency (Hz) below which :data:`SPECTRAL_ENERGY_FRACTION` of the signal's AC
-    energy lies, the signal being the periodogram's excess over its noise floor (median of
-    the upper half of the bins / ln 2): the band of a rate (a differenced drifting
-    position) whose white noise would otherwise spread the band to the Nyquist frequency."""
+    energy lies, the signal being the bins significantly above the noise floor (median of
+    the upper half of the bins / ln 2; level ``alpha``, Bonferroni over the bins): the band
+    of a rate (a differenced drifting position) whose white noise would otherwise spread
+    the band to the Nyquist frequency."""
     power = _periodogram(values)
     density = float(np.median(power[power.size // 2:])) / math.log(2.0)
-    excess = np.cumsum(np.clip(power - density, 0.0, None))
+    significant = power > density * math.log(power.size / alpha)
+    excess = np.cumsum(np.where(significant, power, 0.0))
     if excess[-1] <= 0:
         return 0.5 / dt
     count = int(np.searchsorted(excess / excess[-1], SPECTRAL_ENERGY_FRACTION)) + 1
@@ -97,9 +99,10 @@ def lines(values: np.ndarray, dt: float, *, alpha: float
            ) -> tuple[np.ndarray | None, list[float]]:
     """(mean + significant sinusoids fitted by least squares, their frequencies in Hz),
     found one at a time at the strongest peak of the remaining periodogram (8× zero-padded)
-    while that peak exceeds the noise floor at level ``alpha`` (Bonferroni over the bins);
+    while that peak exceeds the noise floor at level ``alpha`` (Bonferroni over the 8×
+    padded bins, as the peak is sought on them);
     each new frequency, and at the end each in turn, refined within a bin by least squares.
-    ``None`` where more than a quarter of the bins are significant, or more than
+    ``None`` where no line is significant, more than a quarter of the bins are, or more than
     :data:`MAX_LINES` lines (or a quarter of the bins) would be needed (a broadband input)."""
     n = values.size
     bins = (n - 1) // 2
@@ -132,13 +135,15 @@ def lines(values: np.ndarray, dt: float, *, alpha: float
         padded = np.abs(np.fft.rfft(remaining, n=8 * n)) ** 2
         padded[:8] = 0.0  # DC and its leakage
         peak = int(np.argmax(padded[: 8 * bins]))
-        if density <= 0 or padded[peak] <= density * math.log(bins / alpha):
+        if density <= 0 or padded[peak] <= density * math.log(8 * bins / alpha):
             break
         if len(frequencies) >= min(bins // 8, MAX_LINES):  # 2 columns per line
             return None, []
         frequencies.append(peak * step / 8)
         refine(frequencies, len(frequencies) - 1)
         fitted = fit(frequencies)
+    if not frequencies:
+        return None, []  # no line: not a sum of lines
     for k in range(len(frequencies)):
         refine(frequencies, k)
     return fit(frequencies), frequencies
