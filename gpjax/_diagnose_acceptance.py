@@ -55,9 +55,14 @@ def predictive_test(current: np.ndarray, candidate: np.ndarray) -> dict:
     """Diebold–Mariano test that ``candidate``'s held-out residuals (same samples as
     ``current``'s) have a lower mean square, by batch means: statistic, one-sided p-value,
     bandwidth L, batches B.
-    A candidate whose residual is not finite gets p = 1."""
+    A candidate whose residual is not finite gets p = 1; a finite one against a current
+    model whose residual is not, p = 0."""
     if candidate.shape != current.shape or not np.all(np.isfinite(candidate)):
-        return {"statistic": -math.inf, "p_value": 1.0, "bandwidth": 0, "n": int(current.size)}
+        return {"statistic": -math.inf, "p_value": 1.0, "bandwidth": 0, "batches": 0,
+                "n": int(current.size)}
+    if not np.all(np.isfinite(current)):  # the current model diverges, the candidate not
+        return {"statistic": math.inf, "p_value": 0.0, "bandwidth": 0, "batches": 0,
+                "n": int(current.size)}
     d = current ** 2 - candidate ** 2
     n = d.size
     bandwidth = long_run_variance(d)[1]

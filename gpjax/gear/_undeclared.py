@@ -32,12 +32,19 @@ from ._example import PAPER_PHI0, PAPER_PHI_DOT0, PAPER_TRUTH, Torque, generate_
 EFFECTS = ("viscous_damping", "coulomb_friction", "quadratic_stiffness", "cubic_stiffness",
            "mesh_stiffness_variation", "static_offset", "backlash", "input_gain")
 #: Effects outside the library, and the library effects nearest each (what the diagnosis
-#: may add; anything else is spurious).
+#: may add; anything else is spurious). A saturating spring is a softening cubic to third
+#: order, or piecewise linear: a dead-zone spring of negative stiffness (backlash).
 NEAREST = {"stribeck_friction": ("coulomb_friction", "viscous_damping"),
            "quadratic_damping": ("viscous_damping", "coulomb_friction"),
-           "saturating_spring": ("cubic_stiffness",),
+           "saturating_spring": ("cubic_stiffness", "backlash"),
            "two_harmonic_stiffness": ("mesh_stiffness_variation",)}
 OUTSIDE = tuple(NEAREST)
+#: Seeds the diagnosis was developed, tuned or unit-tested on: never reported.
+TUNING_SEEDS = (0, 1, 3, 5, 7, 11, 21, 22, 23, 24, 31, 32, 33, 34, 101, 102, 103)
+#: Seeds of the reported sweep (``benchmarks/diagnose_sweep.py``) and its CI subset.
+REPORTING_SEEDS = tuple(range(201, 211))
+#: Measured-torque noise levels of the sweep, × the bundled example's σ_T.
+NOISE_LEVELS = (1.0, 4.0, 10.0)
 #: Standard deviation of the measurement noise on φ, deg.
 NOISE_PHI = 2e-5
 #: Standard deviation of the noise on the recorded torque T in the bundled example, N·m.
