@@ -112,7 +112,7 @@ def drifts(structure: Structure, symbols: Symbols) -> bool:
 class FitProblem:
     """Data, split and settings shared by all fits of one diagnosis (``holdout`` = 0: fits
     on the whole record, with criterion 0; ``rate_band``: for drifting models, derivatives
-    and weak-form windows sized by the band of the response's rate, and windows where the
+    and weak-form windows sized by the wider of the response's band and its rate's, and windows where the
     response is at rest left out (:func:`at_rest`))."""
 
     def __init__(self, measurement: Measurement, symbols: Symbols, *, holdout: float,
@@ -123,9 +123,10 @@ class FitProblem:
         self.train = measurement.segment(0, self.n_train)
         self.n_bins = default_n_bins(measurement.response)
         # a drifting response's energy is its drift: its derivatives keep the band of its
-        # rate, the differenced response's signal band (velocity-level equation error)
-        cutoff = (signal_band_hz(np.diff(self.train.response), measurement.dt) if rate_band
-                  else smoothing_cutoff_hz(self.train))
+        # rate too, the differenced response's signal band (velocity-level equation error)
+        cutoff = smoothing_cutoff_hz(self.train)
+        if rate_band:
+            cutoff = max(cutoff, signal_band_hz(np.diff(self.train.response), measurement.dt))
         self.band_hz = smoothing_cutoff_hz(measurement)
         window = savgol_window(self.train, cutoff)
         self.derivatives = smoothed_derivatives(measurement, cutoff)
