@@ -108,17 +108,27 @@ def lines(values: np.ndarray, dt: float, *, alpha: float
     bins = (n - 1) // 2
     time, step = np.arange(n) * dt, 1.0 / (n * dt)  # step: one DFT bin, Hz
 
-    def fit(frequencies):
+    def columns(frequencies):
         angles = 2 * np.pi * np.multiply.outer(time, np.asarray(frequencies, dtype=float))
-        columns = np.column_stack([np.ones(n), np.cos(angles), np.sin(angles)])
-        return columns @ np.linalg.lstsq(columns, values, rcond=None)[0]
+        return np.column_stack([np.ones(n), np.cos(angles), np.sin(angles)])
+
+    def fit(frequencies):
+        basis = columns(frequencies)
+        return basis @ np.linalg.lstsq(basis, values, rcond=None)[0]
 
     def refine(frequencies, k):
+        """Line k's frequency by least squares, the others projected out once."""
+        q = np.linalg.qr(columns(frequencies[:k] + frequencies[k + 1:]))[0]
+        rest = values - q @ (q.T @ values)
+
         def error(f):
-            return float(np.sum((values - fit(frequencies[:k] + [f] + frequencies[k + 1:])) ** 2))
+            pair = columns([f])[:, 1:]
+            pair = pair - q @ (q.T @ pair)
+            coefficients = np.linalg.lstsq(pair, rest, rcond=None)[0]
+            return float(np.sum((rest - pair @ coefficients) ** 2))
         low = max(frequencies[k] - step, step / 8)
         best = minimize_scalar(error, method="bounded", bounds=(low, frequencies[k] + step),
-                               options={"xatol": 1e-4 * step})
+                               options={"xatol": 1e-3 * step})
         frequencies[k] = float(best.x)
 
     power = _periodogram(values)

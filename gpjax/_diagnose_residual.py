@@ -7,7 +7,7 @@ describes the residual:
 
 * **spectral lines** — the :data:`LINES` strongest significant sinusoids (:func:`gpjax._diagnose_noise.lines`, level
   ``alpha``), each related to the input's lines where it lies within one DFT bin of a
-  harmonic k·f (k = 1 … 5) or of a sum or difference f_i ± f_j;
+  harmonic k·f (k = 1 … 10) or of a sum or difference f_i ± f_j;
 * **dependence on x and on x'** — the residual's mean in quantile bins of each, with the
   share of its variance those means hold (η²) and an F test whose denominator degrees of
   freedom are the residual's effective sample size n·γ0/LRV (its autocorrelation counted
@@ -15,7 +15,8 @@ describes the residual:
 * **hysteresis** — the further share of variance held when each x bin is split by the sign
   of x' (two branches in the (x, residual) plane), with its F test.
 
-From the significant features a kind of missing term, and the GP function set that would
+From the significant features (the three dependence tests Bonferroni-corrected, α/3) a
+kind of missing term, and the GP function set that would
 search for it (``functions`` of the configuration), is suggested.
 """
 
@@ -60,7 +61,7 @@ def describe_residual(residual: np.ndarray, *, x: np.ndarray, x_dot: np.ndarray,
 
 def _relation(f: float, inputs: list[float], step: float) -> str:
     for fi in inputs:
-        for k in range(1, 6):
+        for k in range(1, 11):
             if abs(f - k * fi) <= step:
                 return "input line" if k == 1 else f"{k}× the input line {fi:.4g} Hz"
     for i, fi in enumerate(inputs):
@@ -107,6 +108,7 @@ def _incremental_p(small: dict, large: dict, n_eff: float) -> float:
 
 
 def _suggestions(d: dict, alpha: float) -> list[str]:
+    alpha = alpha / 3  # Bonferroni over the three dependence tests
     out = []
     if d["hysteresis"]["p_value"] < alpha:
         out.append("hysteresis in the (x, residual) plane: a force that depends on the "

@@ -87,7 +87,7 @@ def test_signal_band_of_a_noisy_rate_ignores_the_white_noise():
 
 def test_describe_residual_names_a_rate_dependence_and_its_hysteresis():
     rng = np.random.default_rng(6)
-    dt, n = 1e-3, 5000
+    dt, n = 2e-3, 2000
     t = np.arange(n) * dt
     x = np.sin(2 * np.pi * 2 * t)
     x_dot = 2 * np.pi * 2 * np.cos(2 * np.pi * 2 * t)
@@ -97,9 +97,12 @@ def test_describe_residual_names_a_rate_dependence_and_its_hysteresis():
     assert any("x'" in s for s in d["suggestions"])
     assert d["lines"] and d["lines"][0]["relation"] == "input line"
     assert any("3× the input line" in line["relation"] for line in d["lines"])
-    pure = describe_residual(0.1 * rng.standard_normal(n), x=x, x_dot=x_dot, dt=dt,
-                             input_lines=[2.0], alpha=0.05)
-    assert pure["suggestions"] == [] and pure["lines"] == []
+    assert any("7× the input line" in line["relation"] for line in d["lines"])
+    noise = np.random.default_rng(60).standard_normal((8, n))  # 8 pure-noise residuals
+    described = [describe_residual(r, x=x, x_dot=x_dot, dt=dt, input_lines=[2.0], alpha=0.05)
+                 for r in noise]
+    assert sum(bool(p["suggestions"]) for p in described) <= 2  # ~5 % expected
+    assert sum(bool(p["lines"]) for p in described) <= 2
 
 
 # --- slow: the drifting stage, effects outside the library, the held-out sweep ----------
