@@ -9,8 +9,9 @@ Runs :func:`gpjax.diagnose` on the cases of :func:`gpjax.gear.undeclared_effect_
 the control, which adds nothing), with the recorded torque's noise 1×, 4× and 10× the
 bundled example's. Seeds are named apart (:mod:`gpjax.gear._undeclared`): ``TUNING_SEEDS``
 are every seed the method was developed or tested on, ``REPORTING_SEEDS`` were never looked
-at before the method was fixed — the sweep refuses to report on a tuning seed. Per case: the effects added,
-whether the right one (outside the library: one of the nearest, ``NEAREST``) came first,
+at before the method was fixed — the sweep refuses to report on a tuning seed. Per case:
+the effects added, whether the right one (outside the library: one of the nearest,
+``NEAREST``) came first,
 the final RMS against the true model's (simulated by the same engine on the torque the
 diagnosis simulates with) and seconds. A case passes: a control adds nothing; a library
 effect is named first and the final RMS ≤ 1.5 × the true model's; an outside effect adds

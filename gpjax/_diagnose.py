@@ -160,7 +160,8 @@ class Diagnosis:
                 "n_estimation": self.n_train, "frequencies_hz": list(self.frequencies),
                 "effects_added": self.effects_added,
                 "before": _summary(self.before), "after": _summary(self.after),
-                "noise": self.noise, "unexplained": self.unexplained, "steps": self.steps, "rankings": self.rankings,
+                "noise": self.noise, "unexplained": self.unexplained, "steps": self.steps,
+                "rankings": self.rankings,
                 "convergence": self.convergence, "model": self.model().to_json()}
 
 

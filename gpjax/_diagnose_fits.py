@@ -112,8 +112,8 @@ def drifts(structure: Structure, symbols: Symbols) -> bool:
 class FitProblem:
     """Data, split and settings shared by all fits of one diagnosis (``holdout`` = 0: fits
     on the whole record, with criterion 0; ``rate_band``: for drifting models, derivatives
-    and weak-form windows sized by the wider of the response's band and its rate's, and windows where the
-    response is at rest left out (:func:`at_rest`))."""
+    and weak-form windows sized by the wider of the response's band and its rate's, and
+    windows where the response is at rest left out (:func:`at_rest`))."""
 
     def __init__(self, measurement: Measurement, symbols: Symbols, *, holdout: float,
                  iterations: int, substeps: int, batch: int,

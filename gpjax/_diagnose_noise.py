@@ -17,8 +17,8 @@ false discovery). Where the input is a sum of lines (a periodic or multisine dri
 noise is removed: lines are fitted (frequency, amplitude, phase, by least squares — no
 leakage, unlike zeroing DFT bins of a record that is not a whole number of periods) while
 the strongest remaining periodogram peak exceeds the noise floor (median periodogram / ln 2)
-at level α with a Bonferroni bound over the 8× padded bins, P > density · ln(8·bins/α). The median is
-the noise's only while the lines hold a minority of the bins, so an input that needs lines
+at level α with a Bonferroni bound over the 8× padded bins, P > density · ln(8·bins/α). The
+median is the noise's only while the lines hold a minority of the bins, so an input that needs lines
 in more than a quarter of them (a broadband input) is left as measured.
 """
 

@@ -71,7 +71,8 @@ def report_markdown(diagnosis: Diagnosis) -> str:
              "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for s in d.steps:
         lines.append(f"| {s['effect']} | {s['evidence']} | {s['term']} | {s['coefficient']:.6g} "
-                     f"| {_number(s['test']['p_adjusted'])} | {_number(s['rms_before'])} | {_number(s['rms_after'])} | "
+                     f"| {_number(s['test']['p_adjusted'])} | {_number(s['rms_before'])} | "
+                     f"{_number(s['rms_after'])} | "
                      f"{_number(s['objective_before'])} | {_number(s['objective_after'])} | "
                      f"{_number(s['spectral_error_before'])} | {_number(s['spectral_error_after'])} "
                      f"| {_number(s['rms_holdout_before'])} | {_number(s['rms_holdout_after'])} |")

@@ -5,9 +5,9 @@ When the loop stops with the final residual far above its noise floor
 1.25× the noise's — and the in-band excess significant at ``alpha``), the report says so and
 describes the residual:
 
-* **spectral lines** — the :data:`LINES` strongest significant sinusoids (:func:`gpjax._diagnose_noise.lines`, level
-  ``alpha``), each related to the input's lines where it lies within one DFT bin of a
-  harmonic k·f (k = 1 … 10) or of a sum or difference f_i ± f_j;
+* **spectral lines** — the :data:`LINES` strongest significant sinusoids
+  (:func:`gpjax._diagnose_noise.lines`, level ``alpha``), each related to the input's lines
+  where it lies within one DFT bin of a harmonic k·f (k = 1 … 10) or of a sum or difference f_i ± f_j;
 * **dependence on x and on x'** — the residual's mean in quantile bins of each, with the
   share of its variance those means hold (η²) and an F test whose denominator degrees of
   freedom are the residual's effective sample size n·γ0/LRV (its autocorrelation counted
@@ -22,7 +22,6 @@ search for it (``functions`` of the configuration), is suggested.
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 from scipy import stats
