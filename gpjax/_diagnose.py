@@ -52,15 +52,21 @@ noise would otherwise ring through a resonance of the simulation and reward a sp
 damping term), and the final residual's noise floor — its spectrum above the response's
 band — is reported with the final model's distance from it.
 
-Drifting systems (a free mass with friction, a pure integrator): if the starting model has
-no restoring term (no term in x alone), the whole diagnosis runs on the **equation error** instead (mode
-``"equation_error"``): fits are weak-form least squares, the held-out criterion is the
-weak-form residual on the held-out segment, and the reported ``rms`` is the RMS of the
-pointwise generalised-force residual (force units, not response units).
+Drifting systems (a free mass with friction, a positioning stage, a pure integrator): if
+the starting model has no restoring term (no term in x alone), the whole diagnosis runs on
+the **equation error** instead (mode ``"equation_error"``): fits are weak-form least
+squares; the held-out residual is every window's, by blocked 5-fold cross-validation
+(:func:`gpjax._diagnose_fits.blocked_cv_residual`); derivatives and windows follow the
+wider of the position's and the rate's band, windows where the measured position is at
+rest are left out (set-valued dry friction), and once chosen the effects' nonlinear
+parameters are searched again jointly; the reported ``rms`` is the RMS of the pointwise
+generalised-force residual (force units, not response units).
 
-Modules: this one holds the loop, its result (:class:`Diagnosis`) and the acceptance step;
-the refits are :mod:`gpjax._diagnose_fits`, the evidence and rankings
-:mod:`gpjax._diagnose_evidence`, the written report :mod:`gpjax._diagnose_report`.
+Modules: this one holds the loop and its result (:class:`Diagnosis`); the refits are
+:mod:`gpjax._diagnose_fits`, the evidence and rankings :mod:`gpjax._diagnose_evidence`,
+the acceptance test :mod:`gpjax._diagnose_acceptance`, the noise
+:mod:`gpjax._diagnose_noise`, the unexplained residual :mod:`gpjax._diagnose_residual`, the
+written report :mod:`gpjax._diagnose_report`.
 """
 
 from __future__ import annotations
