@@ -40,7 +40,8 @@ Each round:
 5. **Acceptance by a held-out predictive test at level ``alpha``** (default 0.05;
    :mod:`gpjax._diagnose_acceptance`): a Diebold–Mariano test that the candidate predicts
    the held-out segment better than the current model (loss differential of squared
-   residuals, batch means longer than Andrews' bandwidth, one-sided), Bonferroni over
+   residuals, batch means longer than Andrews' bandwidth, Wilcoxon signed-rank,
+   one-sided), Bonferroni over
    the candidates of the round: a correct model gains a spurious term with probability at
    most ``alpha``. The best-ranked passing candidate is added (equation-error mode: the
    passing one with the lowest charged held-out error). Rounds stop when none passes.
@@ -172,7 +173,7 @@ class Diagnosis:
 
 
 _TEST = ("a one-sided Diebold-Mariano test (squared-error loss, batch means longer than "
-         "Andrews' AR(1) bandwidth, Student t) that it predicts the held-out segment better "
+         "Andrews' AR(1) bandwidth, Wilcoxon signed-rank) that it predicts the held-out segment better "
          "than the current model, Bonferroni over the candidates of the round, at level alpha")
 CRITERION = {
     "simulation": "effects ranked by held-out output error charged (1 - min_gain)^-p, "

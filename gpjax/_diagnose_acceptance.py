@@ -9,10 +9,14 @@ residuals of a simulated response are strongly autocorrelated (a resonance rings
 samples), so d is cut into B contiguous batches of 2L + 1 samples or more, L being
 Andrews' (1991) AR(1) plug-in bandwidth L = ⌈1.1447·(α̂·n)^⅓⌉, α̂ = 4ρ²/((1 − ρ)²(1 + ρ)²),
 ρ the lag-1 autocorrelation of d: beyond L lags d's autocorrelation is negligible, so the
-batch means are nearly independent and their one-sided t test has B − 1 degrees of freedom
-(batch means, Conway 1963), B kept within Schmeiser's (1982) 10 … 30 — a d correlated over
-the whole segment is a systematic difference, and two batches would leave the test no
-power (a stated, data-driven rule, no constant tuned to a sweep). A
+batch means are nearly independent (batch means, Conway 1963), B kept within Schmeiser's
+(1982) 10 … 30 — a d correlated over the whole segment is a systematic difference, and two
+batches would leave a test no power (a stated, data-driven rule, no constant tuned to a
+sweep). The batch means are tested by Wilcoxon's one-sided signed-rank test: under the null
+the two residuals are exchangeable, so d and its batch means are symmetric about zero, and
+the rank test holds its level without assuming normal batch means — a gain concentrated in
+a few batches (a friction force that matters only where the stage reverses) gives heavy
+tails that leave a t test no power. A
 Newey–West variance with the same bandwidth referred to the normal rejects a true null ~9 %
 of the time at 5 % on 334 samples of an AR(1) with ρ = 0.9; the batch means hold the
 level (``tests/test_diagnose_statistics.py``). The m candidates tested in one round are
@@ -59,8 +63,8 @@ def long_run_variance(d: np.ndarray) -> tuple[float, int]:
 
 def predictive_test(current: np.ndarray, candidate: np.ndarray) -> dict:
     """Diebold–Mariano test that ``candidate``'s held-out residuals (same samples as
-    ``current``'s) have a lower mean square, by batch means: statistic, one-sided p-value,
-    bandwidth L, batches B.
+    ``current``'s) have a lower mean square, by batch means and Wilcoxon's signed-rank
+    test: statistic, one-sided p-value, bandwidth L, batches B.
     A candidate whose residual is not finite gets p = 1; a finite one against a current
     model whose residual is not, p = 0."""
     if candidate.shape != current.shape or not np.all(np.isfinite(candidate)):
@@ -74,15 +78,12 @@ def predictive_test(current: np.ndarray, candidate: np.ndarray) -> dict:
     bandwidth = long_run_variance(d)[1]
     batches = int(np.clip(n // (2 * bandwidth + 1), *BATCHES))
     means = np.array([np.mean(b) for b in np.array_split(d, batches)]) if n >= 2 else d
-    spread = float(np.std(means, ddof=1)) if means.size > 1 else 0.0
-    mean = float(np.mean(d)) if n else 0.0
-    if spread <= 0.0:
-        statistic = math.inf if mean > 0 else -math.inf
-    else:
-        statistic = float(np.mean(means)) / (spread / math.sqrt(means.size))
-    p = float(stats.t.sf(statistic, df=max(means.size - 1, 1)))
-    return {"statistic": statistic, "p_value": p, "bandwidth": bandwidth,
-            "batches": int(means.size), "n": int(n)}
+    if not np.any(means != 0):
+        return {"statistic": 0.0, "p_value": 1.0, "bandwidth": bandwidth,
+                "batches": int(means.size), "n": int(n)}
+    test = stats.wilcoxon(means, alternative="greater")
+    return {"statistic": float(test.statistic), "p_value": float(test.pvalue),
+            "bandwidth": bandwidth, "batches": int(means.size), "n": int(n)}
 
 
 def accepted(current: np.ndarray, candidates: list[np.ndarray], *, alpha: float
