@@ -1,16 +1,22 @@
-"""Diagnosis sweep: each library effect undeclared in gear data, over seeds and strengths.
+"""Diagnosis sweep on held-out seeds: effects × seeds × measured-torque noise levels, and
+controls.
 
-Usage: python benchmarks/diagnose_sweep.py [--json FILE] [--cases SEED:STRENGTH ...]
-       [--controls SEED ...]
+Usage: python benchmarks/diagnose_sweep.py [--json FILE] [--seeds S ...] [--noise K ...]
+       [--effects NAME ...] [--no-controls] [--rescore]
 
-Runs :func:`gpjax.diagnose` on every case of :func:`gpjax.gear.undeclared_effect_case`
-(the same cases as ``pytest -m sweep``) and prints, per case, the effects added, whether
-the missing effect was named first, the RMS before the first step (loop fit) and after
-(final structure refitted on the whole record) and of the generating model (true
-constants, simulated by the same engine on the noisy measured torque) in units of the noise
-σ = 2e-5 deg, and the seconds taken; with the first step's fitted nonlinear parameters and
-the truth, the table and the totals are written as JSON. A case passes as in the tests:
-named first, visible (> 3σ before), and after ≤ max(1.5σ, the generating model's RMS).
+Runs :func:`gpjax.diagnose` on the cases of :func:`gpjax.gear.undeclared_effect_case`
+(every library effect, the effects outside the library of :data:`gpjax.gear.OUTSIDE`, and
+the control, which adds nothing), with the recorded torque's noise 1×, 4× and 10× the
+bundled example's. Seeds are named apart (:mod:`gpjax.gear._undeclared`): ``TUNING_SEEDS``
+are every seed the method was developed or tested on, ``REPORTING_SEEDS`` were never looked
+at before the method was fixed — the sweep refuses to report on a tuning seed. Per case:
+the effects added, whether the right one (outside the library: one of the nearest,
+``NEAREST``) came first,
+the final RMS against the true model's (simulated by the same engine on the torque the
+diagnosis simulates with) and seconds. A case passes: a control adds nothing; a library
+effect is named first and the final RMS ≤ 1.5 × the true model's; an outside effect adds
+only nearest effects, and either reaches 1.5 × the true model's RMS or the report says that
+the residual stays unexplained (and describes it).
 """
 
 from __future__ import annotations
@@ -21,68 +27,104 @@ import time
 from pathlib import Path
 
 from gpjax import diagnose
-from gpjax.gear import EFFECTS, NOISE_PHI, undeclared_effect_case
-
-CASES = ("21:0.7", "22:1.4", "23:1.0", "24:1.2")
-CONTROLS = (31, 32, 33, 34)
+from gpjax.gear import (EFFECTS, NEAREST, NOISE_LEVELS, NOISE_PHI, OUTSIDE, REPORTING_SEEDS,
+                        TUNING_SEEDS, undeclared_effect_case)
 
 
-def run(name: str, seed: int, strength: float) -> dict:
-    case = undeclared_effect_case(name, seed=seed, strength=strength)
+def run(name: str, seed: int, torque_noise: float) -> dict:
+    """One case: the diagnosis, what it added and whether it passes (module docstring)."""
+    case = undeclared_effect_case(name, seed=seed, torque_noise=torque_noise)
     began = time.perf_counter()
     result = diagnose(case.measurement, case.start, frequencies=(285.0,))
     seconds = time.perf_counter() - began
-    first = result.steps[0] if result.steps else None
-    truth_sigma = case.truth_rms() / NOISE_PHI
-    row = {"effect": name, "seed": seed, "strength": strength,
-           "added": result.effects_added, "named_first": result.effects_added[:1] == [name],
-           "rms_before_sigma": (first["rms_before"] if first else
-                                result.before.metrics["rms"]) / NOISE_PHI,
-           "rms_after_sigma": result.after.metrics["rms"] / NOISE_PHI,
-           "truth_rms_sigma": truth_sigma,
-           "truth": case.truth, "parameters": first["parameters"] if first else {},
-           "seconds": seconds}
-    row["passed"] = (row["added"] == [] if name == "control" else
-                     row["named_first"] and row["rms_before_sigma"] > 3
-                     and row["rms_after_sigma"] <= max(1.5, truth_sigma))
+    return score({"effect": name, "seed": seed, "torque_noise": torque_noise,
+                  "added": result.effects_added,
+                  "rms_after_sigma": result.after.metrics["rms"] / NOISE_PHI,
+                  "truth_rms_sigma": case.truth_rms(result.measurement) / NOISE_PHI,
+                  "truth_rms_measured_torque_sigma": case.truth_rms() / NOISE_PHI,
+                  "p_values": [s["test"]["p_adjusted"] for s in result.steps],
+                  "unexplained": result.unexplained is not None,
+                  "noise_floor_ratio": (result.noise.get("after") or {}).get("ratio"),
+                  "seconds": seconds})
+
+
+def score(row: dict) -> dict:
+    """``row`` with ``named_first``, ``spurious`` and ``passed`` (module docstring)."""
+    name, added = row["effect"], row["added"]
+    allowed = NEAREST.get(name, (name,))
+    row["named_first"] = bool(added) and added[0] in allowed
+    row["spurious"] = added if name == "control" else [a for a in added if a not in allowed]
+    within = row["rms_after_sigma"] <= 1.5 * row["truth_rms_sigma"]
+    if name == "control":
+        row["passed"] = added == []
+    elif name in NEAREST:
+        row["passed"] = not row["spurious"] and (within or row["unexplained"])
+    else:
+        row["passed"] = row["named_first"] and within
     return row
+
+
+def totals(rows: list[dict]) -> dict:
+    """Pass rates by kind (control, library effect, outside effect) and noise level."""
+    out = {}
+    for kind, keep in (("control", lambda r: r["effect"] == "control"),
+                       ("library", lambda r: r["effect"] in EFFECTS),
+                       ("outside", lambda r: r["effect"] in OUTSIDE)):
+        for noise in sorted({r["torque_noise"] for r in rows}):
+            chosen = [r for r in rows if keep(r) and r["torque_noise"] == noise]
+            if chosen:
+                out[f"{kind}@{noise:g}x"] = {
+                    "cases": len(chosen), "passed": sum(r["passed"] for r in chosen),
+                    "named_first": sum(r["named_first"] for r in chosen),
+                    "with_spurious": sum(bool(r["spurious"]) for r in chosen)}
+    return out
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--json", default=str(Path(__file__).with_name("diagnose_sweep.json")))
-    parser.add_argument("--cases", nargs="+", default=list(CASES))
-    parser.add_argument("--controls", nargs="*", type=int, default=list(CONTROLS))
+    parser.add_argument("--seeds", nargs="+", type=int, default=list(REPORTING_SEEDS))
+    parser.add_argument("--noise", nargs="+", type=float, default=list(NOISE_LEVELS))
+    parser.add_argument("--effects", nargs="*", default=list(EFFECTS + OUTSIDE))
+    parser.add_argument("--no-controls", action="store_true")
+    parser.add_argument("--rescore", action="store_true",
+                        help="re-score the rows of --json with this version's criteria")
     args = parser.parse_args()
+    if args.rescore:
+        rows = [score(r) for r in json.loads(Path(args.json).read_text())["rows"]]
+        _write(args.json, rows)
+        print(json.dumps(totals(rows), indent=1))
+        return
+    tuning = sorted(set(args.seeds) & set(TUNING_SEEDS))
+    if tuning:
+        parser.error(f"seeds {tuning} were used for tuning; report on {REPORTING_SEEDS}")
+    # controls first, then seed by seed, so that a cut-short run covers every effect
+    order = [("control", noise, seed) for noise in args.noise for seed in args.seeds
+             if not args.no_controls]
+    order += [(name, noise, seed) for seed in args.seeds for noise in args.noise
+              for name in args.effects]
     rows = []
-    print("| effect | seed | strength | added | first? | RMS before / σ | after / σ | "
-          "true model / σ | s |")
-    for text in args.cases:
-        seed, strength = int(text.split(":")[0]), float(text.split(":")[1])
-        for name in EFFECTS:
-            rows.append(run(name, seed, strength))
-            _print(rows[-1])
-    for seed in args.controls:
-        rows.append(run("control", seed, 1.0))
+    print("| effect | seed | torque noise | added | first? | after / σ | true model / σ | "
+          "passed | s |")
+    for name, noise, seed in order:
+        rows.append(run(name, seed, noise))
         _print(rows[-1])
-    effects_rows = [r for r in rows if r["effect"] != "control"]
-    totals = {"cases": len(effects_rows),
-              "named_first": sum(r["named_first"] for r in effects_rows),
-              "passed": sum(r["passed"] for r in effects_rows),
-              "controls_clean": sum(r["passed"] for r in rows if r["effect"] == "control"),
-              "controls": len(args.controls),
-              "worst_rms_after_sigma": max(r["rms_after_sigma"] for r in effects_rows),
-              "seconds_total": sum(r["seconds"] for r in rows)}
-    print(json.dumps(totals))
-    Path(args.json).write_text(json.dumps({"totals": totals, "rows": rows}, indent=2) + "\n",
-                               encoding="utf-8")
+        _write(args.json, rows)
+    print(json.dumps(totals(rows), indent=1))
+
+
+def _write(path: str, rows: list[dict]) -> None:
+    Path(path).write_text(json.dumps({"tuning_seeds": TUNING_SEEDS,
+                                      "reporting_seeds": REPORTING_SEEDS,
+                                      "totals": totals(rows), "rows": rows}, indent=2) + "\n",
+                          encoding="utf-8")
 
 
 def _print(row: dict) -> None:
-    print(f"| {row['effect']} | {row['seed']} | {row['strength']} | {', '.join(row['added'])} "
-          f"| {'yes' if row['named_first'] else 'no'} | {row['rms_before_sigma']:.2f} | "
-          f"{row['rms_after_sigma']:.2f} | {row['truth_rms_sigma']:.2f} | {row['seconds']:.0f} |",
-          flush=True)
+    print(f"| {row['effect']} | {row['seed']} | {row['torque_noise']:g} | "
+          f"{', '.join(row['added'])} | {'yes' if row['named_first'] else 'no'} | "
+          f"{row['rms_after_sigma']:.2f} | {row['truth_rms_sigma']:.2f} | "
+          f"{'yes' if row['passed'] else 'no'} | {row['seconds']:.0f} |", flush=True)
 
 
 if __name__ == "__main__":

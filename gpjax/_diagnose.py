@@ -37,27 +37,37 @@ Each round:
    stiffness change) from pre-empting them when the pair of simple effects does better.
    In equation-error mode (below) the ranking is the explained fraction of step 2. The
    report's evidence column states which.
-5. **Acceptance by cross-validation on a held-out segment.** A candidate passes if its
-   held-out mean-square error is below the current model's times
-   (1 − ``min_gain``)^p · (1 − √(2/n)), p = the coefficients plus nonlinear parameters it
-   adds, n = the held-out samples (equation-error mode: held-out windows). Each free
-   parameter must buy ``min_gain``, default 2 %, of held-out error — a term that only fits
-   noise buys nothing on data it was not fitted to — and the whole gain must exceed
-   √(2/n), the relative sampling error of a mean square of n noise samples: at the noise
-   floor a held-out error moves by that much with any term that bends the simulated
-   response a little (on a 1,334-sample gear record, n = 334: 7.7 %). The best-ranked
-   passing candidate is added (equation-error mode: the passing one with the lowest
-   charged held-out error). Rounds stop when no candidate passes.
+5. **Acceptance by a held-out predictive test at level ``alpha``** (default 0.05;
+   :mod:`gpjax._diagnose_acceptance`): a Diebold–Mariano test that the candidate predicts
+   the held-out segment better than the current model (loss differential of squared
+   residuals, batch means longer than Andrews' bandwidth, Wilcoxon signed-rank,
+   one-sided), Bonferroni over
+   the candidates of the round: a correct model gains a spurious term with probability at
+   most ``alpha``. The best-ranked passing candidate is added (equation-error mode: the
+   passing one with the lowest charged held-out error). Rounds stop when none passes.
+   ``min_gain`` only orders the candidates (a parsimony charge), it decides nothing.
 
-Drifting systems (a free mass with friction, a pure integrator): if the starting model has
-no restoring term (no term in x alone), the whole diagnosis runs on the **equation error** instead (mode
-``"equation_error"``): fits are weak-form least squares, the held-out criterion is the
-weak-form residual on the held-out segment, and the reported ``rms`` is the RMS of the
-pointwise generalised-force residual (force units, not response units).
+The noise is estimated from the data (:mod:`gpjax._diagnose_noise`): measured inputs that
+are sums of lines are reduced to their significant lines before any fit (their sensor
+noise would otherwise ring through a resonance of the simulation and reward a spurious
+damping term), and the final residual's noise floor — its spectrum above the response's
+band — is reported with the final model's distance from it.
 
-Modules: this one holds the loop, its result (:class:`Diagnosis`) and the acceptance step;
-the refits are :mod:`gpjax._diagnose_fits`, the evidence and rankings
-:mod:`gpjax._diagnose_evidence`, the written report :mod:`gpjax._diagnose_report`.
+Drifting systems (a free mass with friction, a positioning stage, a pure integrator): if
+the starting model has no restoring term (no term in x alone), the whole diagnosis runs on
+the **equation error** instead (mode ``"equation_error"``): fits are weak-form least
+squares; the held-out residual is every window's, by blocked 5-fold cross-validation
+(:func:`gpjax._diagnose_fits.blocked_cv_residual`); derivatives and windows follow the
+wider of the position's and the rate's band, windows where the measured position is at
+rest are left out (set-valued dry friction), and once chosen the effects' nonlinear
+parameters are searched again jointly; the reported ``rms`` is the RMS of the pointwise
+generalised-force residual (force units, not response units).
+
+Modules: this one holds the loop and its result (:class:`Diagnosis`); the refits are
+:mod:`gpjax._diagnose_fits`, the evidence and rankings :mod:`gpjax._diagnose_evidence`,
+the acceptance test :mod:`gpjax._diagnose_acceptance`, the noise
+:mod:`gpjax._diagnose_noise`, the unexplained residual :mod:`gpjax._diagnose_residual`, the
+written report :mod:`gpjax._diagnose_report`.
 """
 
 from __future__ import annotations
@@ -65,15 +75,22 @@ from __future__ import annotations
 import dataclasses
 import math
 
+import numpy as np
+from scipy.optimize import minimize
+
 from ._canonical import Symbols
 from ._convergence import MAX_SUBSTEPS, check_model, initial_substeps, next_substeps
 from ._data import INPUT_INTERPOLATIONS, Measurement
+from ._diagnose_acceptance import accepted
 from ._diagnose_evidence import (Candidate, charge, input_lines, rank_by_output_error,
                                  rank_effects)
-from ._diagnose_fits import Fit, FitProblem, Structure, fit_structures
+from ._diagnose_fits import Fit, FitProblem, Structure, drifts, fit_structures
+from ._diagnose_noise import input_lines_only, noise_floor
+from ._diagnose_residual import FAR_ABOVE, describe_residual
 from ._effects import Effect, effects
 from ._errors import ModelFileError, UserInputError
 from ._model import Model
+from ._weak_form import least_squares_residual
 
 
 @dataclasses.dataclass
@@ -91,7 +108,11 @@ class Diagnosis:
             part has done its work); ``before`` and ``after`` are the first and the last.
         frequencies: candidate frequencies in Hz offered to frequency effects.
         n_train: samples of the estimation part; the rest is held out.
-        measurement, symbols: the data and its names.
+        measurement, symbols: the data (inputs reduced to their lines where
+            ``settings["input_noise"]`` says so) and its names.
+        noise: the final and the starting residual's noise floor (:func:`noise_floor`).
+        unexplained: where the final residual stays far above its noise floor, its
+            description (:func:`describe_residual`), else ``None``.
     """
 
     mode: str
@@ -105,6 +126,8 @@ class Diagnosis:
     symbols: Symbols
     settings: dict
     convergence: dict | None = None
+    noise: dict | None = None
+    unexplained: dict | None = None
 
     @property
     def before(self) -> Fit:
@@ -144,23 +167,23 @@ class Diagnosis:
                 "n_estimation": self.n_train, "frequencies_hz": list(self.frequencies),
                 "effects_added": self.effects_added,
                 "before": _summary(self.before), "after": _summary(self.after),
-                "steps": self.steps, "rankings": self.rankings,
+                "noise": self.noise, "unexplained": self.unexplained, "steps": self.steps,
+                "rankings": self.rankings,
                 "convergence": self.convergence, "model": self.model().to_json()}
 
 
+_TEST = ("a one-sided Diebold-Mariano test (squared-error loss, batch means longer than "
+         "Andrews' AR(1) bandwidth, Wilcoxon signed-rank) that it predicts the held-out segment better "
+         "than the current model, Bonferroni over the candidates of the round, at level alpha")
 CRITERION = {
     "simulation": "effects ranked by held-out output error charged (1 - min_gain)^-p, "
                   "refitted alone and, one Gauss-Newton step ahead, with the best partner "
-                  "effect; cross-validation on a held-out segment: the model is fitted on "
-                  "the first part of the record and simulated over all of it; the "
-                  "best-ranked effect whose held-out mean-square error falls below "
-                  "(1 - min_gain)^p (1 - sqrt(2/n)) times the current model's is kept, "
-                  "p = parameters the effect adds, n = held-out samples",
-    "equation_error": "cross-validation of the weak-form equation error on a held-out "
-                      "segment (the starting model drifts in open-loop simulation); an "
-                      "effect is kept when its held-out mean square falls below "
-                      "(1 - min_gain)^p (1 - sqrt(2/n)) times the current model's, "
-                      "n = held-out windows",
+                  "effect; the model is fitted on the first part of the record and "
+                  "simulated over all of it; the best-ranked effect that passes " + _TEST
+                  + " is kept",
+    "equation_error": "weak-form equation error (the starting model drifts in open-loop "
+                      "simulation), fitted on the first part of the record; an effect is "
+                      "kept when it passes " + _TEST + " (held-out windows)",
 }
 
 
@@ -180,7 +203,8 @@ def structure_of(model: Model) -> Structure:
 
 def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effect] | None = None,
              frequencies: tuple[float, ...] = (), holdout: float = 0.25, max_steps: int = 4,
-             shortlist: int = 4, min_gain: float = 0.02, iterations: int = 20,
+             shortlist: int = 4, min_gain: float = 0.02, alpha: float = 0.05,
+             denoise_inputs: bool = True, iterations: int = 20,
              substeps: int | str = "auto", convergence_tolerance: float = 0.01,
              input_interpolation: str | None = None, mode: str = "auto") -> Diagnosis:
     """Add missing effects to ``model`` while held-out error improves (module docstring).
@@ -195,8 +219,12 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         max_steps: most effects added.
         shortlist: most effects refitted per round (the best by explained fraction of the
             equation-error residual, if more apply).
-        min_gain: relative fall of the held-out mean-square error each added parameter
-            must bring (on top of the held-out error's own sampling error, √(2/n)).
+        min_gain: parsimony charge in the ranking: each added parameter's held-out mean
+            square is weighed by (1 − min_gain)^−1 (orders candidates, decides nothing).
+        alpha: level of the acceptance test (:mod:`gpjax._diagnose_acceptance`), the
+            chance that a correct model gains a spurious term in a round.
+        denoise_inputs: reduce inputs that are sums of spectral lines to their significant
+            lines at level ``alpha`` before fitting (:func:`input_lines_only`).
         iterations: Levenberg–Marquardt steps per refit.
         substeps: RK4 steps per sample interval, or ``"auto"``: the larger of the data's
             bandwidth rule and the starting model's, raised (and the chosen structures
@@ -234,19 +262,27 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
     automatic = substeps == "auto"
     if automatic:
         substeps = max(initial_substeps(measurement), model.substeps)
-    if (max_steps < 0 or shortlist < 1 or min_gain < 0 or iterations < 1
+    if (max_steps < 0 or shortlist < 1 or min_gain < 0 or iterations < 1 or not 0 < alpha < 1
             or not isinstance(substeps, int) or not 1 <= substeps <= MAX_SUBSTEPS
             or not 0 < convergence_tolerance < 1):
-        raise UserInputError(f"max_steps >= 0, shortlist >= 1, min_gain >= 0, iterations >= 1, "
+        raise UserInputError(f"max_steps >= 0, shortlist >= 1, min_gain >= 0, 0 < alpha < 1, "
+                             "iterations >= 1, "
                              f"substeps \"auto\" or 1 … {MAX_SUBSTEPS} and 0 < "
                              "convergence_tolerance < 1 are required; fix the setting")
     library = effects() if library is None else dict(library)
+    input_noise = None
+    if denoise_inputs:
+        measurement, input_noise = input_lines_only(measurement, alpha=alpha)
+    structure = start = structure_of(model)
+    chosen: list[Candidate] = []
+    drifting = drifts(structure, symbols)
+    chosen_mode = "equation_error" if mode == "equation_error" or (
+        mode == "auto" and drifting) else "simulation"
     problem = FitProblem(measurement, symbols, holdout=holdout, iterations=iterations,
                        substeps=substeps, batch=shortlist + 1,
-                       input_interpolation=input_interpolation)
+                       input_interpolation=input_interpolation,
+                       rate_band=drifting)
     lines = tuple(dict.fromkeys([*map(float, frequencies), *input_lines(problem.train)]))
-    structure = structure_of(model)
-    chosen_mode = "equation_error" if mode == "equation_error" else "simulation"
     current = None
     steps, rankings, fits = [], [], []
     for round_number in range(max_steps + 1):
@@ -261,8 +297,6 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         shortlisted = ranked[:shortlist] if round_number < max_steps else []
         candidates = [structure.plus(c.terms) for c in shortlisted]
         if current is None:
-            if mode == "auto" and problem.drifts(structure):
-                chosen_mode = "equation_error"
             results = fit_structures(problem, chosen_mode, [structure] + candidates)
             current, results = results[0], results[1:]
             fits.append(current)
@@ -272,38 +306,43 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             order = rank_by_output_error(problem, shortlisted, results, min_gain)
             ranked = [shortlisted[i] for i in order] + ranked[len(shortlisted):]
             shortlisted, results = ranked[:len(order)], [results[i] for i in order]
+        tests = accepted(current.holdout, [r.holdout for r in results], alpha=alpha)
         rankings.append([{"effect": c.effect.name, "explained": c.explained,
                           "parameters": c.parameters, "evidence": c.evidence,
-                          **({"predicted": c.predicted} if c.predicted else {})}
-                         for c in ranked])
-        if not results:
-            break
-        # held-out error charged (1 − min_gain) per added parameter must beat the current
-        # model's by more than its sampling error; simulation: the best-ranked such
-        # candidate, equation error: the lowest
-        penalised = [r.criterion * charge(c, min_gain) for r, c in zip(results, shortlisted)]
-        required = current.criterion * (1.0 - problem.sampling_error(chosen_mode))
-        passing = [i for i, value in enumerate(penalised) if value < required]
+                          **({"predicted": c.predicted} if c.predicted else {}),
+                          **({"test": tests[i]} if i < len(tests) else {})}
+                         for i, c in enumerate(ranked)])
+        passing = [i for i, test in enumerate(tests) if test["passed"]]
         if not passing:
             break
+        # simulation: the best-ranked passing candidate; equation error: the passing one
+        # with the lowest charged held-out error
+        penalised = [r.criterion * charge(c, min_gain) for r, c in zip(results, shortlisted)]
         best = passing[0] if chosen_mode == "simulation" else min(passing,
                                                                    key=penalised.__getitem__)
-        steps.append(_step(shortlisted[best], ranked, current, results[best], chosen_mode))
+        steps.append(_step(shortlisted[best], ranked, current, results[best], chosen_mode)
+                     | {"test": tests[best]})
         structure, current = results[best].structure, results[best]
+        chosen.append(shortlisted[best])
         fits.append(current)
+    if chosen_mode == "equation_error" and chosen:
+        fits[-1] = _repolished(problem, start, chosen, steps, lines)
     settings = {"holdout": holdout, "max_steps": max_steps, "shortlist": shortlist,
-                "min_gain": min_gain, "iterations": iterations,
-                "input_interpolation": input_interpolation}
+                "min_gain": min_gain, "alpha": alpha, "iterations": iterations,
+                "input_interpolation": input_interpolation, "input_noise": input_noise}
     while True:  # the structures are chosen; refit them on the whole record, converged
         whole = FitProblem(measurement, symbols, holdout=0.0, iterations=iterations,
                          substeps=substeps, batch=len(fits),
-                         input_interpolation=input_interpolation)
+                         input_interpolation=input_interpolation,
+                         rate_band=drifting)
         whole.pool_lhs, whole.pool_forcing = problem.pool_lhs, problem.pool_forcing
         refits = fit_structures(whole, chosen_mode, [fit.structure for fit in fits])
         result = Diagnosis(mode=chosen_mode, steps=steps, rankings=rankings, fits=fits,
                            refits=refits, frequencies=lines, n_train=problem.n_train,
                            measurement=measurement, symbols=symbols,
                            settings=settings | {"substeps": substeps})
+        result.noise = _noise(result, problem)
+        result.unexplained = _unexplained(result, problem, alpha)
         if chosen_mode != "simulation":
             return result
         check, _ = check_model(result.model(), measurement, tolerance=convergence_tolerance)
@@ -311,6 +350,78 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             result.convergence = check.to_json()
             return result
         substeps = next_substeps(check)
+
+
+def _noise(d: Diagnosis, problem: FitProblem) -> dict:
+    """The noise floor of the final and the starting residual (simulation mode), or of the
+    measured response about its smoothed value (equation-error mode, whose residual is a
+    force)."""
+    band = problem.band_hz
+    if d.mode != "simulation":
+        floor = noise_floor(d.measurement.response - problem.derivatives.x, d.measurement.dt,
+                            band)
+        return {"response": floor}
+    return {when: noise_floor(d.measurement.response - fit.simulated, d.measurement.dt, band)
+            for when, fit in (("after", d.after), ("before", d.before))}
+
+
+def _unexplained(d: Diagnosis, problem: FitProblem, alpha: float) -> dict | None:
+    """The final residual described, where it stays far above its noise floor (simulation
+    mode: :data:`FAR_ABOVE` × σ̂ and a significant in-band excess)."""
+    floor = (d.noise or {}).get("after")
+    if floor is None or floor["ratio"] < FAR_ABOVE or floor["p_excess"] >= alpha:
+        return None
+    noise = list((d.settings["input_noise"] or {}).values())
+    lines = ([f for entry in noise for f in entry["lines_hz"]]
+             if noise and all(entry["denoised"] for entry in noise)
+             else input_lines(d.measurement))
+    return describe_residual(d.measurement.response - d.after.simulated,
+                             x=problem.derivatives.x, x_dot=problem.derivatives.x_dot,
+                             dt=d.measurement.dt, input_lines=lines, alpha=alpha)
+
+
+def _repolished(problem: FitProblem, start: Structure, chosen: list[Candidate],
+                steps: list[dict], lines: tuple[float, ...]) -> Fit:
+    """Equation-error mode: the fit of the final structure with the chosen effects'
+    numeric nonlinear parameters searched again, jointly (Nelder–Mead on the weak-form
+    least-squares residual of the whole record, within bounds): each was set in the round
+    that found it, before the later effects were in the model (a friction smoothing chosen
+    while an offset is missing absorbs part of it). ``steps`` get the new parameters."""
+    context = problem.context(start, lines)
+    slots = [(k, p.name) for k, c in enumerate(chosen) for p in c.effect.parameters
+             if isinstance(c.parameters.get(p.name), float)]
+
+    def structure_at(values) -> Structure | None:
+        parameters = [dict(c.parameters) for c in chosen]
+        for (k, name), value in zip(slots, values):
+            low, high = chosen[k].effect.bounds(context)[name]
+            parameters[k][name] = float(np.clip(value, low, high))
+        structure = start
+        for c, p in zip(chosen, parameters):
+            terms = c.effect.build(context, p)
+            if terms is None:
+                return None
+            structure = structure.plus(terms)
+        return structure, parameters
+
+    def residual(values) -> float:
+        built = structure_at(values)
+        if built is None:
+            return math.inf
+        return least_squares_residual(problem.weak_full, built[0].lhs, built[0].forcing)
+
+    start_values = np.array([chosen[k].parameters[name] for k, name in slots])
+    if slots:
+        simplex = np.vstack([start_values] + [start_values * (1 + 0.5 * np.eye(len(slots))[i])
+                                              for i in range(len(slots))])
+        found = minimize(residual, start_values, method="Nelder-Mead",
+                         options={"initial_simplex": simplex, "maxfev": 60 * len(slots)})
+        if found.fun < residual(start_values):
+            structure, parameters = structure_at(found.x)
+            for step, p in zip(steps, parameters):
+                step["parameters"] = step["parameters"] | p
+            return fit_structures(problem, "equation_error", [structure])[0]
+    return fit_structures(problem, "equation_error", [structure_at(start_values)[0]])[0]
 
 
 def _frozen(candidate: Candidate) -> Effect:

@@ -26,12 +26,15 @@ from ._evaluator import OK, PopulationEvaluator, split_state_features
 from ._model import Model
 from ._objective import amplitude_spectrum, default_n_bins
 from ._refine import Refiner
-from ._weak_form import (WeakForm, design, evaluate, least_squares, savgol_window,
+from ._diagnose_noise import signal_band_hz
+from ._weak_form import (WeakForm, _solve, design, evaluate, least_squares, savgol_window,
                          smoothed_derivatives, smoothing_cutoff_hz)
 
 #: Continuation of the refit when a start and its refinement both diverge (fractions of the
 #: estimation part fitted in turn).
 CAREFUL_HORIZONS = (0.1, 0.25, 0.5, 1.0)
+#: Contiguous folds of the equation-error mode's blocked cross-validation.
+FOLDS = 5
 
 @dataclasses.dataclass(frozen=True)
 class Structure:
@@ -65,7 +68,10 @@ class Structure:
 
 @dataclasses.dataclass
 class Fit:
-    """A structure with fitted constants and its errors (see :func:`diagnose`)."""
+    """A structure with fitted constants and its errors (see :func:`diagnose`):
+    ``criterion`` is the mean square of ``holdout``, the held-out residual (response
+    samples of the held-out tail, or every weak-form window by blocked cross-validation in
+    equation-error mode)."""
 
     structure: Structure
     coefficients: Coefficients
@@ -73,6 +79,7 @@ class Fit:
     metrics: dict[str, float]
     criterion: float
     force: np.ndarray | None = None
+    holdout: np.ndarray | None = None
 
     def model(self, symbols: Symbols, provenance: dict, *,
               input_interpolation: str = "linear", substeps: int = 1) -> Model:
@@ -87,26 +94,51 @@ class Fit:
             provenance=provenance)
 
 
+def at_rest(response: np.ndarray) -> np.ndarray:
+    """Samples where the measured response is unchanged over the two intervals before them
+    (a drifting stage at rest to its encoder's resolution): there dry friction is
+    set-valued (any force up to the static limit), which no single-valued friction term of
+    the equation of motion matches, so their windows are left out of the equation error."""
+    still = np.r_[False, np.diff(response) == 0]
+    return still & np.r_[False, still[:-1]]
+
+
+def drifts(structure: Structure, symbols: Symbols) -> bool:
+    """Whether the model drifts in open loop: it has no restoring term (no term in x alone
+    or g(t)·h(x)) — a free mass or an integrator."""
+    return not any(symbols.x in f.free_symbols for f in structure.state + structure.parametric)
+
+
 class FitProblem:
     """Data, split and settings shared by all fits of one diagnosis (``holdout`` = 0: fits
-    on the whole record, with criterion 0)."""
+    on the whole record, with criterion 0; ``rate_band``: for drifting models, derivatives
+    and weak-form windows sized by the wider of the response's band and its rate's, and
+    windows where the response is at rest left out (:func:`at_rest`))."""
 
     def __init__(self, measurement: Measurement, symbols: Symbols, *, holdout: float,
                  iterations: int, substeps: int, batch: int,
-                 input_interpolation: str = "linear"):
+                 input_interpolation: str = "linear", rate_band: bool = False):
         self.measurement, self.symbols = measurement, symbols
         self.n_train = int(round((1.0 - holdout) * measurement.n_samples))
         self.train = measurement.segment(0, self.n_train)
         self.n_bins = default_n_bins(measurement.response)
+        # a drifting response's energy is its drift: its derivatives keep the band of its
+        # rate too, the differenced response's signal band (velocity-level equation error)
         cutoff = smoothing_cutoff_hz(self.train)
+        if rate_band:
+            cutoff = max(cutoff, signal_band_hz(np.diff(self.train.response), measurement.dt))
+        self.band_hz = smoothing_cutoff_hz(measurement)
         window = savgol_window(self.train, cutoff)
         self.derivatives = smoothed_derivatives(measurement, cutoff)
         train_derivatives = (self.derivatives if self.n_train == measurement.n_samples
                              else smoothed_derivatives(self.train, cutoff))
-        self.weak_full = WeakForm(measurement, symbols, self.derivatives.x_dot, window)
+        resting = at_rest(measurement.response) if rate_band else None
+        self.weak_full = WeakForm(measurement, symbols, self.derivatives.x_dot, window,
+                                  excluded=resting)
         self.weak = (self.weak_full if self.n_train == measurement.n_samples
-                     else WeakForm(self.train, symbols, train_derivatives.x_dot, window))
-        self.holdout_rows = self.weak_full.centres - self.weak_full.half_width >= self.n_train
+                     else WeakForm(self.train, symbols, train_derivatives.x_dot, window,
+                                   excluded=None if resting is None
+                                   else resting[: self.n_train]))
         self.u0 = symbols.u[0] if symbols.u else None
         self.y0 = self.derivatives.initial_state
         self.iterations, self.substeps, self.batch = iterations, substeps, batch
@@ -115,13 +147,6 @@ class FitProblem:
         self.pool_lhs: tuple[sp.Expr, ...] = ()
         self.pool_forcing: tuple[sp.Expr, ...] = ()
         self.simulator: _Simulator | None = None
-
-    def sampling_error(self, mode: str) -> float:
-        """√(2/n), the relative standard error of a held-out mean square of n independent
-        noise values (n: held-out samples, or held-out windows in equation-error mode)."""
-        n = (int(np.count_nonzero(self.holdout_rows)) if mode == "equation_error"
-             else self.measurement.n_samples - self.n_train)
-        return math.sqrt(2.0 / n) if n else 0.0
 
     def context(self, structure: Structure, frequencies: tuple[float, ...]) -> Context:
         return Context(symbols=self.symbols, x=self.train.response, x_dot=self.train_x_dot,
@@ -138,12 +163,6 @@ class FitProblem:
             force = force - value * evaluate(feature, self.symbols, m, d.x, d.x_dot)
         return force
 
-    def drifts(self, structure: Structure) -> bool:
-        """Whether the model drifts in open loop: it has no restoring term (no term in x
-        alone or g(t)·h(x)) — a free mass or an integrator."""
-        x = self.symbols.x
-        return not any(x in f.free_symbols for f in structure.state + structure.parametric)
-
     def fit_equation_error(self, structures: list[Structure]) -> list[Fit]:
         fits = []
         for structure in structures:
@@ -156,8 +175,8 @@ class FitProblem:
             # window residual / ∫ψ: the generalised force averaged over each window
             windowed = (target - matrix @ solution) / self.weak_full.kernel_area
             fit.force = self.generalised_force(fit)
-            held_out = windowed[self.holdout_rows]
-            fit.criterion = float(np.mean(held_out ** 2)) if held_out.size else 0.0
+            fit.holdout = blocked_cv_residual(matrix, target, self.weak_full)
+            fit.criterion = float(np.mean(fit.holdout ** 2))
             fit.metrics = {"rms": float(np.sqrt(np.mean(windowed ** 2))),
                            "objective": float(np.sqrt(np.sum(windowed ** 2))),
                            "spectral_error": None, "rms_estimation": None, "rms_holdout": None}
@@ -240,6 +259,7 @@ class FitProblem:
                        status) -> Fit:
         fit = Fit(s, coefficients, simulated, {}, math.inf)
         fit.force = self.generalised_force(fit)
+        fit.holdout = np.full(self.measurement.n_samples - self.n_train, math.inf)
         if status != OK:
             fit.metrics = {"rms": math.inf, "objective": math.inf, "spectral_error": math.inf,
                            "rms_estimation": math.inf, "rms_holdout": math.inf}
@@ -247,8 +267,25 @@ class FitProblem:
         fit.metrics = simulation_metrics(self.measurement.response, simulated, self.n_train,
                                          self.n_bins)
         holdout = self.measurement.response[self.n_train:] - simulated[self.n_train:]
+        fit.holdout = holdout
         fit.criterion = float(np.mean(holdout ** 2)) if holdout.size else 0.0
         return fit
+
+
+def blocked_cv_residual(matrix: np.ndarray, target: np.ndarray, weak: WeakForm) -> np.ndarray:
+    """Out-of-sample weak-form residual of every window (force units): the windows in
+    :data:`FOLDS` contiguous blocks, each predicted by the least squares of the windows
+    that share no sample with it (blocked cross-validation; the equation-error mode's
+    held-out residual, so all of the record is tested, not only its tail)."""
+    rows, centres, h = target.size, weak.centres, weak.half_width
+    bounds = np.linspace(0, rows, FOLDS + 1).astype(int)
+    residual = np.empty(rows)
+    for start, stop in zip(bounds[:-1], bounds[1:]):
+        fold = slice(start, stop)
+        train = (centres < centres[start] - 2 * h) | (centres > centres[stop - 1] + 2 * h)
+        solution = _solve(matrix[train], target[train])
+        residual[fold] = target[fold] - matrix[fold] @ solution
+    return residual / weak.kernel_area
 
 
 class _Simulator:

@@ -64,17 +64,21 @@ def report_markdown(diagnosis: Diagnosis) -> str:
              *_convergence_lines(d),
              f"Steps: fitted on the first {d.n_train} of {d.measurement.n_samples} samples; "
              "the held-out rest decided.", "",
-             "| effect | evidence | term | coefficient | RMS before | RMS after | f before | "
-             "f after | spectral before | spectral after | held-out RMS before | after |",
-             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
+             *_noise_lines(d),
+             "| effect | evidence | term | coefficient | p (adjusted) | RMS before | RMS after | "
+             "f before | f after | spectral before | spectral after | held-out RMS before | "
+             "after |",
+             "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |"]
     for s in d.steps:
         lines.append(f"| {s['effect']} | {s['evidence']} | {s['term']} | {s['coefficient']:.6g} "
-                     f"| {_number(s['rms_before'])} | {_number(s['rms_after'])} | "
+                     f"| {_number(s['test']['p_adjusted'])} | {_number(s['rms_before'])} | "
+                     f"{_number(s['rms_after'])} | "
                      f"{_number(s['objective_before'])} | {_number(s['objective_after'])} | "
                      f"{_number(s['spectral_error_before'])} | {_number(s['spectral_error_after'])} "
                      f"| {_number(s['rms_holdout_before'])} | {_number(s['rms_holdout_after'])} |")
     for caution in sign_cautions(d):
         lines += ["", f"**Caution:** {caution}"]
+    lines += _stop_lines(d) + _unexplained_lines(d)
     lines += ["", "## Evidence per round (best first)", "",
               "Simulation mode: held-out RMS with the effect refitted alone (/ predicted with "
               "its best partner); equation-error mode: share of the weak-form equation-error "
@@ -84,6 +88,64 @@ def report_markdown(diagnosis: Diagnosis) -> str:
     lines += ["", "Figures: residual_time.png, residual_spectrum.png, measured_vs_simulated.png.",
               ""]
     return "\n".join(lines)
+
+
+def _noise_lines(d: Diagnosis) -> list[str]:
+    """The noise the data show: measured inputs reduced to lines, the noise floor."""
+    out = []
+    for name, entry in (d.settings.get("input_noise") or {}).items():
+        if entry["denoised"]:
+            out += [f"Input {name}: reduced to {len(entry['lines_hz'])} significant spectral "
+                    f"lines (level {d.settings['alpha']}); noise removed: σ = "
+                    f"{entry['sigma']:.4g}.", ""]
+    floor = (d.noise or {}).get("after") or (d.noise or {}).get("response")
+    if floor is None:
+        return out + ["Noise floor: not estimated (too few bins outside the response's "
+                      "band).", ""]
+    if d.mode != "simulation":
+        return out + [f"Noise floor of {d.symbols.response} (spectrum above "
+                      f"{floor['band_hz']:.4g} Hz): σ̂ = {floor['sigma']:.4g} (response units; "
+                      "the residual here is a force).", ""]
+    verdict = ("the residual is at the noise floor" if floor["p_excess"] >= d.settings["alpha"]
+               else "the residual's in-band excess over the floor is significant")
+    return out + [f"Noise floor (the final residual's spectrum above {floor['band_hz']:.4g} "
+                  f"Hz): σ̂ = {floor['sigma']:.4g}; final RMS {floor['rms']:.4g} = "
+                  f"{floor['ratio']:.3g} σ̂ (in-band excess p = {floor['p_excess']:.3g}: "
+                  f"{verdict}).", ""]
+
+
+def _stop_lines(d: Diagnosis) -> list[str]:
+    """Why the loop stopped: the last round's best p-value."""
+    tested = [e for e in d.rankings[-1] if "test" in e] if d.rankings else []
+    if not tested or len(d.steps) == len(d.rankings):
+        return []
+    best = min(tested, key=lambda e: e["test"]["p_adjusted"])
+    return ["", f"Stopped: no candidate passed the test at level {d.settings['alpha']}; the "
+            f"best, {best['effect']}, had adjusted p = {best['test']['p_adjusted']:.3g} "
+            f"({len(tested)} tested)."]
+
+
+def _unexplained_lines(d: Diagnosis) -> list[str]:
+    """The residual no library effect explains, described (:mod:`_diagnose_residual`)."""
+    u = d.unexplained
+    if u is None:
+        return []
+    lines_hz = ", ".join(f"{line['hz']:.4g} Hz ({line['relation']})" for line in u["lines"])
+    out = ["", "## Unexplained residual", "",
+           "No library effect explains the final residual, and it stays far above the noise "
+           "floor. It shows:", "",
+           f"- spectral lines: {lines_hz or 'none significant'}",
+           f"- dependence on {d.symbols.response}: η² = {u['x']['eta2']:.3g} "
+           f"(p = {u['x']['p_value']:.3g}); on its rate: η² = {u['x_dot']['eta2']:.3g} "
+           f"(p = {u['x_dot']['p_value']:.3g})",
+           f"- hysteresis (branches by the sign of the rate): η² = "
+           f"{u['hysteresis']['eta2']:.3g} (p = {u['hysteresis']['p_value']:.3g})", ""]
+    if u["suggestions"]:
+        out += ["Suggested:", ""] + [f"- {s}" for s in u["suggestions"]]
+    else:
+        out += ["No structure is significant: the excess looks like noise the floor does not "
+                "see (input noise, coloured sensor noise)."]
+    return out
 
 
 def _convergence_lines(d: Diagnosis) -> list[str]:

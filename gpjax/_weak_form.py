@@ -99,10 +99,12 @@ class WeakForm:
         symbols: names of response, time and inputs.
         x_dot: smoothed x' at the samples (for features nonlinear in x').
         half_width: h in samples (clipped to 2 … (N − 1)/2).
+        excluded: samples (N,) bool whose windows are left out (e.g. a stage at rest,
+            where dry friction is set-valued); default none.
     """
 
     def __init__(self, measurement: Measurement, symbols: Symbols, x_dot: np.ndarray,
-                 half_width: int):
+                 half_width: int, *, excluded: np.ndarray | None = None):
         self.measurement, self.symbols, self.x_dot = measurement, symbols, x_dot
         self.u0 = symbols.u[0] if symbols.u else None
         h = max(2, min(half_width, (measurement.n_samples - 1) // 2))
@@ -113,13 +115,23 @@ class WeakForm:
                          (-8 * (1 - s ** 2) ** 3 + 48 * s ** 2 * (1 - s ** 2) ** 2)
                          / scale ** 2 * dt)
         self.centres = np.arange(h, measurement.n_samples - h, self.step)
+        self._kept = (None if excluded is None else
+                      ~self._windows(np.asarray(excluded, dtype=bool)).any(axis=1))
+        if self._kept is not None:
+            self.centres = self.centres[self._kept]
         self.kernel_area = float(np.sum(self._kernels[0]))
         self._cache: dict[sp.Expr, np.ndarray] = {}
 
+    def _windows(self, values: np.ndarray) -> np.ndarray:
+        """(K, 2h + 1) strided windows of ``values`` (a view), all centres."""
+        count = np.arange(self.half_width, self.measurement.n_samples - self.half_width,
+                          self.step).size
+        return sliding_window_view(values, 2 * self.half_width + 1)[:: self.step][:count]
+
     def _integrate(self, values: np.ndarray, kernel: int) -> np.ndarray:
-        """(K,) window integrals: strided windows (a view) times the kernel."""
-        windows = sliding_window_view(values, 2 * self.half_width + 1)[:: self.step]
-        return windows[: self.centres.size] @ self._kernels[kernel]
+        """(K,) window integrals of the kept windows: strided windows times the kernel."""
+        integrals = self._windows(values) @ self._kernels[kernel]
+        return integrals if self._kept is None else integrals[self._kept]
 
     def acceleration(self) -> np.ndarray:
         """∫ψ_k''·x: the inertia column (no derivative of the data needed)."""

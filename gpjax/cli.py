@@ -121,6 +121,9 @@ def _diagnose_options(parser) -> None:
                         help="fraction of the record held out at its end (default 0.25)")
     parser.add_argument("--max-steps", type=_non_negative, default=4, dest="max_steps",
                         help="most effects added (default 4)")
+    parser.add_argument("--alpha", type=_positive_float, default=0.05,
+                        help="level of the acceptance test: the chance that a correct model "
+                        "gains a spurious effect in a step (default 0.05)")
     parser.add_argument("--input-interpolation", choices=INPUT_INTERPOLATIONS,
                         dest="input_interpolation",
                         help="inputs between samples in the simulation: linear; "
@@ -270,6 +273,8 @@ def _check_diagnose_options(args) -> None:
     if not 0.05 <= args.holdout <= 0.5:
         raise UserInputError(f"--holdout must lie in [0.05, 0.5], got {args.holdout}; "
                              "use e.g. 0.25")
+    if not args.alpha < 1:
+        raise UserInputError(f"--alpha must lie in (0, 1), got {args.alpha}; use e.g. 0.05")
 
 
 def _diagnose(args) -> int:
@@ -292,7 +297,7 @@ def _run_diagnosis(args, measurement, model, out: Path) -> None:
     from ._diagnose_report import sign_cautions, write_report
 
     result = diagnose(measurement, model, frequencies=tuple(args.frequencies),
-                      holdout=args.holdout, max_steps=args.max_steps,
+                      holdout=args.holdout, max_steps=args.max_steps, alpha=args.alpha,
                       input_interpolation=args.input_interpolation)
     write_report(result, out)
     before, after = result.before.metrics, result.after.metrics

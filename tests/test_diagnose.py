@@ -237,6 +237,7 @@ def test_cli_diagnose_writes_the_report(tmp_path):
 @pytest.mark.parametrize("args, expect", [
     (["--model", "missing.json"], "does not exist"),
     (["--model", "model.json", "--holdout", "0.9"], "holdout"),
+    (["--model", "model.json", "--alpha", "1.5"], "alpha"),
     (["--model", "model.json", "--frequency", "-3"], "positive"),
     (["--model", "other.json"], "differ from the data"),
 ])

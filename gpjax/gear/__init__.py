@@ -11,7 +11,8 @@ from ._stiffness import (KUANG_YANG_COEFFICIENTS, ContactPoints, GearPair, MeshG
                          contact_points, hertz_stiffness, iso6336_stiffness,
                          kuang_yang_coefficients, mesh_cycle_angles, mesh_stiffness,
                          pair_stiffness, stiffness_report, torsional_stiffness)
-from ._undeclared import (EFFECTS, NOISE_PHI, UndeclaredEffectCase,
+from ._undeclared import (EFFECTS, NEAREST, NOISE_LEVELS, NOISE_PHI, NOISE_TORQUE, OUTSIDE,
+                          REPORTING_SEEDS, TUNING_SEEDS, UndeclaredEffectCase,
                           undeclared_effect_case)
 from ._two_dof import (OneDofResponse, TwoDofGearPair, TwoDofResponse, mesh_stiffness_signal,
                        reduction_error, reduction_scenarios, simulate_one_dof,
@@ -27,5 +28,6 @@ __all__ = [
     "OneDofResponse", "TwoDofGearPair", "TwoDofResponse", "mesh_stiffness_signal",
     "reduction_error", "reduction_scenarios", "simulate_one_dof", "simulate_two_dof",
     "TwoDofRecord", "two_dof_record",
-    "EFFECTS", "NOISE_PHI", "UndeclaredEffectCase", "undeclared_effect_case",
+    "EFFECTS", "NEAREST", "NOISE_LEVELS", "NOISE_PHI", "NOISE_TORQUE", "OUTSIDE",
+    "REPORTING_SEEDS", "TUNING_SEEDS", "UndeclaredEffectCase", "undeclared_effect_case",
 ]

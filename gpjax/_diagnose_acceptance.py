@@ -1,0 +1,101 @@
+"""Diagnosis, step 5: accept an effect by a held-out predictive test at a stated level.
+
+Why this test. Every candidate and the current model are fitted on the estimation part of
+the record and predict the held-out rest, which no fit has seen; the question is whether
+the candidate predicts it better. That is the Diebold–Mariano (1995) comparison of two
+forecasts: the loss differential d_t = e_current,t² − e_candidate,t² over the held-out
+samples (or held-out weak-form windows), its mean tested against zero, one-sided. The
+residuals of a simulated response are strongly autocorrelated (a resonance rings for many
+samples), so d is cut into B contiguous batches of 2L + 1 samples or more, L being
+Andrews' (1991) AR(1) plug-in bandwidth L = ⌈1.1447·(α̂·n)^⅓⌉, α̂ = 4ρ²/((1 − ρ)²(1 + ρ)²),
+ρ the lag-1 autocorrelation of d: beyond L lags d's autocorrelation is negligible, so the
+batch means are nearly independent (batch means, Conway 1963), B kept within Schmeiser's
+(1982) 10 … 30 — a d correlated over the whole segment is a systematic difference, and two
+batches would leave a test no power (a stated, data-driven rule, no constant tuned to a
+sweep). The batch means are tested by Wilcoxon's one-sided signed-rank test: under the null
+the two residuals are exchangeable, so d and its batch means are symmetric about zero, and
+the rank test holds its level without assuming normal batch means — a gain concentrated in
+a few batches (a friction force that matters only where the stage reverses) gives heavy
+tails that leave a t test no power. A
+Newey–West variance with the same bandwidth referred to the normal rejects a true null ~9 %
+of the time at 5 % on 334 samples of an AR(1) with ρ = 0.9; the batch means hold the
+level (``tests/test_diagnose_statistics.py``). The m candidates tested in one round are
+Bonferroni-corrected (p·m), so a round adds a term that does not belong with probability at
+most ``alpha``: a correct model gains a spurious term with probability ≤ α, the stated
+false-discovery rate of the diagnosis. A candidate nests the current model, so under the
+null its extra coefficients fit noise on the estimation part and its held-out loss is, if
+anything, higher (Clark & McCracken 2001): the test is conservative there.
+
+A likelihood-ratio or F test on the estimation part was the alternative; it needs the
+residual's effective degrees of freedom, which a resonant, coloured residual makes hard to
+state, whereas the held-out comparison needs only the long-run variance of d.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import stats
+
+#: Least and most batches (Schmeiser 1982: 10 to 30; fewer leave the t test no power,
+#: more gain little).
+BATCHES = (10, 30)
+
+
+def long_run_variance(d: np.ndarray) -> tuple[float, int]:
+    """(Newey–West long-run variance of ``d``, its bandwidth L) with Andrews' AR(1)
+    plug-in bandwidth (module docstring)."""
+    n = d.size
+    centred = d - np.mean(d)
+    gamma0 = float(centred @ centred) / n
+    if n < 3 or gamma0 == 0.0:
+        return gamma0, 0
+    rho = float(np.clip(centred[1:] @ centred[:-1] / (n * gamma0), -0.99, 0.99))
+    alpha = 4 * rho ** 2 / ((1 - rho) ** 2 * (1 + rho) ** 2)
+    bandwidth = int(min(n - 1, math.ceil(1.1447 * (alpha * n) ** (1 / 3))))
+    variance = gamma0
+    for lag in range(1, bandwidth + 1):
+        weight = 1.0 - lag / (bandwidth + 1)
+        variance += 2 * weight * float(centred[lag:] @ centred[:-lag]) / n
+    return max(variance, 0.0), bandwidth
+
+
+def predictive_test(current: np.ndarray, candidate: np.ndarray) -> dict:
+    """Diebold–Mariano test that ``candidate``'s held-out residuals (same samples as
+    ``current``'s) have a lower mean square, by batch means and Wilcoxon's signed-rank
+    test: statistic, one-sided p-value, bandwidth L, batches B.
+    A candidate whose residual is not finite gets p = 1; a finite one against a current
+    model whose residual is not, p = 0."""
+    if candidate.shape != current.shape or not np.all(np.isfinite(candidate)):
+        return {"statistic": -math.inf, "p_value": 1.0, "bandwidth": 0, "batches": 0,
+                "n": int(current.size)}
+    if not np.all(np.isfinite(current)):  # the current model diverges, the candidate not
+        return {"statistic": math.inf, "p_value": 0.0, "bandwidth": 0, "batches": 0,
+                "n": int(current.size)}
+    d = current ** 2 - candidate ** 2
+    n = d.size
+    bandwidth = long_run_variance(d)[1]
+    batches = int(np.clip(n // (2 * bandwidth + 1), *BATCHES))
+    means = np.array([np.mean(b) for b in np.array_split(d, batches)]) if n >= 2 else d
+    if not np.any(means != 0):
+        return {"statistic": 0.0, "p_value": 1.0, "bandwidth": bandwidth,
+                "batches": int(means.size), "n": int(n)}
+    test = stats.wilcoxon(means, alternative="greater")
+    return {"statistic": float(test.statistic), "p_value": float(test.pvalue),
+            "bandwidth": bandwidth, "batches": int(means.size), "n": int(n)}
+
+
+def accepted(current: np.ndarray, candidates: list[np.ndarray], *, alpha: float
+             ) -> list[dict]:
+    """Per candidate, :func:`predictive_test` with its Bonferroni-adjusted p-value
+    (``p_adjusted`` = min(1, m·p), m = the candidates tested) and ``passed`` (p_adjusted <
+    ``alpha``)."""
+    m = max(len(candidates), 1)
+    results = []
+    for residual in candidates:
+        test = predictive_test(current, residual)
+        test["p_adjusted"] = min(1.0, m * test["p_value"])
+        test["passed"] = bool(test["p_adjusted"] < alpha)
+        results.append(test)
+    return results

@@ -1,0 +1,159 @@
+"""Diagnosis: the noise, estimated from the data — the response's noise floor, the
+measured inputs' lines and the band of a drifting response's rate.
+
+**Noise floor.** Measurement noise on the response is broadband; a model's response is
+not: the response holds 99 % of its AC energy below the band edge
+(:func:`gpjax._weak_form.smoothing_cutoff_hz`). Above it, the residual's periodogram is
+the noise's, so its median over those bins / ln 2 (the median of an exponential variable is
+ln 2 × its mean; the median ignores a stray line) is the noise's density, and
+σ̂ = √(density · bins / N) its standard deviation. Inside the band, under the hypothesis
+"the residual is that noise", the summed periodogram over K bins / density is Gamma(K)
+distributed: :func:`noise_floor` gives the p-value of the in-band excess.
+
+**Input lines.** A measured input (a torque) carries sensor noise, which a simulation of the
+model feeds through its dynamics: at a lightly damped resonance that noise rings and a
+damping term "improves" the held-out prediction of a correct model (an errors-in-variables
+false discovery). Where the input is a sum of lines (a periodic or multisine drive) the
+noise is removed: lines are fitted (frequency, amplitude, phase, by least squares — no
+leakage, unlike zeroing DFT bins of a record that is not a whole number of periods) while
+the strongest remaining periodogram peak exceeds the noise floor (median periodogram / ln 2)
+at level α with a Bonferroni bound over the 8× padded bins, P > density · ln(8·bins/α). The
+median is the noise's only while the lines hold a minority of the bins, so an input that needs lines
+in more than a quarter of them (a broadband input) is left as measured.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+from scipy import stats
+from scipy.optimize import minimize_scalar
+
+from ._data import Measurement
+from ._objective import SPECTRAL_ENERGY_FRACTION
+
+#: Most lines fitted to an input; one that needs more is broadband, left as measured.
+MAX_LINES = 48
+
+
+def _periodogram(values: np.ndarray) -> np.ndarray:
+    """|FFT|² of the mean-removed values over bins 1 … N/2 − 1 (no DC, no Nyquist)."""
+    spectrum = np.fft.rfft(values - np.mean(values))
+    return np.abs(spectrum[1: (values.size - 1) // 2 + 1]) ** 2
+
+
+def noise_floor(residual: np.ndarray, dt: float, band_hz: float) -> dict | None:
+    """The residual's noise floor (module docstring): ``sigma`` (residual units),
+    ``rms`` of the residual, ``ratio`` = rms/σ̂, ``band_hz``, ``p_excess`` (p-value of the
+    in-band power under white noise at σ̂), or ``None`` with fewer than 16 bins on either
+    side of the band or a non-finite residual."""
+    if not np.all(np.isfinite(residual)):
+        return None
+    power = _periodogram(residual)
+    frequency = np.arange(1, power.size + 1) / (residual.size * dt)
+    inside, outside = power[frequency <= band_hz], power[frequency > band_hz]
+    if inside.size < 16 or outside.size < 16:
+        return None
+    density = float(np.median(outside)) / math.log(2.0)
+    sigma = math.sqrt(density / residual.size)
+    rms = float(np.sqrt(np.mean((residual - np.mean(residual)) ** 2)))
+    p = float(stats.gamma.sf(np.sum(inside) / density, inside.size)) if density > 0 else 0.0
+    return {"sigma": sigma, "rms": rms, "ratio": rms / sigma if sigma > 0 else math.inf,
+            "band_hz": float(band_hz), "p_excess": p}
+
+
+def signal_band_hz(values: np.ndarray, dt: float, *, alpha: float = 0.05) -> float:
+    """The frequency (Hz) below which :data:`SPECTRAL_ENERGY_FRACTION` of the signal's AC
+    energy lies, the signal being the bins significantly above the noise floor (median of
+    the upper half of the bins / ln 2; level ``alpha``, Bonferroni over the bins): the band
+    of a rate (a differenced drifting position) whose white noise would otherwise spread
+    the band to the Nyquist frequency."""
+    power = _periodogram(values)
+    density = float(np.median(power[power.size // 2:])) / math.log(2.0)
+    significant = power > density * math.log(power.size / alpha)
+    excess = np.cumsum(np.where(significant, power, 0.0))
+    if excess[-1] <= 0:
+        return 0.5 / dt
+    count = int(np.searchsorted(excess / excess[-1], SPECTRAL_ENERGY_FRACTION)) + 1
+    return (count + 1) / (values.size * dt)
+
+
+def input_lines_only(measurement: Measurement, *, alpha: float
+                     ) -> tuple[Measurement, dict[str, dict]]:
+    """``measurement`` with each input replaced by its significant spectral lines (module
+    docstring), and per input what was done: the line frequencies (Hz), the noise ``sigma``
+    removed (input units), ``denoised`` (false for a broadband input, left as measured)."""
+    inputs, report = {}, {}
+    for name, values in measurement.inputs.items():
+        fitted, frequencies = lines(values, measurement.dt, alpha=alpha)
+        denoised = fitted is not None
+        inputs[name] = fitted if denoised else values
+        report[name] = {"denoised": denoised, "lines_hz": frequencies,
+                        "sigma": float(np.std(values - inputs[name]))}
+    return dataclasses.replace(measurement, inputs=inputs), report
+
+
+def lines(values: np.ndarray, dt: float, *, alpha: float
+           ) -> tuple[np.ndarray | None, list[float]]:
+    """(mean + significant sinusoids fitted by least squares, their frequencies in Hz),
+    found one at a time at the strongest peak of the remaining periodogram (8× zero-padded)
+    while that peak exceeds the noise floor at level ``alpha`` (Bonferroni over the 8×
+    padded bins, as the peak is sought on them);
+    each new frequency, and at the end each in turn, refined within a bin by least squares.
+    ``None`` where no line is significant, more than a quarter of the bins are, or more than
+    :data:`MAX_LINES` lines (or a quarter of the bins) would be needed (a broadband input)."""
+    n = values.size
+    bins = (n - 1) // 2
+    time, step = np.arange(n) * dt, 1.0 / (n * dt)  # step: one DFT bin, Hz
+
+    def columns(frequencies):
+        angles = 2 * np.pi * np.multiply.outer(time, np.asarray(frequencies, dtype=float))
+        return np.column_stack([np.ones(n), np.cos(angles), np.sin(angles)])
+
+    def fit(frequencies):
+        basis = columns(frequencies)
+        return basis @ np.linalg.lstsq(basis, values, rcond=None)[0]
+
+    def refine(frequencies, k):
+        """Line k's frequency by least squares, the others projected out once."""
+        q = np.linalg.qr(columns(frequencies[:k] + frequencies[k + 1:]))[0]
+        rest = values - q @ (q.T @ values)
+
+        def error(f):
+            pair = columns([f])[:, 1:]
+            pair = pair - q @ (q.T @ pair)
+            coefficients = np.linalg.lstsq(pair, rest, rcond=None)[0]
+            return float(np.sum((rest - pair @ coefficients) ** 2))
+        low = max(frequencies[k] - step, step / 8)
+        best = minimize_scalar(error, method="bounded", bounds=(low, frequencies[k] + step),
+                               options={"xatol": 1e-3 * step})
+        frequencies[k] = float(best.x)
+
+    power = _periodogram(values)
+    threshold = math.log(bins / alpha) / math.log(2.0)  # × the median periodogram
+    if np.count_nonzero(power > threshold * np.median(power)) > bins // 4:
+        return None, []  # broadband: more significant bins than lines may hold
+    frequencies: list[float] = []
+    fitted = np.full(n, np.mean(values))
+    while True:
+        remaining = values - fitted
+        if np.std(remaining) <= 1e-9 * np.std(values):  # exact lines: nothing left to find
+            break
+        density = float(np.median(_periodogram(remaining))) / math.log(2.0)
+        padded = np.abs(np.fft.rfft(remaining, n=8 * n)) ** 2
+        padded[:8] = 0.0  # DC and its leakage
+        peak = int(np.argmax(padded[: 8 * bins]))
+        if density <= 0 or padded[peak] <= density * math.log(8 * bins / alpha):
+            break
+        if len(frequencies) >= min(bins // 8, MAX_LINES):  # 2 columns per line
+            return None, []
+        frequencies.append(peak * step / 8)
+        refine(frequencies, len(frequencies) - 1)
+        fitted = fit(frequencies)
+    if not frequencies:
+        return None, []  # no line: not a sum of lines
+    for k in range(len(frequencies)):
+        refine(frequencies, k)
+    return fit(frequencies), frequencies

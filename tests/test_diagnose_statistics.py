@@ -1,0 +1,160 @@
+"""The diagnosis' statistics: the held-out predictive test holds its level on a coloured
+null and finds a real gain; the noise floor and the input's lines are estimated from the
+data; a residual's structure is described; the drifting stage, the held-out sweep."""
+
+import numpy as np
+import pytest
+from scipy.signal import lfilter
+
+from gpjax import Model, Symbols, diagnose
+from gpjax._data import Measurement
+from gpjax._diagnose_acceptance import accepted, long_run_variance, predictive_test
+from gpjax._diagnose_noise import input_lines_only, noise_floor, signal_band_hz
+from gpjax._diagnose_residual import describe_residual
+
+
+def _coloured(rng, n, rho=0.9):
+    return lfilter([1.0], [1.0, -rho], rng.standard_normal(n))
+
+
+def test_predictive_test_holds_its_level_on_a_coloured_null():
+    """Two forecasts with equal, strongly autocorrelated errors: rejections at 5 % in at
+    most ~8 % of 400 draws (binomial 99.9 % bound around 5 %), where a test that ignored
+    the autocorrelation would reject in ~25 %."""
+    rng = np.random.default_rng(0)
+    rejected = sum(predictive_test(_coloured(rng, 334), _coloured(rng, 334))["p_value"] < 0.05
+                   for _ in range(400))
+    assert rejected <= 32  # a Newey–West variance with the normal: 35
+
+
+def test_predictive_test_finds_a_real_gain_and_refuses_a_diverged_candidate():
+    rng = np.random.default_rng(1)
+    noise = _coloured(rng, 334)
+    current = noise + 3.0 * np.sin(np.arange(334) / 5.0)
+    assert predictive_test(current, noise)["p_value"] < 0.01
+    assert predictive_test(noise, current)["p_value"] > 0.5
+    assert predictive_test(current, np.full(334, np.inf))["p_value"] == 1.0
+    tests = accepted(current, [noise, current], alpha=0.05)
+    assert tests[0]["passed"] and not tests[1]["passed"]
+    assert tests[1]["p_adjusted"] == min(1.0, 2 * tests[1]["p_value"])
+
+
+def test_long_run_variance_of_an_ar1_series_is_near_its_theory():
+    rng = np.random.default_rng(2)
+    rho, n = 0.8, 20_000
+    series = _coloured(rng, n, rho)
+    variance, bandwidth = long_run_variance(series)
+    theory = 1.0 / (1 - rho) ** 2  # innovation variance 1
+    assert 0.8 * theory < variance < 1.2 * theory and bandwidth > 10
+
+
+def test_noise_floor_of_white_noise_under_a_band_limited_signal():
+    rng = np.random.default_rng(3)
+    dt, n = 1e-3, 4000
+    t = np.arange(n) * dt
+    signal = np.sin(2 * np.pi * 5 * t)
+    noise = 0.01 * rng.standard_normal(n)
+    floor = noise_floor(signal + noise, dt, 20.0)
+    assert floor["sigma"] == pytest.approx(0.01, rel=0.1)
+    assert floor["p_excess"] < 1e-6 and floor["ratio"] > 10
+    at_floor = noise_floor(noise, dt, 20.0)
+    assert at_floor["ratio"] == pytest.approx(1.0, abs=0.1) and at_floor["p_excess"] > 1e-3
+
+
+def test_input_lines_removes_sensor_noise_from_a_multisine_not_from_a_broadband_input():
+    rng = np.random.default_rng(4)
+    dt, n = 5e-5, 1334
+    t = np.arange(n) * dt
+    clean = 13 + 1.2 * np.cos(2 * np.pi * 285 * t) + 0.6 * np.cos(2 * np.pi * 15 * t + 0.3)
+    data = Measurement(time=t, response=rng.standard_normal(n), inputs={
+        "T": clean + 0.05 * rng.standard_normal(n),
+        "w": rng.standard_normal(n)}, time_name="t", response_name="phi")
+    cleaned, report = input_lines_only(data, alpha=0.05)
+    assert report["T"]["denoised"] and not report["w"]["denoised"]
+    assert np.std(cleaned.inputs["T"] - clean) < 0.2 * 0.05
+    assert np.array_equal(cleaned.inputs["w"], data.inputs["w"])
+    assert min(abs(f - 285) for f in report["T"]["lines_hz"]) < 0.5
+
+
+def test_signal_band_of_a_noisy_rate_ignores_the_white_noise():
+    rng = np.random.default_rng(5)
+    dt, n = 1e-3, 8000
+    t = np.arange(n) * dt
+    rate = np.sin(2 * np.pi * 3 * t) + 0.5 * np.sin(2 * np.pi * 7 * t)
+    band = signal_band_hz(rate + 0.3 * rng.standard_normal(n), dt)
+    assert 7 <= band < 15
+
+
+def test_describe_residual_names_a_rate_dependence_and_its_hysteresis():
+    rng = np.random.default_rng(6)
+    dt, n = 2e-3, 2000
+    t = np.arange(n) * dt
+    x = np.sin(2 * np.pi * 2 * t)
+    x_dot = 2 * np.pi * 2 * np.cos(2 * np.pi * 2 * t)
+    residual = np.tanh(x_dot / 0.5) + 0.1 * rng.standard_normal(n)
+    d = describe_residual(residual, x=x, x_dot=x_dot, dt=dt, input_lines=[2.0], alpha=0.05)
+    assert d["x_dot"]["p_value"] < 1e-6 and d["hysteresis"]["p_value"] < 1e-6
+    assert any("x'" in s for s in d["suggestions"])
+    assert d["lines"] and d["lines"][0]["relation"] == "input line"
+    assert any("3× the input line" in line["relation"] for line in d["lines"])
+    assert any("7× the input line" in line["relation"] for line in d["lines"])
+    noise = np.random.default_rng(60).standard_normal((8, n))  # 8 pure-noise residuals
+    described = [describe_residual(r, x=x, x_dot=x_dot, dt=dt, input_lines=[2.0], alpha=0.05)
+                 for r in noise]
+    assert sum(bool(p["suggestions"]) for p in described) <= 2  # ~5 % expected
+    assert sum(bool(p["lines"]) for p in described) <= 2
+
+
+# --- slow: the drifting stage, effects outside the library, the held-out sweep ----------
+@pytest.mark.slow
+def test_drifting_stage_measured_in_position_only_finds_friction_and_its_constants():
+    """gpjax.systems' stage (m 2, c 4, F 2, f0 0.5) in its PD loop, position read by a 1 µm
+    encoder only: the velocity-band equation error (stage at rest left out) finds the
+    friction and the offset, mass and viscous constants within 10 %."""
+    from gpjax.systems import generate
+
+    record = generate("stage", seed=0, noise=0.0, input_noise=0.0).fit
+    data = Measurement(time=record.time, response=record.response_measured[0],
+                       inputs={"u": record.input_measured}, time_name="t", response_name="x")
+    start = Model(symbols=Symbols("x", "t", ("u",)), mass=1.0, state={"x_dot": 1.0},
+                  forcing={"u": 1.0}, input_interpolation="hold")
+    result = diagnose(data, start)
+    assert result.mode == "equation_error"
+    assert result.effects_added[0] == "coulomb_friction", result.rankings[0][:3]
+    assert result.steps[0]["sign_as_meant"] is True
+    c = result.after.coefficients
+    assert c.mass == pytest.approx(2.0, rel=0.1)
+    assert c.state[Symbols("x", "t", ("u",)).x_dot] == pytest.approx(4.0, rel=0.1)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["two_harmonic_stiffness", "quadratic_damping"])
+def test_effect_outside_the_library_adds_only_its_nearest_or_says_none_fits(name):
+    from gpjax.gear import NEAREST, TUNING_SEEDS, undeclared_effect_case
+
+    case = undeclared_effect_case(name, seed=TUNING_SEEDS[4])
+    result = diagnose(case.measurement, case.start, frequencies=(285.0,))
+    assert set(result.effects_added) <= set(NEAREST[name]), result.effects_added
+    reached = result.after.metrics["rms"] <= 1.5 * case.truth_rms(result.measurement)
+    assert reached or result.unexplained is not None
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("torque_noise", [1.0, 4.0, 10.0])
+@pytest.mark.parametrize("name", ["control", "cubic_stiffness"])
+def test_held_out_sweep_subset(name, torque_noise):
+    """CI's subset of ``benchmarks/diagnose_sweep.py``: two reporting seeds (never used in
+    tuning) at 1×, 4× and 10× the bundled torque noise; a control adds nothing, cubic
+    stiffness (named second by the old rule at 4×) is named first and reaches 1.5× the true
+    model's RMS."""
+    from gpjax.gear import REPORTING_SEEDS, undeclared_effect_case
+
+    for seed in REPORTING_SEEDS[:2]:
+        case = undeclared_effect_case(name, seed=seed, torque_noise=torque_noise)
+        result = diagnose(case.measurement, case.start, frequencies=(285.0,))
+        if name == "control":
+            assert result.effects_added == [], (seed, result.steps)
+        else:
+            assert result.effects_added[:1] == [name], (seed, result.rankings[0][:3])
+            truth = case.truth_rms(result.measurement)
+            assert result.after.metrics["rms"] <= 1.5 * truth, (seed, truth)
