@@ -144,6 +144,15 @@ class Measurement:
             inputs={k: v[start:stop] for k, v in self.inputs.items()},
             time_name=self.time_name, response_names=self.response_names)
 
+    def with_inputs(self, inputs: dict[str, np.ndarray]) -> "Measurement":
+        """This measurement with other input samples (name -> (N,)), validated as any.
+
+        Raises:
+            DataError: as the constructor does.
+        """
+        return Measurement(time=self.time, responses=self.responses, inputs=inputs,
+                           time_name=self.time_name, response_names=self.response_names)
+
     def to_csv(self, path: str | Path) -> None:
         """Write the columns as CSV with a header (time, responses, inputs)."""
         columns = [self.time, *self.responses.T, *self.inputs.values()]

@@ -24,7 +24,6 @@ in more than a quarter of them (a broadband input) is left as measured.
 
 from __future__ import annotations
 
-import dataclasses
 import math
 
 import numpy as np
@@ -92,7 +91,7 @@ def input_lines_only(measurement: Measurement, *, alpha: float
         inputs[name] = fitted if denoised else values
         report[name] = {"denoised": denoised, "lines_hz": frequencies,
                         "sigma": float(np.std(values - inputs[name]))}
-    return dataclasses.replace(measurement, inputs=inputs), report
+    return measurement.with_inputs(inputs), report
 
 
 def lines(values: np.ndarray, dt: float, *, alpha: float
