@@ -12,9 +12,9 @@ of the model against the data. Otherwise the step count grows and the model is r
   power lies must satisfy ω·h ≤ :data:`STEP_PHASE` (ω = 2π·f_max, h = Δt / substeps),
   where RK4's relative local error, ~(ωh)⁵/120, is 3e-4.
 * **Window**: records longer than :data:`CHECK_SAMPLES` are checked on their first
-  :data:`CHECK_SAMPLES` samples: the reference solve costs ~50 µs a sample on 2 cores
-  (linear: 5 s at 10⁵, 22 s at 4·10⁵), and the ODE a model names is the same on any
-  stretch of the record.
+  :data:`CHECK_SAMPLES` samples: the reference solve costs ~50–80 µs a sample on 2
+  cores (linear in the samples), and the ODE a model names is the same on any stretch of
+  the record.
 * **Growth** (:func:`next_substeps`): RK4's global error falls as h⁴, so a measured
   ratio r at s substeps needs s·(r / (tolerance/2))^(1/4) — half the tolerance as margin.
 """
