@@ -100,29 +100,25 @@ class Program:
                                       for x in leaves))
         executable = self._executables.get(signature)
         if executable is None:
-            executable = self._executables[signature] = self._executable(args, leaves,
+            executable = self._executables[signature] = self._executable(tree, leaves,
                                                                         signature)
         return executable(*leaves)
 
-    def _executable(self, args, leaves, signature) -> Callable:
-        tree = jax.tree_util.tree_structure(args)
-
+    def _executable(self, tree, leaves, signature) -> Callable:
         def flat(*values):
             return tuple(jax.tree_util.tree_leaves(
                 self._fn(*jax.tree_util.tree_unflatten(tree, values))))
 
         folder = cache_folder()
-        path = None
-        if folder is not None:
-            name = fingerprint(self._name, self._key, signature, jax.__version__,
-                               jaxlib.__version__, [(d.platform, d.device_kind)
-                                                    for d in jax.devices()], source_digest())
-            path = folder / PROGRAMS / f"{self._name}-{name[:32]}.bin"
-            loaded = _load(path, len(leaves))
-            if loaded is not None:
-                return loaded
-        if path is None:
+        if folder is None:
             return jax.jit(flat).lower(*leaves).compile()
+        name = fingerprint(self._name, self._key, signature, jax.__version__,
+                           jaxlib.__version__, [(d.platform, d.device_kind)
+                                                for d in jax.devices()], source_digest())
+        path = folder / PROGRAMS / f"{self._name}-{name[:32]}.bin"
+        loaded = _load(path, len(leaves))
+        if loaded is not None:
+            return loaded
         # Compiled by XLA itself: an executable loaded from JAX's own cache in this
         # process serialises without the code of its kernels.
         compiled = _compile_bypassing_persistent_cache(
