@@ -118,7 +118,7 @@ class Refiner:
             responses, axis=0), axis=0) / evaluator.measurement.dt], axis=1).ravel() + 1e-300
         if evaluator.n_coordinates == 1:  # a number: the one-coordinate program as before
             self._noise_scale = float(self._noise_scale[0])
-        self._run = Program(jax.vmap(self._refine_one, in_axes=(0, 0, 0, None)), name="refine",
+        self._run = Program(jax.vmap(self._refine_one, in_axes=(0, 0, None)), name="refine",
                             key=fingerprint(evaluator.key, iterations, self.horizon_samples,
                                             self.batch, max_free, jacobian))
         self._compiled: set[tuple[int, int]] = set()
@@ -134,7 +134,8 @@ class Refiner:
         the next even number, at most ``max_free`` (one compile per width used)."""
         return min(self.max_free, free + free % 2)
 
-    def refine(self, population: Population, fixed_forcing: np.ndarray) -> Refinement:
+    def refine(self, population: Population, fixed_forcing: np.ndarray,
+               ties=None) -> Refinement:
         """Refine every model of ``population``; coefficients that are 0 stay 0.
 
         Args:
@@ -142,12 +143,20 @@ class Refiner:
             fixed_forcing: (P,) column of each model's forcing coefficient held at 1 (the
                 first input), or −1 where the mass is the normalised constant instead; for
                 a system of D equations (P, D), one per equation (each equation's scale is
-                free on its own).
+                free on its own), −2 where nothing of that equation is held.
+            ties: per model, (equation, column, equation, column, sign) state coefficients
+                that move together, the second by ``sign`` × the first's step (Newton's
+                third law, :mod:`gpjax._system_couplings`; the start must obey them);
+                ``None``: none.
         """
         ev = self.evaluator
         plain = ev.plain_rows(population)
+        if ties is not None and not any(ties):
+            ties = None
         if plain.all() or not plain.any():
-            return self._refine(population, fixed_forcing, bool(plain[0]))
+            return self._refine(population, fixed_forcing, bool(plain[0]), ties)
+        if ties is not None:
+            raise ValueError("tied coefficients are for systems, which use no family")
         rows = [np.flatnonzero(plain), np.flatnonzero(~plain)]
         parts = [self._refine(population.rows(r), np.asarray(fixed_forcing)[r],
                               bool(plain[r[0]])) for r in rows]
@@ -158,7 +167,7 @@ class Refiner:
                           steps=np.concatenate([p.steps for p in parts])[back])
 
     def _refine(self, population: Population, fixed_forcing: np.ndarray,
-                plain: bool) -> Refinement:
+                plain: bool, ties=None) -> Refinement:
         """:meth:`refine` of models that all use no family (``plain``: on the evaluator's
         :attr:`~PopulationEvaluator.plain_layout`) or all on its full layout."""
         ev = self.evaluator
@@ -173,8 +182,15 @@ class Refiner:
         fixed = np.asarray(fixed_forcing).reshape(count, -1)
         for i, row in enumerate(fixed):
             for e, column in enumerate(row):
-                free[i, layout.forcing_column(column, e) if column >= 0 else
-                     layout.mass_column(e)] = False
+                if column >= -1:
+                    free[i, layout.forcing_column(column, e) if column >= 0 else
+                         layout.mass_column(e)] = False
+        follows = np.zeros(start.shape, dtype=np.int64)  # tied column -> its source + 1
+        for i, model in enumerate(ties or []):
+            for ea, ca, eb, cb, sign in model:
+                b = layout.state_column(cb, eb)
+                free[i, b] = False
+                follows[i, b] = (layout.state_column(ca, ea) + 1) * (1 if sign > 0 else -1)
         for column, slots in ([] if plain else ev.inner_columns()):  # θ move where used
             used = population.state[:, column] != 0
             free[:, [layout.inner_column(k) for k in range(slots.start, slots.stop)]] = \
@@ -188,11 +204,18 @@ class Refiner:
             columns = np.flatnonzero(row)[:width]
             index[i, : columns.size] = columns
             index_scale[i, : columns.size] = scale[i, columns]
+        moves = [index, index_scale]
+        if ties is not None:  # the tied column of each free one (0 with sign 0: none)
+            mirror, mirror_sign = np.zeros((count, width), dtype=np.int32), np.zeros((count, width))
+            for i, b in zip(*np.nonzero(follows)):
+                j = np.flatnonzero(index[i] == abs(follows[i, b]) - 1)
+                mirror[i, j], mirror_sign[i, j] = b, np.sign(follows[i, b])
+            moves += [mirror, mirror_sign]
         outputs = []
         basis = jnp.asarray(ev.forcing_basis)
-        for size, chunk in padded_chunks((start, index, index_scale), self.batch):
+        for size, chunk in padded_chunks((start, *moves), self.batch):
             began = time.perf_counter()
-            out = jax.block_until_ready(self._run(*map(jnp.asarray, chunk), basis))
+            out = jax.block_until_ready(self._run(chunk[0], tuple(chunk[1:]), basis))
             if (layout.width, width) not in self._compiled:  # a first call includes its compile
                 self._compiled.add((layout.width, width))
                 self.compile_seconds += time.perf_counter() - began
@@ -205,7 +228,7 @@ class Refiner:
                 refined.forcing, refined.y0, population.inner)
         return Refinement(population=refined, succeeded=ok.astype(bool), steps=steps)
 
-    def _refine_one(self, start, index, index_scale, forcing_basis):
+    def _refine_one(self, start, moves, forcing_basis):
         ev = self.evaluator
         measured = jnp.asarray(ev.measurement.responses if ev.n_coordinates > 1 else
                                ev.measurement.response)
@@ -213,13 +236,13 @@ class Refiner:
         # through a while loop (diffrax) cannot be transposed, so that path keeps QR.
         linear_solver = LINEAR_SOLVER if self.jacobian == "variational" else lx.QR()
         solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-9, linear_solver=linear_solver)
-        delta = jnp.zeros(index.shape)
+        delta = jnp.zeros(moves[0].shape)
         ok, steps = jnp.array(True), jnp.array(0)
         for samples in self.horizon_samples:
             response = self._response(samples)
 
             def residuals(d, _, samples=samples, response=response):
-                x = response(d, start, index, index_scale, forcing_basis)
+                x = response(d, start, moves, forcing_basis)
                 return (x - measured[:samples]) / self._noise_scale
 
             solution = optx.least_squares(residuals, solver, delta, max_steps=self.iterations,
@@ -229,7 +252,7 @@ class Refiner:
             ok = ok & finite & ((solution.result == optx.RESULTS.successful) | (
                 solution.result == optx.RESULTS.nonlinear_max_steps_reached))
             steps = steps + solution.stats["num_steps"]
-        return _moved(start, index, index_scale, delta), ok, steps
+        return _moved(start, moves, delta), ok, steps
 
     def _response(self, samples: int):
         """x over the first ``samples`` samples as a function of the scaled step ``delta``
@@ -243,14 +266,14 @@ class Refiner:
         ev = self.evaluator
         n_stage = ev.stage_rows(samples)
         if self.jacobian == "autodiff":
-            def plain(delta, start, index, index_scale, forcing_basis):
-                constants = _moved(start, index, index_scale, delta)
+            def plain(delta, start, moves, forcing_basis):
+                constants = _moved(start, moves, delta)
                 return ev.integrate(*ev.unpack(constants, forcing_basis))[:samples, ..., 0]
             return plain
 
         @jax.custom_jvp
-        def response(delta, start, index, index_scale, forcing_basis):
-            constants = _moved(start, index, index_scale, delta)
+        def response(delta, start, moves, forcing_basis):
+            constants = _moved(start, moves, delta)
             return ev.scan_solve(*ev.unpack(constants, forcing_basis[:n_stage]))[..., 0]
 
         @jax.custom_batching.custom_vmap
@@ -272,10 +295,16 @@ class Refiner:
 
         @response.defjvp
         def response_jvp(primals, tangents):
-            delta, start, index, index_scale, forcing_basis = primals
-            # Row j of the directions: constant index[j] moved by index_scale[j].
-            directions = (index[:, None] == jnp.arange(start.size)[None, :]) * index_scale[:, None]
-            x, jacobian = augmented(_moved(start, index, index_scale, delta), directions,
+            delta, start, moves, forcing_basis = primals
+            # Row j of the directions: constant index[j] moved by index_scale[j] (and its
+            # tied one by ±index_scale[j]).
+            columns = jnp.arange(start.size)[None, :]
+            index, index_scale = moves[:2]
+            directions = (index[:, None] == columns) * index_scale[:, None]
+            if len(moves) > 2:
+                directions = directions + (moves[2][:, None] == columns) * (
+                    moves[3] * index_scale)[:, None]
+            x, jacobian = augmented(_moved(start, moves, delta), directions,
                                     forcing_basis)
             return x, jacobian @ tangents[0]
 
@@ -297,7 +326,13 @@ def _split_over(devices, fn, count, x_rank: int = 2):
                          check_vma=False)
 
 
-def _moved(start, index, index_scale, delta):
+def _moved(start, moves, delta):
     """The flat constant vector ``start`` with constant ``index[j]`` moved by
-    ``index_scale[j]·delta[j]`` (the solver's scaled step)."""
-    return start.at[index].add(index_scale * delta)
+    ``index_scale[j]·delta[j]`` (the solver's scaled step), ``moves`` = (index,
+    index_scale[, mirror, mirror_sign]): with a tied ``mirror[j]`` moved by
+    ``mirror_sign[j]`` × as much (sign 0: none)."""
+    index, index_scale = moves[:2]
+    moved = start.at[index].add(index_scale * delta)
+    if len(moves) > 2:
+        moved = moved.at[moves[2]].add(moves[3] * index_scale * delta)
+    return moved

@@ -32,6 +32,7 @@ from ._data import Measurement
 from ._evaluator import PopulationEvaluator, Scores
 from ._reference import ReferenceSolver, reference_system_response
 from ._refine import Refiner
+from ._system_couplings import couple, coupled_least_squares, fixed_columns, tie_columns
 from ._weak_form import WeakForm, smoothed_derivatives
 
 #: Per equation: (state features, forcing features with their fixed coefficient or None).
@@ -49,6 +50,8 @@ class SystemModel:
         input_interpolation: the inputs between samples.
         substeps: RK4 steps per sample interval the constants were fitted with.
         max_degree: the evaluator basis' highest power.
+        third_law: each coupling force acts on both of its coordinates with opposite
+            signs, its constants tied (:mod:`gpjax._system_couplings`).
     """
 
     coordinates: tuple[str, ...]
@@ -58,6 +61,7 @@ class SystemModel:
     input_interpolation: str = "linear"
     substeps: int = 1
     max_degree: int = 3
+    third_law: bool = False
 
     @property
     def initial_conditions(self) -> tuple[tuple[float, float], ...]:
@@ -72,6 +76,27 @@ class SystemModel:
             rhs = sum((sp.Float(v) * f for f, v in e.forcing.items()), sp.Integer(0))
             out.append(sp.Eq(lhs, rhs))
         return out
+
+    def couplings(self) -> dict[tuple[int, int], sp.Expr]:
+        """With ``third_law``, the coupling force F_ij of every coupled pair i < j (0-based
+        equation numbers) with numbers: +F_ij in equation i, −F_ij in equation j."""
+        if not self.third_law:
+            return {}
+        out: dict[tuple[int, int], sp.Expr] = {}
+        for tie in self.ties():
+            (i, feature), (j, _) = tie.source, tie.mirror
+            key = (min(i, j), max(i, j))
+            term = sp.Float(self.equations[i].state[feature]) * feature * (1 if i < j else -1)
+            out[key] = out.get(key, sp.Integer(0)) + term
+        return out
+
+    def ties(self) -> tuple:
+        """The :class:`gpjax._system_couplings.Tie` of every coupling term (none without
+        ``third_law``)."""
+        if not self.third_law:
+            return ()
+        structure = tuple((tuple(e.state), e.forcing) for e in self.equations)
+        return couple(structure, self.coordinates)[1]
 
     def latex(self) -> list[str]:
         """The equations in LaTeX, derivatives as dots."""
@@ -107,10 +132,13 @@ class SystemModel:
             scale=np.stack([spread, rate], axis=1), solver=ReferenceSolver())[0]
 
 
-def weak_form_start(measurement: Measurement, structure: Structure) -> list[Coefficients]:
+def weak_form_start(measurement: Measurement, structure: Structure,
+                    ties=()) -> list[Coefficients]:
     """Per equation, constants by weak-form equation-error least squares
-    (:class:`SystemWeakForm`)."""
+    (:class:`SystemWeakForm`); with ``ties`` (Newton's third law) all equations at once."""
     weak = SystemWeakForm(measurement)
+    if ties:
+        return coupled_least_squares(weak, structure, ties)
     return [weak.equation(d, state, forcing) for d, (state, forcing) in enumerate(structure)]
 
 
@@ -145,6 +173,18 @@ class SystemWeakForm:
             self._columns[key] = self._weak[equation]._integrate(
                 np.broadcast_to(numbers, self.measurement.time.shape), 0)
         return self._columns[key]
+
+    def rows(self, d: int) -> int:
+        """Test-function windows of equation ``d``."""
+        return self._weak[d].centres.size
+
+    def acceleration(self, d: int) -> np.ndarray:
+        """∫ψ''·x_d per window (the inertia column)."""
+        return self._weak[d].acceleration()
+
+    def initial_state(self, d: int) -> tuple[float, float]:
+        """(x_d, x_d') at the first sample, from the smoothed record."""
+        return self._states[d]
 
     def residual(self, d: int, state, forcing) -> float:
         """Relative weak-form equation error of equation ``d`` with ``state`` and
@@ -208,22 +248,28 @@ class SystemFit:
 def fit_system(measurement: Measurement, structure: Structure, *, max_degree: int = 3,
                input_interpolation: str = "linear", iterations: int = 30,
                start: list[Coefficients] | None = None, tolerance: float = 0.01,
-               substeps: int | None = None) -> SystemFit:
+               substeps: int | None = None, third_law: bool = False) -> SystemFit:
     """Constants and initial states of a system ``structure`` on ``measurement``
     (module docstring): weak-form start (or ``start``), Levenberg–Marquardt on all
     coordinates at once, repeated at a finer step until the RK4 and reference responses
     differ by less than ``tolerance`` of the RMS residual (``substeps`` given: that step
-    count, checked once).
+    count, checked once). ``third_law``: every coupling feature (a power of x_i − x_j or
+    x_i' − x_j') is one force acting on both coordinates, its mirror added to equation j
+    and its constants tied (:mod:`gpjax._system_couplings`; then only one forcing value or
+    mass per coupled group is held).
 
     Raises:
         ValueError: a feature outside an equation's basis (raise ``max_degree``).
     """
-    start = start or weak_form_start(measurement, structure)
+    ties = ()
+    if third_law:
+        structure, ties = couple(structure, measurement.response_names)
+    start = start or weak_form_start(measurement, structure, ties)
     steps = substeps or initial_substeps(measurement)
     checks = []
     while True:
         model, scores = _refit(measurement, structure, start, steps, max_degree,
-                               input_interpolation, iterations)
+                               input_interpolation, iterations, ties)
         check, _ = check_model(model, measurement, tolerance=tolerance)
         checks.append(check)
         if substeps or check.converged or steps >= 64:
@@ -231,18 +277,18 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
         start, steps = list(model.equations), next_substeps(check)
 
 
-def _refit(measurement, structure, start, steps, max_degree, interpolation, iterations):
+def _refit(measurement, structure, start, steps, max_degree, interpolation, iterations, ties):
     model = SystemModel(measurement.response_names, measurement.time_name,
-                        measurement.input_names, tuple(start), interpolation, steps, max_degree)
+                        measurement.input_names, tuple(start), interpolation, steps, max_degree,
+                        third_law=bool(ties))
     evaluator = model.evaluator(measurement)
     population = to_system_population([start], evaluator)
-    fixed = np.array([[next((evaluator.forcing_index(f) for f, v in forcing.items()
-                             if v is not None), -1) for _, forcing in structure]])
+    fixed = np.array([fixed_columns(structure, ties, evaluator.forcing_index)])
     if not np.all(np.isfinite(evaluator.layout.pack(population))):
         raise ValueError("the least-squares start of the system is not finite")
     free = sum(1 + len(s) + len(f) + 2 for s, f in structure)
     refiner = Refiner(evaluator, iterations=iterations, max_free=free + free % 2, batch=1)
-    refined = refiner.refine(population, fixed).population
+    refined = refiner.refine(population, fixed, [tie_columns(ties, evaluator)]).population
     equations = from_system_population(refined, evaluator, [start])[0]
     model = dataclasses.replace(model, equations=tuple(equations))
     scores = evaluator.score(to_system_population([equations], evaluator))
