@@ -120,18 +120,22 @@ def gear(seed: int = 0) -> dict:
     t = record.truth
     args = (t["r1"], t["r2"], t["J1"], t["J2"], t["k_m"], t["c_m"])
     out = {"angles": _gear_angles(record.measurement, *args),
-           "line_of_action": _gear_line(record.line_of_action(), *args)}
-    print("gear, line of action, structure searched by the system GP (population 60, "
-          "2 generations):")
-    began = time.perf_counter()
-    settings = SystemSearch(population=60, generations=2, input_interpolation="bandlimited")
-    result = search_system(record.line_of_action(), settings=settings, seed=seed)
-    out["line_of_action_search"] = _line_constants(result.fit, time.perf_counter() - began,
-                                                   *args)
-    out["line_of_action_search"]["structure"] = [
-        {"state": sorted(map(str, e.state)), "forcing": sorted(map(str, e.forcing))}
-        for e in result.model.equations]
-    print("  structure: " + "; ".join(str(e) for e in result.model.sympy()))
+           "line_of_action": _gear_line(record.line_of_action(), *args),
+           "line_of_action_third_law": _gear_line(record.line_of_action(), *args,
+                                                  third_law=True)}
+    for third_law in (False, True):
+        print("gear, line of action, structure searched by the system GP (population 60, "
+              f"2 generations{', third law' if third_law else ''}):")
+        began = time.perf_counter()
+        settings = SystemSearch(population=60, generations=2, input_interpolation="bandlimited",
+                                third_law=third_law)
+        result = search_system(record.line_of_action(), settings=settings, seed=seed)
+        row = _line_constants(result.fit, time.perf_counter() - began, *args)
+        row["structure"] = [{"state": sorted(map(str, e.state)),
+                             "forcing": sorted(map(str, e.forcing))}
+                            for e in result.model.equations]
+        out["line_of_action_search" + ("_third_law" if third_law else "")] = row
+        print("  structure: " + "; ".join(str(e) for e in result.model.sympy()))
     out["truth"] = t
     return out
 
@@ -174,26 +178,33 @@ def _gear_angles(measurement, r1, r2, j1, j2, k_m, c_m):
     return _report(fit, found, truth, seconds)
 
 
-def _gear_line(measurement, r1, r2, j1, j2, k_m, c_m):
+def _gear_line(measurement, r1, r2, j1, j2, k_m, c_m, *, third_law: bool = False):
     """The line-of-action displacements s1 = r1·Θ1, s2 = r2·Θ2
-    (:meth:`gpjax.gear.TwoDofRecord.line_of_action`), structure given."""
-    print("gear, line-of-action displacements r1·Θ1, r2·Θ2, structure given:")
+    (:meth:`gpjax.gear.TwoDofRecord.line_of_action`), structure given; with
+    ``third_law`` the mesh force is given once (in eq. 21) and T2's coefficient is free."""
+    print("gear, line-of-action displacements r1·Θ1, r2·Θ2, structure given"
+          f"{', third law' if third_law else ''}:")
     x1, x2, v1, v2 = sp.symbols("s1 s2 s1_dot s2_dot")
     T1, T2 = sp.symbols("T1 T2")
-    structure = (((v1 - v2, x1 - x2), {T1: 1.0}), ((v2 - v1, x2 - x1), {T2: -1.0}))
+    structure = ((((v1 - v2, x1 - x2), {T1: 1.0}), ((), {T2: None})) if third_law else
+                 (((v1 - v2, x1 - x2), {T1: 1.0}), ((v2 - v1, x2 - x1), {T2: -1.0})))
     began = time.perf_counter()
-    fit = fit_system(measurement, structure, input_interpolation="bandlimited")
+    fit = fit_system(measurement, structure, input_interpolation="bandlimited",
+                     third_law=third_law)
     return _line_constants(fit, time.perf_counter() - began, r1, r2, j1, j2, k_m, c_m)
 
 
 def _line_constants(fit, seconds, r1, r2, j1, j2, k_m, c_m):
+    """Eq. 22 is (J2/r2)·s2'' + r2·k_m·(s2 − s1) + … = −T2 times its scale λ = |g_T2|
+    (1 where T2's coefficient is held at −1; r1/r2 with the third law)."""
     x1, x2, v1, v2 = sp.symbols("s1 s2 s1_dot s2_dot")
     first, second = fit.model.equations
-    found = {"J1": first.mass * r1, "J2": second.mass * r2,
+    scale = abs(second.forcing.get(sp.Symbol("T2"), -1.0)) or 1.0
+    found = {"J1": first.mass * r1, "J2": second.mass * r2 / scale,
              "k_m (eq. 21)": first.state.get(x1 - x2, 0.0) / r1,
-             "k_m (eq. 22)": second.state.get(x2 - x1, 0.0) / r2,
+             "k_m (eq. 22)": second.state.get(x2 - x1, 0.0) / (r2 * scale),
              "c_m (eq. 21)": first.state.get(v1 - v2, 0.0) / r1,
-             "c_m (eq. 22)": second.state.get(v2 - v1, 0.0) / r2}
+             "c_m (eq. 22)": second.state.get(v2 - v1, 0.0) / (r2 * scale)}
     truth = {"J1": j1, "J2": j2, "k_m (eq. 21)": k_m, "k_m (eq. 22)": k_m,
              "c_m (eq. 21)": c_m, "c_m (eq. 22)": c_m}
     return _report(fit, found, truth, seconds)

@@ -139,6 +139,37 @@ def coupled_least_squares(weak, structure, ties) -> list:
     count = len(structure)
     mirrors = {t.mirror: (t.source, t.sign) for t in ties}
     held = fixed_columns(structure, ties, lambda f: 0)
+    value, _ = _solve(weak, structure, mirrors, held)
+    signs = np.ones(count)
+    for group in components(count, ties):
+        e = next((e for e in group if held[e] >= 0), None)
+        if e is not None and value.get(("mass", e), 1.0) < 0:
+            signs[group] = -1.0
+    out = []
+    for e, (state, forcing) in enumerate(structure):
+        s = signs[e]
+        coefficient = {f: s * sign * value[("state",) + source] for f in state
+                       for source, sign in [mirrors.get((e, f), ((e, f), 1.0))]}
+        out.append(Coefficients(
+            mass=s * value.get(("mass", e), 1.0), state=coefficient,
+            forcing={f: s * (v if v is not None else value[("forcing", e, f)])
+                     for f, v in forcing.items()},
+            y0=weak.initial_state(e)))
+    return out
+
+
+def coupled_residual(weak, key, names) -> float:
+    """Relative weak-form equation error of the GP structure ``key`` (per equation: state
+    features, forcing features) with the third law (mirrors added, constants tied, every
+    forcing coefficient free, each component's first mass 1): the local search's measure
+    of a change to one equation, which moves the others' fit through the shared terms."""
+    structure, ties = couple(tuple((s, {f: None for f in g}) for s, g in key), names)
+    held = fixed_columns(structure, ties, lambda f: 0)
+    return _solve(weak, structure, {t.mirror: (t.source, t.sign) for t in ties}, held)[1]
+
+
+def _solve(weak, structure, mirrors, held):
+    """(parameter -> value, relative residual) of the stacked weak-form equations."""
     parameters: dict[tuple, int] = {}
     blocks, targets = [], []
     for e, (state, forcing) in enumerate(structure):
@@ -170,21 +201,10 @@ def coupled_least_squares(weak, structure, ties) -> list:
         start += target.size
     norm = np.linalg.norm(matrix, axis=0)
     norm[norm == 0] = 1.0
-    solution = np.linalg.lstsq(matrix / norm, np.concatenate(targets), rcond=None)[0] / norm
-    value = {key: float(solution[k]) for key, k in parameters.items()}
-    signs = np.ones(count)
-    for group in components(count, ties):
-        e = next((e for e in group if held[e] >= 0), None)
-        if e is not None and value.get(("mass", e), 1.0) < 0:
-            signs[group] = -1.0
-    out = []
-    for e, (state, forcing) in enumerate(structure):
-        s = signs[e]
-        coefficient = {f: s * sign * value[("state",) + source] for f in state
-                       for source, sign in [mirrors.get((e, f), ((e, f), 1.0))]}
-        out.append(Coefficients(
-            mass=s * value.get(("mass", e), 1.0), state=coefficient,
-            forcing={f: s * (v if v is not None else value[("forcing", e, f)])
-                     for f, v in forcing.items()},
-            y0=weak.initial_state(e)))
-    return out
+    target = np.concatenate(targets)
+    if not parameters:
+        return {}, 1.0
+    solution = np.linalg.lstsq(matrix / norm, target, rcond=None)[0]
+    residual = np.linalg.norm(target - matrix / norm @ solution) / max(
+        np.linalg.norm(target), 1e-300)
+    return {key: float(solution[k] / norm[k]) for key, k in parameters.items()}, float(residual)

@@ -47,6 +47,8 @@ from ._data import Measurement
 from ._evaluator import PopulationEvaluator
 from ._operators import Grammar, crossover, initial_population, mutation, perturbation
 from ._refine import Refiner
+from ._system_couplings import (couple, coupled_least_squares, coupled_residual,
+                                fixed_columns, normalisation, tie_columns)
 from ._system_fit import SystemFit, SystemWeakForm, fit_system
 
 PENALTY = 1e12
@@ -71,6 +73,7 @@ class SystemSearch:
     local_steps: int = 4
     selection_tolerance: float = 0.05
     input_interpolation: str = "linear"
+    third_law: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -88,9 +91,9 @@ class SearchResult:
 class _Equations:
     """Terminals, tree reading and structure rules of every equation of one measurement."""
 
-    def __init__(self, measurement: Measurement, max_degree: int):
+    def __init__(self, measurement: Measurement, max_degree: int, third_law: bool = False):
         names = measurement.response_names
-        self.names, self.max_degree = names, max_degree
+        self.names, self.max_degree, self.third_law = names, max_degree, third_law
         self.inputs = tuple(sp.Symbol(u) for u in measurement.input_names)
         self.t = sp.Symbol(measurement.time_name)
         self.tables, self.meaning = [], []
@@ -98,8 +101,8 @@ class _Equations:
             x, v, a = sp.symbols(f"{name} {name}_dot {name}_ddot")
             table = {f"{name}": x, f"{name}_dot": v, f"{name}_ddot": a}
             meaning = {x: x, v: v}
-            for j, other in enumerate(names):
-                if j != i:
+            for j, other in enumerate(names):  # third law: a coupling lives in equation min(i, j)
+                if j > i or (j < i and not third_law):
                     d, dv = sp.symbols(f"d_{name}_{other} d_{name}_{other}_dot")
                     table[str(d)], table[str(dv)] = d, dv
                     meaning[d] = x - sp.Symbol(other)
@@ -200,7 +203,7 @@ def search_system(measurement: Measurement, *, settings: SystemSearch = SystemSe
         ValueError: no valid system was found.
     """
     rng = np.random.default_rng(seed)
-    equations = _Equations(measurement, settings.max_degree)
+    equations = _Equations(measurement, settings.max_degree, settings.third_law)
     count = len(equations.names)
     grammars = [equations.grammar(i, settings) for i in range(count)]
     evaluator = PopulationEvaluator(
@@ -230,11 +233,10 @@ def search_system(measurement: Measurement, *, settings: SystemSearch = SystemSe
     if best is None:
         raise ValueError("no valid system was found; widen the search")
     best = _simplest(best, scorer, settings.selection_tolerance)
-    structure = tuple((state, {f: (1.0 if f == _normaliser(forcing, equations) else None)
-                               for f in forcing}) for state, forcing in best)
     start = scorer.coefficients(best)
-    fit = fit_system(measurement, structure, max_degree=settings.max_degree,
-                     input_interpolation=settings.input_interpolation, start=start)
+    fit = fit_system(measurement, scorer.normalised(best), max_degree=settings.max_degree,
+                     input_interpolation=settings.input_interpolation, start=start,
+                     third_law=settings.third_law)
     return SearchResult(fit, history)
 
 
@@ -249,8 +251,6 @@ def _random_terms(i: int, equations: _Equations, rng) -> tuple:
     return state, tuple(sorted(forcing, key=str))
 
 
-def _normaliser(forcing, equations: _Equations):
-    return next((u for u in equations.inputs if u in forcing), None)
 
 
 class _Scorer:
@@ -262,20 +262,48 @@ class _Scorer:
         self.objective: dict[tuple, float] = {}
         self.refined: dict[tuple, list[Coefficients]] = {}
         self._refiners: dict[int, Refiner] = {}
+        self._residuals: dict[tuple, float] = {}
 
     def key(self, system) -> tuple | None:
         parts = [self.equations.structure(i, tree) for i, tree in enumerate(system)]
         return None if any(p is None for p in parts) else tuple(parts)
 
+    def normalised(self, key):
+        """``key`` as a :data:`gpjax._system_fit.Structure`: the forcing held at 1 marked
+        (:func:`gpjax._system_couplings.normalisation`)."""
+        ties = self.coupled(key)[1]
+        held = normalisation(key, ties, self.equations.inputs)
+        return tuple((state, {f: 1.0 if f == h else None for f in forcing})
+                     for (state, forcing), h in zip(key, held))
+
+    def coupled(self, key):
+        """(structure with every coupling's mirror, ties): with the third law
+        (:func:`gpjax._system_couplings.couple`), else (``key``, ())."""
+        if not self.equations.third_law:
+            return key, ()
+        return couple(key, self.equations.names)
+
+    def residual(self, key, i: int, part) -> float:
+        """Weak-form equation error of ``key`` with equation ``i`` as ``part`` (state,
+        forcing features): that equation's own (:meth:`SystemWeakForm.residual`), or with
+        the third law that of all equations together
+        (:func:`gpjax._system_couplings.coupled_residual`)."""
+        if not self.equations.third_law:
+            return self.weak.residual(i, *part)
+        changed = key[:i] + (tuple(tuple(p) for p in part),) + key[i + 1:]
+        if changed not in self._residuals:
+            self._residuals[changed] = coupled_residual(self.weak, changed,
+                                                        self.equations.names)
+        return self._residuals[changed]
+
     def coefficients(self, key) -> list[Coefficients]:
         if key in self.refined:
             return self.refined[key]
-        out = []
-        for i, (state, forcing) in enumerate(key):
-            normaliser = _normaliser(forcing, self.equations)
-            out.append(self.weak.equation(i, state, {f: 1.0 if f == normaliser else None
-                                                     for f in forcing}))
-        return out
+        structure, ties = self.coupled(self.normalised(key))
+        if ties:
+            return coupled_least_squares(self.weak, structure, ties)
+        return [self.weak.equation(i, state, forcing)
+                for i, (state, forcing) in enumerate(structure)]
 
     def __call__(self, systems) -> np.ndarray:
         keys = [self.key(s) for s in systems]
@@ -309,14 +337,17 @@ class _Scorer:
             return
         starts = [self.coefficients(k) for k in chosen]
         population = to_system_population(starts, self.evaluator)
-        fixed = np.array([[self.evaluator.forcing_index(u) if (u := _normaliser(
-            forcing, self.equations)) is not None else -1 for _, forcing in k] for k in chosen])
-        free = max(sum(1 + len(s) + len(f) + 2 for s, f in k) for k in chosen)
+        coupled = [self.coupled(self.normalised(k)) for k in chosen]
+        fixed = np.array([fixed_columns(structure, ties, self.evaluator.forcing_index)
+                          for structure, ties in coupled])
+        free = max(sum(1 + len(s) + len(f) + 2 for s, f in structure)
+                   for structure, _ in coupled)
         width = -(-free // 8) * 8  # few distinct Jacobian widths: few compiles
         if width not in self._refiners:
             self._refiners[width] = Refiner(self.evaluator, iterations=20, max_free=width,
                                             batch=REFINE_BATCH)
-        refined = self._refiners[width].refine(population, fixed).population
+        refined = self._refiners[width].refine(
+            population, fixed, [tie_columns(ties, self.evaluator) for _, ties in coupled]).population
         scores = self.evaluator.score(refined)
         for k, start, coefficients, value in zip(
                 chosen, starts, from_system_population(refined, self.evaluator, starts),
@@ -403,26 +434,27 @@ def _equation_error_steps(key, scorer: "_Scorer", steps: int = 4, longest: int =
     error once both ends have it)."""
     joint = []
     for i, (state, forcing) in enumerate(key):
-        for part in _forward(scorer, i, list(state), list(forcing), steps):
+        for part in _forward(scorer, key, i, list(state), list(forcing), steps):
             yield key[:i] + (part,) + key[i + 1:]
-        fresh = list(_forward(scorer, i, [], [], longest))
+        fresh = list(_forward(scorer, key, i, [], [], longest))
         for part in fresh[:steps]:
             yield key[:i] + (part,) + key[i + 1:]
-        residuals = [scorer.weak.residual(i, *part) for part in fresh]
+        residuals = [scorer.residual(key, i, part) for part in fresh]
         stop = next(k for k, r in enumerate(residuals) if r <= 1.05 * residuals[-1])
         joint.append(fresh[max(0, stop - 1):stop + 2])
     yield from itertools.product(*joint)
 
 
-def _forward(scorer: "_Scorer", i: int, state: list, forcing: list, steps: int):
-    """Equation ``i`` grown one feature at a time by the least weak-form residual."""
+def _forward(scorer: "_Scorer", key, i: int, state: list, forcing: list, steps: int):
+    """Equation ``i`` of ``key`` grown one feature at a time by the least weak-form
+    residual (:meth:`_Scorer.residual`)."""
     state_basis, forcing_basis = scorer.equations.basis(i)
     for _ in range(steps):
         options = [([*state, f], forcing) for f in state_basis if f not in state]
         options += [(state, [*forcing, f]) for f in forcing_basis if f not in forcing]
         if not options:
             return
-        state, forcing = min(options, key=lambda o: scorer.weak.residual(i, *o))
+        state, forcing = min(options, key=lambda o: scorer.residual(key, i, o))
         yield tuple(sorted(state, key=str)), tuple(sorted(forcing, key=str))
 
 
