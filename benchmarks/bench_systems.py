@@ -86,7 +86,7 @@ def chains(seeds: int, search: bool, population: int, generations: int) -> list[
             began = time.perf_counter()
             if search:
                 from gpjax.engine import SystemSearch, search_system
-                settings = SystemSearch(population=population, generations=generations,
+                settings = SystemSearch.of(population=population, generations=generations,
                                         max_degree=4)
                 model = search_system(measurement, settings=settings, seed=seed).model
             else:
@@ -127,7 +127,7 @@ def gear(seed: int = 0) -> dict:
         print("gear, line of action, structure searched by the system GP (population 60, "
               f"2 generations{', third law' if third_law else ''}):")
         began = time.perf_counter()
-        settings = SystemSearch(population=60, generations=2, input_interpolation="bandlimited",
+        settings = SystemSearch.of(population=60, generations=2, input_interpolation="bandlimited",
                                 third_law=third_law)
         result = search_system(record.line_of_action(), settings=settings, seed=seed)
         row = _line_constants(result.fit, time.perf_counter() - began, *args)

@@ -4,8 +4,11 @@ A system file is plain JSON like a one-coordinate ``model.json``, with ``variabl
 (the coordinates, in order) and ``system``: one ``{"mass", "terms", "forcing"}`` object per
 coordinate, meaning ``mass·x_i'' + Σ coefficient·feature = Σ coefficient·feature(t, inputs)``.
 Equation i's features are powers of x_i, x_i', x_i − x_j and x_i' − x_j' (j ≠ i); they are
-read by the whitelist parser (nothing is evaluated as code). A file without ``system`` is
-a one-coordinate model (:class:`gpjax.Model`), read as before.
+read by the whitelist parser (nothing is evaluated as code). ``third_law`` (default false)
+marks Newton's third law (:mod:`gpjax._system_couplings`): every coupling term is written in
+both of its equations, and ``couplings`` lists each coupled pair's force once (for
+reading; the file is checked to hold each mirror term with the tied coefficient). A file
+without ``system`` is a one-coordinate model (:class:`gpjax.Model`), read as before.
 """
 
 from __future__ import annotations
@@ -36,6 +39,9 @@ def system_to_json(model: SystemModel, metrics: dict | None = None,
         "initial_conditions": [{"response": e.y0[0], "response_dot": e.y0[1]}
                                for e in model.equations],
         "metrics": dict(metrics or {}),
+        "third_law": model.third_law,
+        "couplings": [{"coordinates": [model.coordinates[i], model.coordinates[j]],
+                       "force": str(force)} for (i, j), force in model.couplings().items()],
         "system": [{"mass": e.mass,
                     "terms": [{"feature": str(f), "coefficient": v} for f, v in e.state.items()],
                     "forcing": [{"feature": str(f), "coefficient": v}
@@ -96,10 +102,20 @@ def system_from_json(data: dict, *, source: str = "model") -> SystemModel:
                 fail(f"feature {feature} of equation {i + 1} is not a power of "
                      f"{responses[i]}, {responses[i]}_dot or of their differences to the "
                      "other coordinates (x_i - x_j, x_i_dot - x_j_dot)")
+    third_law = data.get("third_law", False)
+    if not isinstance(third_law, bool):
+        fail('"third_law" must be true or false')
     integrator = simulation.get("integrator") or {}
-    return SystemModel(tuple(responses), time, tuple(inputs), tuple(parsed),
-                       simulation.get("input_interpolation", "linear"),
-                       int(integrator.get("substeps", 1)), max(degree, 1))
+    model = SystemModel(tuple(responses), time, tuple(inputs), tuple(parsed),
+                        simulation.get("input_interpolation", "linear"),
+                        int(integrator.get("substeps", 1)), max(degree, 1), third_law)
+    for tie in model.ties():
+        (i, feature), (j, mirror) = tie.source, tie.mirror
+        value, other = parsed[i].state[feature], parsed[j].state.get(mirror)
+        if other is None or not math.isclose(other, tie.sign * value, rel_tol=1e-9):
+            fail(f"with third_law, equation {j + 1} needs the term {mirror} with coefficient "
+                 f"{tie.sign * value!r} (equation {i + 1}'s {feature} mirrored)")
+    return model
 
 
 def _terms(items, names, where, fail) -> dict:

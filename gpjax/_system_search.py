@@ -50,30 +50,11 @@ from ._refine import Refiner
 from ._system_couplings import (couple, coupled_least_squares, coupled_residual,
                                 fixed_columns, normalisation, tie_columns)
 from ._system_fit import SystemFit, SystemWeakForm, fit_system
+from ._system_settings import SystemSearch
 
 PENALTY = 1e12
 #: Systems per compiled refinement call.
 REFINE_BATCH = 4
-
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class SystemSearch:
-    """Settings of the search over systems (module docstring)."""
-
-    population: int = 200
-    generations: int = 10
-    max_degree: int = 3
-    max_depth: int = 5
-    max_size: int = 30
-    init_depth: tuple[int, int] = (2, 4)
-    tournament_size: int = 7
-    p_swap: float = 0.3
-    refine_top: int = 3
-    local_search: int = 2
-    local_steps: int = 4
-    selection_tolerance: float = 0.05
-    input_interpolation: str = "linear"
-    third_law: bool = False
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,13 +91,13 @@ class _Equations:
             self.tables.append(table)
             self.meaning.append(meaning)
 
-    def grammar(self, i: int, settings: SystemSearch) -> Grammar:
+    def grammar(self, i: int, config) -> Grammar:
         variables = tuple(("s", name) for name in self.tables[i]) + tuple(
             ("u", k) for k in range(len(self.inputs)))
         return Grammar(functions=("add", "sub", "mul"), variables=variables,
-                       named_constants=(), interval_constants={}, real_interval=(-10.0, 10.0),
-                       int_interval=(1, 5), max_depth=settings.max_depth,
-                       max_size=settings.max_size)
+                       named_constants=(), interval_constants={},
+                       real_interval=config.real_interval, int_interval=config.int_interval,
+                       max_depth=config.max_depth, max_size=config.max_size)
 
     def structure(self, i: int, tree) -> tuple | None:
         """(state features, forcing features) of equation ``i``, or ``None`` if invalid."""
@@ -197,46 +178,52 @@ def _expression(tree, table, inputs, t):
 
 def search_system(measurement: Measurement, *, settings: SystemSearch = SystemSearch(),
                   seed: int = 0) -> SearchResult:
-    """Identify one equation per coordinate of ``measurement`` by GP (module docstring).
+    """Identify one equation per coordinate of ``measurement`` by GP (module docstring),
+    stopping after ``settings.config.generations`` or once the best objective is at most
+    its ``epsilon``.
 
     Raises:
         ValueError: no valid system was found.
     """
+    config = settings.config
     rng = np.random.default_rng(seed)
-    equations = _Equations(measurement, settings.max_degree, settings.third_law)
+    equations = _Equations(measurement, config.max_degree, settings.third_law)
     count = len(equations.names)
-    grammars = [equations.grammar(i, settings) for i in range(count)]
+    grammars = [equations.grammar(i, config) for i in range(count)]
     evaluator = PopulationEvaluator(
         measurement, Symbols(equations.names[0], measurement.time_name,
                              measurement.input_names),
-        max_degree=settings.max_degree, fit_initial_conditions=True,
-        input_interpolation=settings.input_interpolation, batch=settings.population)
+        max_degree=config.max_degree, fit_initial_conditions=True, n_bins=config.n_bins,
+        w_time=config.w_time, w_freq=config.w_freq,
+        input_interpolation=config.input_interpolation, batch=config.population)
     scorer = _Scorer(measurement, equations, evaluator)
-    trees = list(zip(*(initial_population(g, rng, settings.population, settings.init_depth)
+    trees = list(zip(*(initial_population(g, rng, config.population, config.init_depth)
                        for g in grammars)))
     for k in range(0, len(trees), 2):  # half of them sums of valid terms (see the docstring)
         trees[k] = _as_trees(tuple(_random_terms(i, equations, rng) for i in range(count)),
                              equations)
     fitness = scorer(trees)
     history = []
-    for _ in range(settings.generations):
+    for _ in range(config.generations):
         offspring = [_offspring(trees, fitness, grammars, rng, settings)
-                     for _ in range(settings.population)]
+                     for _ in range(config.population)]
         offspring += _local_search(trees, fitness, equations, scorer, settings)
         pool = trees + offspring
         scores = np.concatenate([fitness, scorer(offspring)])
-        scorer.refine_best(pool, scores, settings.refine_top)
+        scorer.refine_best(pool, scores, config.refine_top)
         scores = scorer(pool)
-        trees, fitness = _survivors(pool, scores, scorer, settings.population)
+        trees, fitness = _survivors(pool, scores, scorer, config.population)
         history.append(float(fitness.min()))
+        if history[-1] <= config.epsilon:
+            break
     best = scorer.key(trees[int(np.argmin(fitness))])
     if best is None:
         raise ValueError("no valid system was found; widen the search")
-    best = _simplest(best, scorer, settings.selection_tolerance)
+    best = _simplest(best, scorer, config.selection_tolerance)
     start = scorer.coefficients(best)
-    fit = fit_system(measurement, scorer.normalised(best), max_degree=settings.max_degree,
-                     input_interpolation=settings.input_interpolation, start=start,
-                     third_law=settings.third_law)
+    fit = fit_system(measurement, scorer.normalised(best), max_degree=config.max_degree,
+                     input_interpolation=config.input_interpolation, start=start,
+                     tolerance=config.convergence_tolerance, third_law=settings.third_law)
     return SearchResult(fit, history)
 
 
@@ -359,18 +346,19 @@ class _Scorer:
 
 
 def _offspring(trees, fitness, grammars, rng, settings: SystemSearch):
-    parent = list(trees[_tournament(fitness, rng, settings.tournament_size)])
+    config = settings.config
+    parent = list(trees[_tournament(fitness, rng, config.tournament)])
     i = int(rng.integers(len(parent)))
     draw = rng.random()
-    if draw < 0.63:
-        other = trees[_tournament(fitness, rng, settings.tournament_size)]
+    if draw < config.p_crossover:
+        other = trees[_tournament(fitness, rng, config.tournament)]
         if rng.random() < settings.p_swap:
             parent[i] = other[i]
         else:
             parent[i] = crossover(parent[i], other[i], grammars[i], rng)
-    elif draw < 0.90:
+    elif draw < config.p_crossover + config.p_mutation:
         parent[i] = mutation(parent[i], grammars[i], rng)
-    elif draw < 0.99:
+    elif draw < config.p_crossover + config.p_mutation + config.p_perturbation:
         parent[i] = perturbation(parent[i], grammars[i], rng)
     return tuple(parent)
 
@@ -387,7 +375,7 @@ def _local_search(trees, fitness, equations: _Equations, scorer: _Scorer,
     out, seen = [], set()
     for index in np.argsort(fitness):
         key = scorer.key(trees[index])
-        if len(seen) == settings.local_search or fitness[index] >= PENALTY:
+        if len(seen) == settings.config.local_search or fitness[index] >= PENALTY:
             break
         if key is None or key in seen:
             continue

@@ -51,6 +51,10 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("--topology", choices=("ring", "random"), help="who sends to whom "
                      "(default ring)")
     _scheduler_option(fit)
+    fit.add_argument("--third-law", action="store_true", dest="third_law",
+                     help="several responses: each coupling force acts on both of its "
+                     "coordinates with opposite signs, its constants shared (Newton's third "
+                     "law; or third_law = true in the config's [system] table)")
     _diagnose_options(fit)
     many = commands.add_parser("fit-many", help="fit every CSV file of a folder (or a glob), "
                                "one Dask task each; writes OUT/summary.csv")
@@ -204,13 +208,16 @@ def _timings(identifier, out) -> None:
 def _fit(args) -> int:
     from ._data import load_csv
 
+    if len(args.responses) > 1:
+        return _fit_system(args)
+    if args.third_law:
+        raise UserInputError("--third-law couples the equations of several responses; give "
+                             "one --response per coordinate, or drop it")
     config = GPConfig.from_toml(args.config) if args.config else GPConfig()
     config = _config(args, config)
     measurement = load_csv(args.data, time=args.time, responses=args.responses,
                            inputs=args.inputs)
     _check_diagnose_options(args)
-    if measurement.n_coordinates > 1:
-        return _fit_system(args, config, measurement)
     islands = {}
     if any(getattr(args, k) is not None for k in ("islands", "scheduler", "every", "migrants",
                                                   "topology")):
@@ -231,12 +238,24 @@ def _fit(args) -> int:
     return 0
 
 
-def _fit_system(args, config, measurement) -> int:
-    """``gpjax fit`` with several responses: the GP over systems (one equation each)."""
+def _fit_system(args) -> int:
+    """``gpjax fit`` with several responses: the GP over systems (one equation each); the
+    config file's top-level keys are GPConfig's, its ``[system]`` table SystemSearch's."""
+    import dataclasses
+
     import numpy as np
 
+    from ._data import load_csv
     from ._system_file import save_system
     from ._system_search import SystemSearch, search_system
+
+    settings = (SystemSearch.from_toml(args.config) if args.config else
+                SystemSearch(config=GPConfig()))
+    settings = dataclasses.replace(settings, config=_config(args, settings.config),
+                                   third_law=settings.third_law or args.third_law)
+    measurement = load_csv(args.data, time=args.time, responses=args.responses,
+                           inputs=args.inputs)
+    _check_diagnose_options(args)
 
     used = [flag for flag, on in (("--resume", args.resume), ("--diagnose", args.diagnose),
                                   ("--islands", args.islands is not None),
@@ -247,9 +266,6 @@ def _fit_system(args, config, measurement) -> int:
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UserInputError(f"--out {out} is a file; give a folder")
-    settings = SystemSearch(population=config.population, generations=config.generations,
-                            max_degree=config.max_degree,
-                            input_interpolation=config.input_interpolation)
     result = search_system(measurement, settings=settings, seed=args.seed)
     model = result.model
     simulated = model.simulate(measurement)

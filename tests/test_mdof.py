@@ -282,7 +282,7 @@ def test_system_gp_finds_the_two_mass_chain():
 
     data = generate("chain2", seed=3)
     result = search_system(data.fit.system_measurement(),
-                           settings=SystemSearch(population=60, generations=2), seed=0)
+                           settings=SystemSearch.of(population=60, generations=2), seed=0)
     first, second = result.model.equations
     c = data.system.constants
     assert set(first.state) == {V1, X1, X1 - X2, (X1 - X2) ** 3} and set(first.forcing) == {U}

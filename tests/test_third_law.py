@@ -1,0 +1,156 @@
+"""Newton's third law between the coordinates of a system (issue 14): one coupling force,
+entering its two equations with opposite signs, its constants fitted once."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+import sympy as sp
+
+from gpjax._system_couplings import (NOTHING_FIXED, components, couple,
+                                     coupled_least_squares, fixed_columns, normalisation)
+from test_mdof import U, V1, V2, X1, X2, _chain, _truth_model
+
+X3, V3 = sp.symbols("x3 x3_dot")
+
+
+def test_couple_adds_each_mirror_with_the_sign_of_its_power():
+    structure = (((V1, X1 - X2, (X1 - X2) ** 2, (V1 - V2) ** 3), {U: 1.0}), ((X2,), {}))
+    full, ties = couple(structure, ("x1", "x2"))
+    assert set(full[1][0]) == {X2, X2 - X1, (X2 - X1) ** 2, (V2 - V1) ** 3}
+    assert {(t.mirror[1], t.sign) for t in ties} == {
+        (X2 - X1, 1.0), ((X2 - X1) ** 2, -1.0), ((V2 - V1) ** 3, 1.0)}
+    assert all(t.source[0] == 0 and t.mirror[0] == 1 for t in ties)
+    again, same = couple(full, ("x1", "x2"))  # a structure holding both sides: one tie each
+    assert again == full and same == ties
+    assert couple(((( V1,), {U: 1.0}), ((X2,), {})), ("x1", "x2"))[1] == ()
+
+
+def test_components_and_normalisation_hold_one_constant_per_coupled_group():
+    structure = (((X1 - X2,), {U: 1.0}), ((X2,), {U: 1.0}), ((X3,), {}))
+    _, ties = couple(structure, ("x1", "x2", "x3"))
+    assert components(3, ties) == [[0, 1], [2]]
+    assert normalisation(structure, ties, (U,)) == [U, None, None]
+    assert normalisation(structure, (), (U,)) == [U, U, None]
+    held = {U: 1.0}, {U: None}, {}
+    given = tuple((s, h) for (s, _), h in zip(structure, held))
+    assert fixed_columns(given, ties, lambda f: 7) == [7, NOTHING_FIXED, -1]
+    assert fixed_columns(given, (), lambda f: 7) == [7, -1, -1]
+    free = tuple((s, {U: None} if g else {}) for s, g in given)
+    assert fixed_columns(free, ties, lambda f: 7) == [-1, NOTHING_FIXED, -1]
+
+
+def test_coupled_least_squares_ties_the_coupling_and_identifies_the_second_mass():
+    """Without the third law equation 2 (no input) is known up to a factor; with it the
+    shared coupling fixes that factor, so its mass comes out as m2."""
+    from gpjax._system_fit import SystemWeakForm
+
+    system, _, measurement = _chain(duration=5.0)
+    c = system.constants
+    structure = (((V1, X1, X1 - X2, (X1 - X2) ** 3), {U: 1.0}), ((V2, X2), {}))
+    full, ties = couple(structure, ("x1", "x2"))
+    first, second = coupled_least_squares(SystemWeakForm(measurement), full, ties)
+    assert second.mass == pytest.approx(c["m2"], rel=0.01)
+    assert first.state[X1 - X2] == second.state[X2 - X1] == pytest.approx(c["kc"], rel=0.01)
+    assert first.state[(X1 - X2) ** 3] == second.state[(X2 - X1) ** 3]
+    assert first.state[(X1 - X2) ** 3] == pytest.approx(c["k3"], rel=0.02)
+    assert second.state[X2] == pytest.approx(c["k"], rel=0.01)
+
+
+def test_fit_system_with_the_third_law_keeps_the_tie_and_recovers_the_chain():
+    from gpjax.engine import fit_system
+
+    system, _, measurement = _chain(duration=3.0)
+    c = system.constants
+    structure = (((V1, X1, X1 - X2, (X1 - X2) ** 3), {U: 1.0}), ((V2, X2), {}))
+    fit = fit_system(measurement, structure, input_interpolation="bandlimited",
+                     substeps=2, third_law=True, iterations=10)
+    first, second = fit.model.equations
+    assert fit.model.third_law
+    assert second.state[X2 - X1] == pytest.approx(first.state[X1 - X2], rel=1e-12)
+    assert second.state[(X2 - X1) ** 3] == pytest.approx(first.state[(X1 - X2) ** 3], rel=1e-12)
+    for value, want in ((second.mass, c["m2"]), (first.state[X1 - X2], c["kc"]),
+                        (first.state[(X1 - X2) ** 3], c["k3"]), (second.state[V2], c["c"])):
+        assert value == pytest.approx(want, rel=2e-3)
+    (pair, force), = fit.model.couplings().items()
+    assert pair == (0, 1) and force.has(X1 - X2) and force.has((X1 - X2) ** 3)
+
+
+def test_third_law_model_file_round_trip_and_a_broken_mirror_is_refused(tmp_path):
+    from gpjax import ModelFileError
+    from gpjax._system_file import save_system, system_from_json, system_to_json
+    from gpjax.engine import load_model
+
+    system, record, _ = _chain(duration=1.0)
+    model = dataclasses.replace(_truth_model(system, record), third_law=True)
+    save_system(model, tmp_path / "model.json")
+    loaded = load_model(tmp_path / "model.json")
+    assert loaded == model
+    data = system_to_json(model)
+    assert data["couplings"][0]["coordinates"] == ["x1", "x2"]
+    for term in data["system"][1]["terms"]:
+        if term["feature"] == "-x1 + x2":
+            term["coefficient"] *= 1.01
+    with pytest.raises(ModelFileError, match="needs the term -x1 \\+ x2"):
+        system_from_json(data)
+    data["third_law"] = "yes"
+    with pytest.raises(ModelFileError, match="third_law"):
+        system_from_json(data)
+    del data["third_law"]  # files written before the option: no tie, loaded as they are
+    assert system_from_json(data).third_law is False
+
+
+def test_third_law_needs_several_responses(tmp_path, capsys):
+    from gpjax.cli import main
+
+    _, _, measurement = _chain(duration=1.0)
+    measurement.to_csv(tmp_path / "data.csv")
+    assert main(["fit", str(tmp_path / "data.csv"), "--time", "t", "--response", "x1",
+                 "--input", "u", "--third-law", "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "--third-law" in err and err.count("\n") == 1
+    assert not (tmp_path / "run").exists()
+
+
+# --- the settings of a system search: a GPConfig and the system's own ----------------
+def test_system_search_takes_a_gpconfig_and_refuses_fields_it_does_not_use(tmp_path):
+    from gpjax import ConfigError, GPConfig
+    from gpjax.engine import SystemSearch
+
+    settings = SystemSearch.of(population=60, generations=2, third_law=True)
+    assert settings.config.population == 60 and settings.config.max_degree == 3
+    assert settings.third_law and settings.config.tournament == 7
+    with pytest.raises(ConfigError, match="coefficients is not used"):
+        SystemSearch(config=GPConfig(coefficients="tree"))
+    with pytest.raises(ConfigError, match="p_swap"):
+        SystemSearch(p_swap=1.5)
+    with pytest.raises(ConfigError, match="third_law"):
+        SystemSearch(third_law="yes")
+    with pytest.raises(ConfigError, match="population"):
+        SystemSearch.of(population=2)
+    with pytest.raises(TypeError):
+        SystemSearch(GPConfig())  # keyword-only
+    path = tmp_path / "run.toml"
+    path.write_text("population = 30\ngenerations = 1\n[system]\nthird_law = true\n"
+                    "p_swap = 0.5\n")
+    read = SystemSearch.from_toml(path)
+    assert read.config.population == 30 and read.third_law and read.p_swap == 0.5
+    path.write_text("population = 30\n[system]\nthird_lw = true\n")
+    with pytest.raises(ConfigError, match="unknown key 'third_lw' in \\[system\\]"):
+        SystemSearch.from_toml(path)
+
+
+def test_system_config_errors_are_one_line_exit_2(tmp_path, capsys):
+    from gpjax.cli import main
+
+    _, _, measurement = _chain(duration=1.0)
+    measurement.to_csv(tmp_path / "data.csv")
+    (tmp_path / "run.toml").write_text("[system]\np_swap = 2\n")
+    assert main(["fit", str(tmp_path / "data.csv"), "--time", "t", "--response", "x1",
+                 "--response", "x2", "--input", "u", "--config", str(tmp_path / "run.toml"),
+                 "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "p_swap must be a number in [0, 1]" in err and err.count("\n") == 1
+    assert not (tmp_path / "run").exists()
