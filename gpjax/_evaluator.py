@@ -52,7 +52,7 @@ from ._aot import Program, fingerprint
 from ._canonical import Symbols
 from ._coefficients import FlatLayout, Population, padded_chunks
 from ._data import Measurement, between_samples
-from ._evaluator_systems import SystemTerms, gauss_newton_step, system_state_features
+from ._evaluator_systems import SystemTerms, system_state_features
 from ._features import Family, match
 from ._integrate import RK4, enable_float64, rk4_scan
 from ._objective import _amplitude, _dft_matrix, _objective_parts, default_n_bins
@@ -573,7 +573,7 @@ class PopulationEvaluator(SystemTerms):
         return paths[0] if count == 1 else jnp.stack(paths, axis=1)
 
     def scan_jvp(self, mass, state, forcing_matrix, y0, d_y0, *, inner=None, d_mass=None,
-                 d_state=None, d_forcing=None, d_inner=None):
+                 d_state=None, d_forcing=None, d_inner=None, fold=None):
         """x at the sample times (N, P) and its derivatives (N, Q, P) along Q directions
         (D > 1: (N, D, P) and (N, D, Q, P)).
 
@@ -592,6 +592,9 @@ class PopulationEvaluator(SystemTerms):
                 D > 1 with a coordinate axis before F (after P for d_mass, before P for
                 d_forcing). Directions come first so the population axis stays the minor
                 one that XLA vectorises.
+            fold: ``(fn, acc)``: return only ``acc`` folded over the samples by
+                ``fn(acc, y, k)`` at step k, y the carried (2, 1 + Q, D, P) array
+                [[x, s], [x', w]], from ``fn(acc, start, 0)``; nothing is saved.
         """
         inner = _no_inner(inner, mass)
         mass, state, forcing_matrix, y0 = self._internal(mass, state, forcing_matrix, y0)
@@ -652,6 +655,11 @@ class PopulationEvaluator(SystemTerms):
         # step than four separate states (the initial-condition step runs ~2× faster).
         start = jnp.concatenate([jnp.transpose(y0, (2, 1, 0))[:, None],
                                  jnp.swapaxes(jnp.moveaxis(d_y0, -1, 0), -1, -2)], axis=1)
+        if fold is not None:
+            _, acc = self._rk4_scan(rates, (start,), (forcing_matrix, d_forcing), lambda y: (),
+                                    fold=(lambda a, y, k: fold[0](a, y[0], k),
+                                          fold[0](fold[1], start, 0)))
+            return acc
         (path,) = self._rk4_scan(rates, (start,), (forcing_matrix, d_forcing),
                                  lambda y: (y[0][0],))
         if count == 1:
@@ -684,10 +692,10 @@ class PopulationEvaluator(SystemTerms):
                               d_forcing=jnp.einsum(rows, d_forcing, forcing_basis))
         return (x[..., 0], dx[..., 0]) if single else (x, dx)
 
-    def _rk4_scan(self, rates, y0, forces, saved):
+    def _rk4_scan(self, rates, y0, forces, saved, fold=None):
         """:func:`gpjax._integrate.rk4_scan` on this evaluator's stage grid."""
         return rk4_scan(rates, y0, forces, saved, h=self.h, t0=float(self.stage_times[0]),
-                        substeps=self.substeps, split_stages=self.split_stages)
+                        substeps=self.substeps, split_stages=self.split_stages, fold=fold)
 
     def solve(self, mass, state, forcing_matrix, y0, inner=None, *, adjoint=None):
         """Integrate all models with diffrax; returns x at the sample times, shape (N, P)
@@ -723,29 +731,6 @@ class PopulationEvaluator(SystemTerms):
             throw=False, adjoint=adjoint or diffrax.RecursiveCheckpointAdjoint())
         states = solution.ys[:: self.substeps, 0]
         return self._public(states[: self.measurement.n_samples], 1)
-
-    def _fitted_initial_conditions(self, mass, state, forcing_matrix, y0, inner):
-        """One Gauss–Newton step on the initial states per model; the sensitivities to
-        them come from the variational equations in the same scan (:meth:`scan_jvp`).
-        For D > 1 the residuals are weighted as in the objective (:attr:`weights`)."""
-        count = self.n_coordinates
-        directions = jnp.broadcast_to(jnp.eye(2 * count).reshape(
-            (2 * count,) + y0.shape[1:])[:, None], (2 * count,) + y0.shape)
-        base, sensitivity = self.scan_jvp(mass, state, forcing_matrix, y0, directions,
-                                          inner=inner)
-        if count > 1:
-            return y0 + gauss_newton_step(self.measurement.responses, self.weights, base,
-                                           sensitivity).reshape(y0.shape)
-        measured = jnp.asarray(self.measurement.response)[:, None]
-        sx, sv = sensitivity[:, 0], sensitivity[:, 1]
-        residual = measured - base
-        a11, a12, a22 = jnp.sum(sx * sx, 0), jnp.sum(sx * sv, 0), jnp.sum(sv * sv, 0)
-        b1, b2 = jnp.sum(sx * residual, 0), jnp.sum(sv * residual, 0)
-        det = a11 * a22 - a12 ** 2
-        usable = jnp.isfinite(det) & (det > 1e-12 * a11 * a22) & jnp.isfinite(b1 + b2)
-        safe = jnp.where(usable, det, 1.0)
-        delta = jnp.stack([(a22 * b1 - a12 * b2) / safe, (a11 * b2 - a12 * b1) / safe], axis=1)
-        return jnp.where(usable[:, None], y0 + delta, y0)
 
     def _simulate_and_score(self, mass, state, forcing, y0, inner, forcing_basis):
         forcing_matrix = _forcing_rows(forcing_basis, forcing)  # (n_stage, [D,] P)

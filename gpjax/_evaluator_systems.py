@@ -1,10 +1,12 @@
-"""The parts of :class:`gpjax._evaluator.PopulationEvaluator` that only systems (several
-coordinates, D > 1) use: the per-equation basis of own and relative coordinates, the
+"""Parts of :class:`gpjax._evaluator.PopulationEvaluator`: what only systems (several
+coordinates, D > 1) use — the per-equation basis of own and relative coordinates, the
 restoring forces of all equations as one stacked Horner sum, their D × D Jacobians from one
-value-and-slope pass, and the initial-state Gauss–Newton step of D coordinates."""
+value-and-slope pass — and the initial-state Gauss–Newton step (one coordinate as before;
+D coordinates with the normal equations summed in the scan)."""
 
 from __future__ import annotations
 
+import jax
 import jax.numpy as jnp
 import numpy as np
 import sympy as sp
@@ -25,8 +27,8 @@ def system_state_features(names: tuple[str, ...], max_degree: int) -> tuple[list
 
 
 class SystemTerms:
-    """Mixin of :class:`gpjax._evaluator.PopulationEvaluator` (uses its ``max_degree`` and
-    ``n_coordinates``)."""
+    """Mixin of :class:`gpjax._evaluator.PopulationEvaluator` (uses its ``max_degree``,
+    ``n_coordinates``, ``measurement``, ``weights``, ``substeps`` and :meth:`scan_jvp`)."""
 
     def _system_coefficients(self, state):
         """(max_degree, D·2D, ..., P) coefficients of every equation's variables (the
@@ -90,16 +92,66 @@ class SystemTerms:
 
         return partials
 
+    def _fitted_initial_conditions(self, mass, state, forcing_matrix, y0, inner):
+        """One Gauss–Newton step on the initial states per model; the sensitivities to
+        them come from the variational equations in the same scan (:meth:`scan_jvp`).
+        For D > 1 the residuals are weighted as in the objective (:attr:`weights`)."""
+        count = self.n_coordinates
+        if count > 1:
+            return self._system_initial_conditions(mass, state, forcing_matrix, y0, inner)
+        directions = jnp.broadcast_to(jnp.eye(2 * count).reshape(
+            (2 * count,) + y0.shape[1:])[:, None], (2 * count,) + y0.shape)
+        base, sensitivity = self.scan_jvp(mass, state, forcing_matrix, y0, directions,
+                                          inner=inner)
+        measured = jnp.asarray(self.measurement.response)[:, None]
+        sx, sv = sensitivity[:, 0], sensitivity[:, 1]
+        residual = measured - base
+        a11, a12, a22 = jnp.sum(sx * sx, 0), jnp.sum(sx * sv, 0), jnp.sum(sv * sv, 0)
+        b1, b2 = jnp.sum(sx * residual, 0), jnp.sum(sv * residual, 0)
+        det = a11 * a22 - a12 ** 2
+        usable = jnp.isfinite(det) & (det > 1e-12 * a11 * a22) & jnp.isfinite(b1 + b2)
+        safe = jnp.where(usable, det, 1.0)
+        delta = jnp.stack([(a22 * b1 - a12 * b2) / safe, (a11 * b2 - a12 * b1) / safe], axis=1)
+        return jnp.where(usable[:, None], y0 + delta, y0)
 
-def gauss_newton_step(measured, weights, base, sensitivity):
-    """(P, 2D) step of every model's initial states (x0, x0' per coordinate) for
-    ``base`` (N, D, P) and its ``sensitivity`` (N, D, 2D, P), residuals weighted per
-    coordinate; zero where the normal equations are singular or not finite."""
-    w = jnp.asarray(weights)[:, None]
-    residual = (jnp.asarray(measured)[:, :, None] - base) * w
-    sensitivity = sensitivity * w[:, None]
-    a = jnp.einsum("ndqp,ndrp->pqr", sensitivity, sensitivity)
-    b = jnp.einsum("ndqp,ndp->pq", sensitivity, residual)
+    def _system_initial_conditions(self, mass, state, forcing_matrix, y0, inner):
+        """(P, D, 2) initial states after one Gauss–Newton step of every model's (x0, x0')
+        per coordinate, residuals weighted per coordinate as in the objective. The normal
+        equations SᵀS, Sᵀr are summed inside the scan that integrates the sensitivities
+        (:meth:`scan_jvp`'s ``fold``): the (N, D, 2D, P) sensitivities are never written,
+        which was half the step's time (P = 500, D = 2)."""
+        count, substeps = self.n_coordinates, self.substeps
+        q = 2 * count
+        directions = jnp.broadcast_to(jnp.eye(q).reshape((q,) + y0.shape[1:])[:, None],
+                                      (q,) + y0.shape)
+        measured = jnp.asarray(self.measurement.responses)
+        weights = jnp.asarray(self.weights)[:, None]
+
+        upper = np.triu_indices(q)  # SᵀS is symmetric: its upper triangle is summed
+
+        def add(acc, y, k):  # y: (2, 1 + Q, D, P); a sample every `substeps` steps
+            a, b = acc
+            row = jax.lax.dynamic_index_in_dim(measured, k // substeps, keepdims=False)
+            residual = (row[:, None] - y[0, 0]) * weights  # (D, P)
+            s = y[0, 1:] * weights  # (Q, D, P)
+            da = jnp.sum(s[upper[0]] * s[upper[1]], axis=1)
+            db = jnp.sum(s * residual, axis=1)
+            if substeps > 1:
+                on = (k % substeps) == 0
+                da, db = jnp.where(on, da, 0.0), jnp.where(on, db, 0.0)
+            return a + da, b + db
+
+        p = y0.shape[0]
+        a, b = self.scan_jvp(mass, state, forcing_matrix, y0, directions, inner=inner,
+                             fold=(add, (jnp.zeros((upper[0].size, p)), jnp.zeros((q, p)))))
+        full = jnp.zeros((q, q, p)).at[upper].set(a).at[upper[::-1]].set(a)
+        delta = _solve_normal_equations(jnp.moveaxis(full, -1, 0), jnp.moveaxis(b, -1, 0))
+        return y0 + delta.reshape(y0.shape)
+
+
+def _solve_normal_equations(a, b):
+    """(P, Q) solutions of the (P, Q, Q) normal equations ``a``·δ = ``b``; zero where
+    singular or not finite."""
     scale = jnp.max(jnp.diagonal(a, axis1=1, axis2=2), axis=1)[:, None, None]
     delta = jnp.linalg.solve(a + 1e-12 * scale * jnp.eye(a.shape[-1]), b[..., None])[..., 0]
     usable = jnp.all(jnp.isfinite(delta), axis=1, keepdims=True)
