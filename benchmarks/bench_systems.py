@@ -1,6 +1,7 @@
 """Systems of several degrees of freedom (issue 14): identification evidence and speed.
 
-    python benchmarks/bench_systems.py chains [--seeds 5] [--json benchmarks/systems_chains.json]
+    python benchmarks/bench_systems.py chains [--seeds 5] [--search] [--third-law]
+        [--systems chain2,chain3] [--json benchmarks/systems_chains.json]
     python benchmarks/bench_systems.py gear [--json benchmarks/systems_gear.json]
     python benchmarks/bench_systems.py speed [--json benchmarks/systems_speed.json]
 
@@ -15,6 +16,9 @@ normalised by the input (coefficient 1), the others, which have no input, by the
 they are compared with the truth divided by that mass. NRMS per coordinate on the
 extrapolation record (another input realisation, amplitude × 1.2), simulated by scipy's
 DOP853 from the true initial state with the true input (:func:`gpjax.systems.simulate_equations`).
+With ``--third-law`` each coupling force is one expression shared by its two equations
+(:mod:`gpjax._system_couplings`): every equation is then in equation 1's units, so the
+constants are compared with the truth as it is (no division by a mass).
 
 ``gear``: the paper's 2-DOF gear pair (eqs. 21–22), :func:`gpjax.gear.two_dof_record`:
 pinion J1 = 7.918e-5 kg·m² (eq. 14), a geometrically similar gear J2 = J1·(z2/z1)⁴, base radii
@@ -65,11 +69,12 @@ def chain_structure(n: int):
     return tuple(out)
 
 
-def chain_truth(n: int, constants: dict) -> list[dict]:
-    """Per equation the true coefficient of every feature, normalised as fitted."""
+def chain_truth(n: int, constants: dict, third_law: bool = False) -> list[dict]:
+    """Per equation the true coefficient of every feature, normalised as fitted (with the
+    third law every equation is in equation 1's units: no division by the mass)."""
     truth = []
     for i, (state, _) in enumerate(chain_structure(n)):
-        scale = 1.0 if i == 0 else constants[f"m{i + 1}"]
+        scale = 1.0 if i == 0 or third_law else constants[f"m{i + 1}"]
         values = {state[0]: constants["c"], state[1]: constants["k"]}
         for d, d3 in zip(state[2::2], state[3::2]):
             values |= {d: constants["kc"], d3: constants["k3"]}
@@ -78,9 +83,10 @@ def chain_truth(n: int, constants: dict) -> list[dict]:
     return truth
 
 
-def chains(seeds: int, search: bool, population: int, generations: int) -> list[dict]:
+def chains(seeds: int, search: bool, population: int, generations: int,
+           third_law: bool = False, systems=("chain2", "chain3")) -> list[dict]:
     rows = []
-    for name in ("chain2", "chain3"):
+    for name in systems:
         n = len(get_system(name).coordinates)
         for seed in range(seeds):
             data = generate(name, seed=seed)
@@ -89,12 +95,12 @@ def chains(seeds: int, search: bool, population: int, generations: int) -> list[
             if search:
                 from gpjax.engine import SystemSearch, search_system
                 settings = SystemSearch.of(population=population, generations=generations,
-                                        max_degree=4)
+                                           max_degree=4, third_law=third_law)
                 model = search_system(measurement, settings=settings, seed=seed).model
             else:
-                model = fit_system(measurement, chain_structure(n)).model
+                model = fit_system(measurement, chain_structure(n), third_law=third_law).model
             seconds = time.perf_counter() - began
-            truth = chain_truth(n, data.system.constants)
+            truth = chain_truth(n, data.system.constants, third_law)
             found = [{"mass": e.mass, **{str(f): v for f, v in e.state.items()}}
                      for e in model.equations]
             structure_ok = all(set(f) == set(t) for f, t in zip(found, truth))
@@ -269,18 +275,24 @@ def main() -> None:
                         help="chains: search the structure with the system GP")
     parser.add_argument("--population", type=int, default=100)
     parser.add_argument("--generations", type=int, default=3)
+    parser.add_argument("--third-law", action="store_true", dest="third_law",
+                        help="chains: impose Newton's third law (shared coupling constants)")
+    parser.add_argument("--systems", default="chain2,chain3",
+                        help="chains: which, comma-separated (default chain2,chain3)")
     parser.add_argument("--json", help="write the results here")
     args = parser.parse_args()
     result = {"machine": platform.platform(), "cpus": os.cpu_count(),
               "load_average": os.getloadavg()}
     if args.what == "chains":
-        rows = chains(args.seeds, args.search, args.population, args.generations)
+        rows = chains(args.seeds, args.search, args.population, args.generations,
+                      args.third_law, args.systems.split(","))
         result["search"] = args.search and {"population": args.population,
                                             "generations": args.generations, "max_degree": 4}
+        result["third_law"] = args.third_law
         result["rows"] = rows
         print(f"\n{'system':<8} {'structure right':>16} {'constants ≤ 2 %':>16} "
               f"{'all coordinates NRMS ≤ 2 %':>28} {'median NRMS':>12}")
-        for name in ("chain2", "chain3"):
+        for name in args.systems.split(","):
             mine = [r for r in rows if r["system"] == name]
             good = sum(max(r["nrms"]) <= 0.02 for r in mine)
             print(f"{name:<8} {sum(r['structure_right'] for r in mine):>13}/{len(mine)} "

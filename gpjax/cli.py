@@ -243,9 +243,8 @@ def _fit_system(args) -> int:
     config file's top-level keys are GPConfig's, its ``[system]`` table SystemSearch's."""
     import dataclasses
 
-    import numpy as np
-
     from ._data import load_csv
+    from ._system_diagnose import residual_statistics, summary_line
     from ._system_file import save_system
     from ._system_search import SystemSearch, search_system
 
@@ -268,17 +267,20 @@ def _fit_system(args) -> int:
         raise UserInputError(f"--out {out} is a file; give a folder")
     result = search_system(measurement, settings=settings, seed=args.seed)
     model = result.model
-    simulated = model.simulate(measurement)
-    rms = np.sqrt(np.mean((measurement.responses - simulated) ** 2, axis=0))
+    residuals = residual_statistics(model, measurement, alpha=args.alpha)
     check = result.fit.checks[-1]
     save_system(model, out / "model.json",
-                metrics={"rms": dict(zip(measurement.response_names, map(float, rms))),
-                         "objective": float(result.fit.scores.objective[0])},
+                metrics={"rms": {k: v["rms"] for k, v in residuals.items()},
+                         "objective": float(result.fit.scores.objective[0]),
+                         "residuals": residuals},
                 convergence=check.to_json())
     print(f"System of {measurement.n_coordinates} equations (GP over systems, "
-          f"{len(result.history)} generations):")
-    for name, equation, value in zip(measurement.response_names, model.sympy(), rms):
-        print(f"  {equation}    RMS({name}) {value:.4g} (reference solve)")
+          f"{len(result.history)} generations{', third law' if settings.third_law else ''}):")
+    for equation in model.sympy():
+        print(f"  {equation}")
+    print("Residuals per coordinate (reference solve):")
+    for name, statistics in residuals.items():
+        print(summary_line(name, statistics))
     print(f"RK4 at {model.substeps} step(s) per sample differs from the reference solve by "
           f"{check.ratio:.2%} of the residual ({'converged' if check.converged else 'NOT converged'})"
           f". Model in {out / 'model.json'}")

@@ -11,6 +11,7 @@ import sympy as sp
 
 from gpjax._system_couplings import (NOTHING_FIXED, components, couple,
                                      coupled_least_squares, fixed_columns, normalisation)
+from gpjax.systems import generate, get_system
 from test_mdof import U, V1, V2, X1, X2, _chain, _truth_model
 
 X3, V3 = sp.symbols("x3 x3_dot")
@@ -191,3 +192,25 @@ def test_tied_step_moves_both_coefficients_and_its_jacobian_is_exact():
     assert float(jnp.max(jnp.abs(reference[..., 0]))) > 0
     np.testing.assert_allclose(custom, reference, rtol=0,
                                atol=1e-9 * float(jnp.max(jnp.abs(reference))))
+
+
+# --- per-equation diagnosis: each coordinate's residual on its own --------------------
+def test_residual_statistics_point_at_the_coordinate_that_misses_something():
+    from gpjax._system_diagnose import residual_statistics, summary_line
+
+    system = get_system("chain2")
+    record = generate(dataclasses.replace(system, duration=10.0), seed=1).fit
+    measurement = record.system_measurement()
+    truth = _truth_model(system, record)
+    right = residual_statistics(truth, measurement)
+    assert all(s["noise"]["ratio"] < 1.3 and s["unexplained"] is None for s in right.values())
+    equations = list(truth.equations)
+    equations[1] = equations[1].replace(state={k: v for k, v in equations[1].state.items()
+                                               if k != V2})  # mass 2 loses its damper
+    wrong = residual_statistics(dataclasses.replace(truth, equations=tuple(equations)),
+                                measurement)
+    assert wrong["x2"]["noise"]["ratio"] > 3 * right["x2"]["noise"]["ratio"]
+    assert wrong["x2"]["unexplained"] is not None
+    assert "misses something" in summary_line("x2", wrong["x2"])
+    with pytest.raises(ValueError, match="not the model's coordinates"):
+        residual_statistics(truth, record.measurement("x1"))
