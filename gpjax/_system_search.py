@@ -30,6 +30,14 @@ one-term changes (a power of one variable or an input added to one equation, or 
 dropped). The reported system is the simplest whose objective is within
 ``selection_tolerance`` of the best found (one-term removals, refitted), refitted at
 converged integration (:func:`gpjax._system_fit.fit_system`).
+
+With Newton's third law (``SystemSearch.third_law``, :mod:`gpjax._system_couplings`) the
+relative coordinates d_ij are terminals of equation min(i, j) only; each coupling term
+found there also acts on coordinate j with the opposite sign, its constant shared (least
+squares over all equations at once, tied Levenberg–Marquardt steps), and the multi-term
+local moves are scored by the weak-form residual of all equations together.
+Settings: :class:`gpjax._system_settings.SystemSearch` (a :class:`gpjax.GPConfig` and the
+system's own).
 """
 
 from __future__ import annotations
