@@ -199,7 +199,73 @@ def _gear_line(measurement, r1, r2, j1, j2, k_m, c_m, *, third_law: bool = False
     began = time.perf_counter()
     fit = fit_system(measurement, structure, input_interpolation="bandlimited",
                      third_law=third_law)
-    return _line_constants(fit, time.perf_counter() - began, r1, r2, j1, j2, k_m, c_m)
+    row = _line_constants(fit, time.perf_counter() - began, r1, r2, j1, j2, k_m, c_m)
+    row["standard_errors"] = standard_errors(fit, measurement,
+                                             ("T1",) if third_law else ("T1", "T2"))
+    for name, value in row["standard_errors"]["relative"].items():
+        print(f"  relative standard error of {name:<24} {value:.3%}")
+    return row
+
+
+def standard_errors(fit, measurement, held: tuple[str, ...]) -> dict:
+    """Relative standard errors of a system fit's free constants (the forcing
+    coefficients named in ``held`` excluded; a tied pair is one constant), σ²·(JᵀJ)⁻¹ with J the output-error
+    Jacobian of the responses, each coordinate over its standard deviation, from the
+    variational equations at the fitted constants (:meth:`PopulationEvaluator.
+    constant_jacobian`), initial states included as nuisance parameters; and the
+    correlations above 0.5 in magnitude."""
+    import jax.numpy as jnp
+
+    from gpjax._system_couplings import tie_columns
+
+    model = fit.model
+    ev = model.evaluator(measurement)
+    population = to_system_population([list(model.equations)], ev)
+    layout = ev.layout  # after the forcing columns exist
+    flat = layout.pack(population)[0]
+    mirrors = {layout.state_column(cb, eb): (layout.state_column(ca, ea), sign)
+               for ea, ca, eb, cb, sign in tie_columns(model.ties(), ev)}
+    held = {layout.forcing_column(ev.forcing_index(f), e)
+            for e, equation in enumerate(model.equations) for f in equation.forcing
+            if str(f) in held}
+    names, directions = [], []
+    for e, equation in enumerate(model.equations):
+        columns = [(f"mass (eq. {e + 1})", layout.mass_column(e))]
+        columns += [(f"{f} (eq. {e + 1})", layout.state_column(ev.equation_index(f, e), e))
+                    for f in equation.state]
+        columns += [(f"{f} (eq. {e + 1})", layout.forcing_column(ev.forcing_index(f), e))
+                    for f in equation.forcing]
+        for name, column in columns:
+            if column in mirrors or column in held:
+                continue
+            direction = np.zeros(flat.size)
+            direction[column] = flat[column]
+            for mirror, (source, sign) in mirrors.items():
+                if source == column:
+                    direction[mirror] = sign * flat[column]
+            names.append(name)
+            directions.append(direction)
+    responses = measurement.responses
+    spread = np.concatenate([[np.std(responses[:, d]), np.std(np.diff(responses[:, d]))
+                              / measurement.dt] for d in range(responses.shape[1])])
+    for k, value in enumerate(spread):  # the initial states, in units of their spread
+        direction = np.zeros(flat.size)
+        direction[flat.size - spread.size + k] = value
+        directions.append(direction)
+    x, dx = (np.asarray(a) for a in ev.constant_jacobian(
+        jnp.asarray(flat), jnp.asarray(np.array(directions)), jnp.asarray(ev.forcing_basis)))
+    scale = np.std(responses, axis=0)
+    residual = ((responses - x) / scale).ravel()
+    jacobian = (dx / scale[None, :, None]).reshape(residual.size, -1)
+    variance = residual @ residual / (residual.size - jacobian.shape[1])
+    covariance = variance * np.linalg.inv(jacobian.T @ jacobian)
+    error = np.sqrt(np.diag(covariance))
+    correlation = covariance / np.outer(error, error)
+    return {"relative": dict(zip(names, error[:len(names)].tolist())),
+            "correlations": {a: {b: float(correlation[i, j])
+                                 for j, b in enumerate(names + ["x0 etc."] * spread.size)
+                                 if j != i and abs(correlation[i, j]) > 0.5}
+                             for i, a in enumerate(names)}}
 
 
 def _line_constants(fit, seconds, r1, r2, j1, j2, k_m, c_m):
