@@ -195,15 +195,33 @@ def test_tied_step_moves_both_coefficients_and_its_jacobian_is_exact():
 
 
 # --- per-equation diagnosis: each coordinate's residual on its own --------------------
+def _noisy_chain():
+    system = get_system("chain2")
+    record = generate(dataclasses.replace(system, duration=10.0), seed=1).fit
+    return record, record.system_measurement(), _truth_model(system, record)
+
+
+def test_residual_statistics_of_the_truth_sit_at_the_noise_floor():
+    from gpjax._system_diagnose import residual_statistics, summary_line
+
+    record, measurement, truth = _noisy_chain()
+    right = residual_statistics(truth, measurement)
+    assert list(right) == ["x1", "x2"]
+    assert all(0.9 < s["noise"]["ratio"] < 1.3 and s["unexplained"] is None
+               for s in right.values())
+    assert right["x1"]["nrms"] == pytest.approx(right["x1"]["rms"] / np.std(
+        measurement.responses[:, 0]))
+    assert "misses" not in summary_line("x1", right["x1"])
+    with pytest.raises(ValueError, match="not the model's coordinates"):
+        residual_statistics(truth, record.measurement("x1"))
+
+
+@pytest.mark.slow
 def test_residual_statistics_point_at_the_coordinate_that_misses_something():
     from gpjax._system_diagnose import residual_statistics, summary_line
 
-    system = get_system("chain2")
-    record = generate(dataclasses.replace(system, duration=10.0), seed=1).fit
-    measurement = record.system_measurement()
-    truth = _truth_model(system, record)
+    _, measurement, truth = _noisy_chain()
     right = residual_statistics(truth, measurement)
-    assert all(s["noise"]["ratio"] < 1.3 and s["unexplained"] is None for s in right.values())
     equations = list(truth.equations)
     equations[1] = equations[1].replace(state={k: v for k, v in equations[1].state.items()
                                                if k != V2})  # mass 2 loses its damper
@@ -212,5 +230,4 @@ def test_residual_statistics_point_at_the_coordinate_that_misses_something():
     assert wrong["x2"]["noise"]["ratio"] > 3 * right["x2"]["noise"]["ratio"]
     assert wrong["x2"]["unexplained"] is not None
     assert "misses something" in summary_line("x2", wrong["x2"])
-    with pytest.raises(ValueError, match="not the model's coordinates"):
-        residual_statistics(truth, record.measurement("x1"))
+    assert any("x'" in line for line in wrong["x2"]["unexplained"]["suggestions"])
