@@ -209,8 +209,8 @@ def _gear_line(measurement, r1, r2, j1, j2, k_m, c_m, *, third_law: bool = False
 
 def standard_errors(fit, measurement, held: tuple[str, ...]) -> dict:
     """Relative standard errors of a system fit's free constants (the forcing
-    coefficients named in ``held`` excluded; a tied pair is one constant), σ²·(JᵀJ)⁻¹ with J the output-error
-    Jacobian of the responses, each coordinate over its standard deviation, from the
+    coefficients named in ``held`` excluded; a tied pair is one constant), σ²·(JᵀJ)⁻¹
+    with J the output-error Jacobian of the responses, each coordinate over its standard deviation, from the
     variational equations at the fitted constants (:meth:`PopulationEvaluator.
     constant_jacobian`), initial states included as nuisance parameters; and the
     correlations above 0.5 in magnitude."""

@@ -206,7 +206,8 @@ class Refiner:
             index_scale[i, : columns.size] = scale[i, columns]
         moves = [index, index_scale]
         if ties is not None:  # the tied column of each free one (0 with sign 0: none)
-            mirror, mirror_sign = np.zeros((count, width), dtype=np.int32), np.zeros((count, width))
+            mirror = np.zeros((count, width), dtype=np.int32)
+            mirror_sign = np.zeros((count, width))
             for i, b in zip(*np.nonzero(follows)):
                 j = np.flatnonzero(index[i] == abs(follows[i, b]) - 1)
                 mirror[i, j], mirror_sign[i, j] = b, np.sign(follows[i, b])
@@ -216,8 +217,9 @@ class Refiner:
         for size, chunk in padded_chunks((start, *moves), self.batch):
             began = time.perf_counter()
             out = jax.block_until_ready(self._run(chunk[0], tuple(chunk[1:]), basis))
-            if (layout.width, width) not in self._compiled:  # a first call includes its compile
-                self._compiled.add((layout.width, width))
+            shape = (layout.width, width, len(moves))
+            if shape not in self._compiled:  # a first call includes its compile
+                self._compiled.add(shape)
                 self.compile_seconds += time.perf_counter() - began
             outputs.append([np.asarray(o)[:size] for o in out])
         params, ok, steps = (np.concatenate(p) for p in zip(*outputs))

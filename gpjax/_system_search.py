@@ -341,8 +341,8 @@ class _Scorer:
         if width not in self._refiners:
             self._refiners[width] = Refiner(self.evaluator, iterations=20, max_free=width,
                                             batch=REFINE_BATCH)
-        refined = self._refiners[width].refine(
-            population, fixed, [tie_columns(ties, self.evaluator) for _, ties in coupled]).population
+        ties = [tie_columns(t, self.evaluator) for _, t in coupled]
+        refined = self._refiners[width].refine(population, fixed, ties).population
         scores = self.evaluator.score(refined)
         for k, start, coefficients, value in zip(
                 chosen, starts, from_system_population(refined, self.evaluator, starts),
