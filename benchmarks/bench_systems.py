@@ -135,10 +135,11 @@ def gear(seed: int = 0) -> dict:
         print("gear, line of action, structure searched by the system GP (population 60, "
               f"2 generations{', third law' if third_law else ''}):")
         began = time.perf_counter()
-        settings = SystemSearch.of(population=60, generations=2, input_interpolation="bandlimited",
-                                third_law=third_law)
+        settings = SystemSearch.of(population=60, generations=2, epsilon=0.0,
+                                   input_interpolation="bandlimited", third_law=third_law)
         result = search_system(record.line_of_action(), settings=settings, seed=seed)
         row = _line_constants(result.fit, time.perf_counter() - began, *args)
+        row["generations_run"] = len(result.history)
         row["structure"] = [{"state": sorted(map(str, e.state)),
                              "forcing": sorted(map(str, e.forcing))}
                             for e in result.model.equations]
