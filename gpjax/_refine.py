@@ -134,7 +134,8 @@ class Refiner:
         the next even number, at most ``max_free`` (one compile per width used)."""
         return min(self.max_free, free + free % 2)
 
-    def refine(self, population: Population, fixed_forcing: np.ndarray) -> Refinement:
+    def refine(self, population: Population, fixed_forcing: np.ndarray,
+               held_inner: np.ndarray | None = None) -> Refinement:
         """Refine every model of ``population``; coefficients that are 0 stay 0.
 
         Args:
@@ -143,14 +144,18 @@ class Refiner:
                 first input), or −1 where the mass is the normalised constant instead; for
                 a system of D equations (P, D), one per equation (each equation's scale is
                 free on its own).
+            held_inner: (P, n_inner) booleans, inner constants held at their start values
+                (a snapped phase or scale, :mod:`gpjax._select_moves`); default none.
         """
         ev = self.evaluator
         plain = ev.plain_rows(population)
+        if held_inner is None:
+            held_inner = np.zeros(population.inner.shape, dtype=bool)
         if plain.all() or not plain.any():
-            return self._refine(population, fixed_forcing, bool(plain[0]))
+            return self._refine(population, fixed_forcing, bool(plain[0]), held_inner)
         rows = [np.flatnonzero(plain), np.flatnonzero(~plain)]
         parts = [self._refine(population.rows(r), np.asarray(fixed_forcing)[r],
-                              bool(plain[r[0]])) for r in rows]
+                              bool(plain[r[0]]), held_inner[r]) for r in rows]
         back = np.argsort(np.concatenate(rows))
         merged = Population.concatenate(p.population for p in parts)
         return Refinement(population=merged.rows(back),
@@ -158,7 +163,7 @@ class Refiner:
                           steps=np.concatenate([p.steps for p in parts])[back])
 
     def _refine(self, population: Population, fixed_forcing: np.ndarray,
-                plain: bool) -> Refinement:
+                plain: bool, held_inner: np.ndarray) -> Refinement:
         """:meth:`refine` of models that all use no family (``plain``: on the evaluator's
         :attr:`~PopulationEvaluator.plain_layout`) or all on its full layout."""
         ev = self.evaluator
@@ -178,7 +183,7 @@ class Refiner:
         for column, slots in ([] if plain else ev.inner_columns()):  # θ move where used
             used = population.state[:, column] != 0
             free[:, [layout.inner_column(k) for k in range(slots.start, slots.stop)]] = \
-                used[:, None]
+                used[:, None] & ~held_inner[:, slots]
         scale = np.where(scale > 0, scale, 1.0)
         # Only free parameters are differentiated: index (P, width), padded with scale 0.
         width = self.width(int(free.sum(axis=1).max()))
