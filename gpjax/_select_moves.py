@@ -4,10 +4,11 @@ A neighbour is the model with one of these changes, refitted afterwards:
 
 * **removal** of one term (never the input whose coefficient is normalised to 1);
 * **swap**: one term replaced by another basis feature (:meth:`Fitness.basis_features`);
-* **snap** of an inner constant of sin/cos(a·z + b) to its simple value — the phase b to 0
-  (an odd law), the scale a to 1 (the variable is itself the angle, in radians), or both;
-  a snapped constant is *held* (never refined, not counted as fitted). tanh and exp
-  scales carry the units of z, so they have no unit-free simple value and are not snapped;
+* **snap** of an inner constant to its simple value, *held* from then on (never refined,
+  not counted as fitted): in sin/cos(a·z + b) the phase b to 0 (an odd law), the scale a
+  to 1 (the variable is itself the angle, in radians), or both; in tanh(a·z) the scale to
+  the smoothed sign's, 1/(SIGN_WIDTH·RMS z) (dry friction's sign law has no scale of its
+  own; :mod:`gpjax._features`). exp's scale carries the units of z and has no simple value;
 * **function → powers**: a feature with inner constants replaced by two powers z^j, z^k
   of its variable (a Taylor pair: x and x³ in place of sin(a·x + b));
 * **powers → function**: one or two powers of z replaced by one bank feature of z with no
@@ -25,7 +26,7 @@ import itertools
 
 from ._canonical import CanonicalForm
 from ._coefficients import Coefficients
-from ._features import match
+from ._features import SIGN_WIDTH, match
 from ._fitness import structure_key
 
 #: Simple values of sin/cos(a·z + b): slot 0 is a, slot 1 is b (see the module docstring).
@@ -94,6 +95,10 @@ def neighbours(fitness, record) -> list[Move]:
                 snapped = tuple(snap.get(k, v) for k, v in enumerate(theta))
                 moves.append(move({**rest, family.feature(symbols, snapped): value}, forcing,
                                   added=[first + k for k in snap]))
+        if family.function == "tanh" and first not in held:
+            sign = (1.0 / (SIGN_WIDTH * fitness.scales[family.role]),)
+            moves.append(move({**rest, family.feature(symbols, sign): value}, forcing,
+                              added=[first]))
         z = family.variable(symbols)
         for j, k in itertools.combinations(range(1, fitness.config.max_degree + 1), 2):
             moves.append(move({**rest, z ** j: rest.get(z ** j, value),
