@@ -41,8 +41,8 @@ class Identifier:
         config: run settings (:class:`GPConfig`); keyword overrides are applied on top.
 
     After :meth:`fit`: ``model_`` (the reported :class:`Model`), ``equations_`` (the Pareto
-    table of complexity vs objective, one dict per row; :meth:`sympy` and :meth:`latex`
-    take a row index), ``history_`` (per generation),
+    table of complexity — fitted constants — vs objective, one dict per row; :meth:`sympy`
+    and :meth:`latex` take a row index), ``history_`` (per generation),
     ``stopped_by`` (``"epsilon"``, ``"generations"`` or ``"interrupted"``), timings in
     ``timings_``, and ``convergence_``: each check of the reported model's RK4 integration
     against the reference solve (:class:`~gpjax._convergence.Convergence`), the last one

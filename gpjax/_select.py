@@ -37,14 +37,15 @@ The null hypothesis is the simpler model, so an adequate simpler model is kept w
 probability ≥ 1 − α at each move: the constants a model keeps are the ones the held-out
 data demonstrably need, not those under a tolerance on the objective. No correction over
 neighbours: each test is of its own simpler model, and a correction would only make the
-current model harder to keep. A neighbour of equal complexity must earn its place as the
-diagnosis's candidates do: it replaces the current model when it predicts the held-out
-part significantly better, at level ``alpha`` Bonferroni-corrected over the neighbours of
-equal complexity (of two stand-ins that fit a record equally well the walk keeps the one
-it reached, not a coin flip on the noise). Neighbours are tried in the order (complexity,
-objective on the whole record) and the first that qualifies is taken, so the walk goes to
-the simplest model the test cannot reject; each move lowers the complexity or, at equal
-complexity, passes the test, and no model is visited twice, so it ends.
+current model harder to keep. When no simpler neighbour qualifies, a neighbour as complex
+or more must earn its place as the diagnosis's candidates do: it replaces the current
+model when it predicts the held-out part significantly better, at level ``alpha``
+Bonferroni-corrected over those neighbours (so a GP best that lacks the physics, x where
+sin x belongs, is still corrected; of two stand-ins that fit equally well the walk keeps
+the one it reached, not a coin flip on the noise). Neighbours are tried in the order
+(complexity, objective on the whole record) and the first that qualifies is taken, so the
+walk goes to the simplest model the test cannot reject. A forward move passes a test that
+the way back fails (p·m < α implies p < α) and no model is visited twice, so it ends.
 
 A difference from the paper, which reports the best tree as found.
 """
@@ -102,11 +103,10 @@ def simplify(fitness: Fitness, best: Record, alpha: float) -> tuple[Record, list
     current, path, seen = best, [best], {best.key}
     while True:
         options = sorted((r for r in _neighbour_records(fitness, current)
-                          if r.valid and r.status == OK and r.key not in seen
-                          and r.complexity <= current.complexity),
+                          if r.valid and r.status == OK and r.key not in seen),
                          key=lambda r: (r.complexity, r.objective))
         base = held_out_residual(fitness, current)
-        peers = sum(r.complexity == current.complexity for r in options)
+        peers = sum(r.complexity >= current.complexity for r in options)
         chosen = next((r for r in options if _replaces(
             r, held_out_residual(fitness, r), current, base, alpha, peers)), None)
         if chosen is None:
@@ -119,7 +119,7 @@ def simplify(fitness: Fitness, best: Record, alpha: float) -> tuple[Record, list
 def _replaces(record: Record, residual: np.ndarray, current: Record, base: np.ndarray,
               alpha: float, peers: int) -> bool:
     """Whether a neighbour replaces the current model (module docstring); ``peers``: the
-    neighbours as complex as the current model (the Bonferroni count)."""
+    neighbours at least as complex as the current model (the Bonferroni count)."""
     if record.complexity < current.complexity:
         return predictive_test(residual, base)["p_value"] >= alpha
     return predictive_test(base, residual)["p_value"] * peers < alpha

@@ -14,9 +14,7 @@ A neighbour is the model with one of these changes, refitted afterwards:
 * **powers → function**: one or two powers of z replaced by one bank feature of z with no
   fitted inner constant (z^k·|z|, or sin/cos(z) with a = 1 and b = 0 held).
 
-A single power replacing a function is a swap already. Only neighbours with at most the
-current model's complexity (:attr:`Record.complexity`) are returned: the selection never
-spends constants, finding richer structures is the GP's work.
+A single power replacing a function is a swap already.
 """
 
 from __future__ import annotations
@@ -25,7 +23,6 @@ import dataclasses
 import itertools
 
 from ._canonical import CanonicalForm
-from ._coefficients import Coefficients
 from ._features import SIGN_WIDTH, match
 from ._fitness import structure_key
 
@@ -41,18 +38,13 @@ class Move:
     forcing: dict
     held: tuple[int, ...]
 
-    def complexity(self) -> tuple[int, int, int]:
-        """As :attr:`gpjax._fitness.Record.complexity`."""
-        c = Coefficients(mass=1.0, state=self.state, forcing=self.forcing)
-        return c.n_constants - len(self.held), c.n_terms, len(self.held)
-
     def form(self, mass: float) -> CanonicalForm:
         return CanonicalForm(mass=mass, state=tuple(self.state.items()),
                              forcing=tuple(self.forcing.items()))
 
 
 def neighbours(fitness, record) -> list[Move]:
-    """Every neighbour of ``record`` (module docstring) no more complex than it, once."""
+    """Every neighbour of ``record`` (module docstring), once."""
     ev, symbols = fitness.evaluator, fitness.symbols
     now = record.coefficients
     held = set(record.held)
@@ -104,12 +96,9 @@ def neighbours(fitness, record) -> list[Move]:
             moves.append(move({**rest, z ** j: rest.get(z ** j, value),
                                z ** k: rest.get(z ** k, value)}, forcing, [name]))
     moves += _powers_to_function(fitness, state, forcing, move)
-    limit = record.complexity
     unique = {}
     for m in moves:
-        key = (tuple(map(str, m.state)), tuple(map(str, m.forcing)), m.held)
-        if key not in unique and m.complexity() <= limit:
-            unique[key] = m
+        unique.setdefault((tuple(map(str, m.state)), tuple(map(str, m.forcing)), m.held), m)
     return list(unique.values())
 
 
