@@ -9,8 +9,8 @@ A neighbour is the model with one of these changes, refitted afterwards:
   to 1 (the variable is itself the angle, in radians), or both; in tanh(a·z) the scale to
   the smoothed sign's, 1/(SIGN_WIDTH·RMS z) (dry friction's sign law has no scale of its
   own; :mod:`gpjax._features`). exp's scale carries the units of z and has no simple value;
-* **function → powers**: a feature with inner constants replaced by two powers z^j, z^k
-  of its variable (a Taylor pair: x and x³ in place of sin(a·x + b));
+* **function → powers**: a bank feature replaced by two powers z^j, z^k of its variable
+  (a Taylor pair: x and x³ in place of sin(a·x + b) or of x·|x|);
 * **powers → function**: one or two powers of z replaced by one bank feature of z with no
   fitted inner constant (z^k·|z|, or sin/cos(z) with a = 1 and b = 0 held).
 
@@ -75,10 +75,10 @@ def neighbours(fitness, record) -> list[Move]:
                   for other in basis["forcing"] if other not in forcing]
     for name, value in state.items():
         found = match(name, symbols)
-        if found is None or found[0].n_inner == 0:
+        if found is None:
             continue
         family, theta = found
-        first = min(slots(name))
+        first = ev.inner_of(name)[0].start
         rest = {t: v for t, v in state.items() if t != name}
         if family.function in ("sin", "cos"):
             for snap in SNAPS:
