@@ -26,6 +26,7 @@ import numpy as np
 import sympy as sp
 
 from ._canonical import CanonicalForm
+from ._features import inner_constants
 
 
 @dataclasses.dataclass(frozen=True)
@@ -58,6 +59,12 @@ class Coefficients:
     def n_terms(self) -> int:
         """Complexity: inertia term + state terms + forcing terms."""
         return 1 + len(self.state) + len(self.forcing)
+
+    @property
+    def n_constants(self) -> int:
+        """Fitted constants: m, one coefficient per term and each state feature's inner
+        constants (:func:`gpjax._features.inner_constants`)."""
+        return self.n_terms + sum(inner_constants(f) for f in self.state)
 
     def replace(self, **changes) -> "Coefficients":
         return dataclasses.replace(self, **changes)

@@ -41,8 +41,8 @@ class Identifier:
         config: run settings (:class:`GPConfig`); keyword overrides are applied on top.
 
     After :meth:`fit`: ``model_`` (the reported :class:`Model`), ``equations_`` (the Pareto
-    table of complexity vs objective, one dict per row; :meth:`sympy` and :meth:`latex`
-    take a row index), ``history_`` (per generation),
+    table of complexity — fitted constants — vs objective, one dict per row; :meth:`sympy`
+    and :meth:`latex` take a row index), ``history_`` (per generation),
     ``stopped_by`` (``"epsilon"``, ``"generations"`` or ``"interrupted"``), timings in
     ``timings_``, and ``convergence_``: each check of the reported model's RK4 integration
     against the reference solve (:class:`~gpjax._convergence.Convergence`), the last one
@@ -221,8 +221,8 @@ class Identifier:
                 "the response and input columns are right, or widen the function/terminal sets")
         front = pareto_front(valid)
         fitness.refine(front)
-        best = min(valid, key=lambda r: (r.objective, r.n_terms))
-        chosen, _ = simplify(fitness, best, self.config.selection_tolerance)
+        best = min(valid, key=lambda r: (r.objective, r.complexity))
+        chosen, _ = simplify(fitness, best, self.config.selection_alpha)
         self._report(fitness, pareto_front([r for r in fitness.records.values()
                                             if r.valid and r.status == OK]), chosen, seed, state)
 
@@ -230,8 +230,8 @@ class Identifier:
                 state: RunState) -> None:
         """Set the equations table (``front``, with ``chosen`` marked, in place of the
         front's row of its complexity), history and model."""
-        front = sorted([r for r in front if r.n_terms != chosen.n_terms] + [chosen],
-                       key=lambda r: (r.n_terms, r.objective))
+        front = sorted([r for r in front if r.complexity != chosen.complexity] + [chosen],
+                       key=lambda r: (r.complexity, r.objective))
         self._front, self._chosen = front, chosen
         self._equation_models = [self._to_model(r, fitness, seed, state) for r in front]
         self.equations_ = [_row(r, model, chosen)
@@ -423,7 +423,7 @@ class _StopOnInterrupt:
 
 
 def _row(record: Record, model: Model, chosen: Record) -> dict:
-    return {"complexity": record.n_terms, "objective": record.objective, "rms": record.rms,
+    return {"complexity": record.n_constants, "objective": record.objective, "rms": record.rms,
             "f_time": record.f_time, "f_freq": record.f_freq,
             "equation": str(model.sympy()), "selected": record.key == chosen.key}
 

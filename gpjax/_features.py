@@ -87,6 +87,12 @@ class Family:
         return jnp.sin(phase) if self.function == "sin" else jnp.cos(phase)
 
 
+def inner_constants(feature: sp.Expr) -> int:
+    """Inner constants a state feature's family fits: sin/cos(a·z + b) 2, tanh(a·z) and
+    exp(a·z) 1, powers and z^k·|z| none."""
+    return _INNER.get(feature.func.__name__, 0)
+
+
 def families_for(functions, roles, max_degree: int) -> tuple[Family, ...]:
     """The families the tree ``functions`` can make for the variables ``roles`` (of
     ``"x"``, ``"x_dot"``), in a fixed order."""

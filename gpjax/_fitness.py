@@ -31,7 +31,9 @@ from ._weak_form import (WeakForm, least_squares, least_squares_residual, smooth
 
 @dataclasses.dataclass
 class Record:
-    """A scored model structure (one cache entry); ``coefficients`` is None when invalid."""
+    """A scored model structure (one cache entry); ``coefficients`` is None when invalid;
+    ``held``: slots of the evaluator's inner constants held at a snapped value (never
+    refined, not counted as fitted)."""
 
     key: str
     valid: bool
@@ -43,11 +45,25 @@ class Record:
     rms: float = PENALTY
     status: int = INVALID_STRUCTURE
     refined: bool = False
+    held: tuple[int, ...] = ()
 
     @property
     def n_terms(self) -> int:
-        """Complexity: inertia term + state terms + forcing terms."""
+        """Inertia term + state terms + forcing terms."""
         return self.coefficients.n_terms if self.coefficients is not None else 0
+
+    @property
+    def n_constants(self) -> int:
+        """Fitted constants (:attr:`Coefficients.n_constants`) less the held ones."""
+        if self.coefficients is None:
+            return 0
+        return self.coefficients.n_constants - len(self.held)
+
+    @property
+    def complexity(self) -> tuple[int, int, int]:
+        """(fitted constants, terms, held constants): the order in which models count as
+        simpler (:mod:`gpjax._select`)."""
+        return self.n_constants, self.n_terms, len(self.held)
 
     def to_json(self) -> dict:
         data = dataclasses.asdict(dataclasses.replace(self, coefficients=None))
@@ -60,6 +76,7 @@ class Record:
         data = dict(data)
         if data["coefficients"] is not None:
             data["coefficients"] = Coefficients.from_json(data["coefficients"], names)
+        data["held"] = tuple(data.get("held", ()))
         return cls(**data)
 
 
@@ -198,10 +215,13 @@ class Fitness:
             self.score_forms(new)
         return [self.records[self.classify(tree)[0]] for tree in trees]
 
-    def score_forms(self, forms: dict[str, CanonicalForm]) -> None:
+    def score_forms(self, forms: dict[str, CanonicalForm],
+                    held: dict[str, tuple[int, ...]] | None = None) -> None:
         """Set coefficients of each (key, form), score them in one batch, cache them; a form
         the evaluator cannot score (:meth:`unsupported`, e.g. a local-search move that adds
-        a second member of a family) is cached as an invalid record."""
+        a second member of a family) is cached as an invalid record. ``held``: per key,
+        inner-constant slots held at the form's values (no grid start for that form)."""
+        held = held or {}
         rows = []
         for key, form in forms.items():
             reason = self.unsupported(form)
@@ -211,12 +231,14 @@ class Fitness:
             coefficients = Coefficients.from_canonical(form, self.y0)
             if self.config.coefficients == "least_squares":
                 state, forcing = form.structure
-                state = self._inner_start(state, forcing)
+                if not held.get(key):
+                    state = self._inner_start(state, forcing)
                 mass, c, g, _ = least_squares(self.weak_form, state, forcing)
                 coefficients = coefficients.replace(
                     mass=float(mass), state=dict(zip(state, map(float, c))),
                     forcing=dict(zip(forcing, map(float, g))))
-            rows.append(Record(key=key, valid=True, coefficients=coefficients))
+            rows.append(Record(key=key, valid=True, coefficients=coefficients,
+                               held=held.get(key, ())))
         self._score_records(rows)
         for record in rows:
             self.records[record.key] = record
@@ -264,6 +286,19 @@ class Fitness:
     def population(self, records: list[Record]) -> Population:
         return to_population([r.coefficients for r in records], self.evaluator)
 
+    def held(self, records: list[Record]) -> tuple[np.ndarray, np.ndarray]:
+        """What refinement holds per record: the forcing column held at 1 (the first
+        input, −1: none) and the inner constants held (``Record.held``), as
+        :meth:`gpjax._refine.Refiner.refine` takes them."""
+        u0 = self.symbols.u[0] if self.symbols.u else None
+        fixed = np.array([self.evaluator.forcing_index(u0)
+                          if u0 is not None and u0 in r.coefficients.forcing else -1
+                          for r in records])
+        inner = np.zeros((len(records), self.evaluator.n_inner), dtype=bool)
+        for i, record in enumerate(records):
+            inner[i, list(record.held)] = True
+        return fixed, inner
+
     def _score_records(self, records: list[Record]) -> None:
         scores = self.evaluator.score(self.population(records))
         _store(records, scores)
@@ -284,11 +319,7 @@ class Fitness:
         if not records:
             return
         population = self.population(records)
-        u0 = self.symbols.u[0] if self.symbols.u else None
-        fixed = np.array([self.evaluator.forcing_index(u0)
-                          if u0 is not None and u0 in r.coefficients.forcing else -1
-                          for r in records])
-        refined = self.refiner.refine(population, fixed)
+        refined = self.refiner.refine(population, *self.held(records))
         scores = self.evaluator.score(refined.population)
         moved = from_population(refined.population, self.evaluator,
                                 [r.coefficients for r in records])

@@ -135,7 +135,7 @@ class Refiner:
         return min(self.max_free, free + free % 2)
 
     def refine(self, population: Population, fixed_forcing: np.ndarray,
-               ties=None) -> Refinement:
+               held_inner: np.ndarray | None = None, *, ties=None) -> Refinement:
         """Refine every model of ``population``; coefficients that are 0 stay 0.
 
         Args:
@@ -144,6 +144,8 @@ class Refiner:
                 first input), or −1 where the mass is the normalised constant instead; for
                 a system of D equations (P, D), one per equation (each equation's scale is
                 free on its own), −2 where nothing of that equation is held.
+            held_inner: (P, n_inner) booleans, inner constants held at their start values
+                (a snapped phase or scale, :mod:`gpjax._select_moves`); default none.
             ties: per model, (equation, column, equation, column, sign) state coefficients
                 that move together, the second by ``sign`` × the first's step (Newton's
                 third law, :mod:`gpjax._system_couplings`; the start must obey them);
@@ -153,13 +155,15 @@ class Refiner:
         plain = ev.plain_rows(population)
         if ties is not None and not any(ties):
             ties = None
+        if held_inner is None:
+            held_inner = np.zeros(population.inner.shape, dtype=bool)
         if plain.all() or not plain.any():
-            return self._refine(population, fixed_forcing, bool(plain[0]), ties)
+            return self._refine(population, fixed_forcing, bool(plain[0]), held_inner, ties)
         if ties is not None:
             raise ValueError("tied coefficients are for systems, which use no family")
         rows = [np.flatnonzero(plain), np.flatnonzero(~plain)]
         parts = [self._refine(population.rows(r), np.asarray(fixed_forcing)[r],
-                              bool(plain[r[0]])) for r in rows]
+                              bool(plain[r[0]]), held_inner[r]) for r in rows]
         back = np.argsort(np.concatenate(rows))
         merged = Population.concatenate(p.population for p in parts)
         return Refinement(population=merged.rows(back),
@@ -167,7 +171,7 @@ class Refiner:
                           steps=np.concatenate([p.steps for p in parts])[back])
 
     def _refine(self, population: Population, fixed_forcing: np.ndarray,
-                plain: bool, ties=None) -> Refinement:
+                plain: bool, held_inner: np.ndarray, ties=None) -> Refinement:
         """:meth:`refine` of models that all use no family (``plain``: on the evaluator's
         :attr:`~PopulationEvaluator.plain_layout`) or all on its full layout."""
         ev = self.evaluator
@@ -194,7 +198,7 @@ class Refiner:
         for column, slots in ([] if plain else ev.inner_columns()):  # θ move where used
             used = population.state[:, column] != 0
             free[:, [layout.inner_column(k) for k in range(slots.start, slots.stop)]] = \
-                used[:, None]
+                used[:, None] & ~held_inner[:, slots]
         scale = np.where(scale > 0, scale, 1.0)
         # Only free parameters are differentiated: index (P, width), padded with scale 0.
         width = self.width(int(free.sum(axis=1).max()))

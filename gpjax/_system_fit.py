@@ -288,7 +288,7 @@ def _refit(measurement, structure, start, steps, max_degree, interpolation, iter
         raise ValueError("the least-squares start of the system is not finite")
     free = sum(1 + len(s) + len(f) + 2 for s, f in structure)
     refiner = Refiner(evaluator, iterations=iterations, max_free=free + free % 2, batch=1)
-    refined = refiner.refine(population, fixed, [tie_columns(ties, evaluator)]).population
+    refined = refiner.refine(population, fixed, ties=[tie_columns(ties, evaluator)]).population
     equations = from_system_population(refined, evaluator, [start])[0]
     model = dataclasses.replace(model, equations=tuple(equations))
     scores = evaluator.score(to_system_population([equations], evaluator))

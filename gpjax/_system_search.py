@@ -28,7 +28,7 @@ coordinate i fits, so a parent's good equation is a building block that subtree 
 would mostly break. Each generation the ``local_search`` best systems also offer their
 one-term changes (a power of one variable or an input added to one equation, or a term
 dropped). The reported system is the simplest whose objective is within
-``selection_tolerance`` of the best found (one-term removals, refitted), refitted at
+``SystemSearch.selection_tolerance`` of the best found (one-term removals, refitted), refitted at
 converged integration (:func:`gpjax._system_fit.fit_system`).
 
 With Newton's third law (``SystemSearch.third_law``, :mod:`gpjax._system_couplings`) the
@@ -227,7 +227,7 @@ def search_system(measurement: Measurement, *, settings: SystemSearch = SystemSe
     best = scorer.key(trees[int(np.argmin(fitness))])
     if best is None:
         raise ValueError("no valid system was found; widen the search")
-    best = _simplest(best, scorer, config.selection_tolerance)
+    best = _simplest(best, scorer, settings.selection_tolerance)
     start = scorer.coefficients(best)
     fit = fit_system(measurement, scorer.normalised(best), max_degree=config.max_degree,
                      input_interpolation=config.input_interpolation, start=start,
@@ -342,7 +342,7 @@ class _Scorer:
             self._refiners[width] = Refiner(self.evaluator, iterations=20, max_free=width,
                                             batch=REFINE_BATCH)
         ties = [tie_columns(t, self.evaluator) for _, t in coupled]
-        refined = self._refiners[width].refine(population, fixed, ties).population
+        refined = self._refiners[width].refine(population, fixed, ties=ties).population
         scores = self.evaluator.score(refined)
         for k, start, coefficients, value in zip(
                 chosen, starts, from_system_population(refined, self.evaluator, starts),

@@ -29,7 +29,7 @@ SYSTEM_CONFIG = GPConfig(population=200, max_degree=3, max_depth=5, max_size=30,
 #: (a system's trees use add, sub, mul on the states and inputs; constants come from
 #: least squares; its refinements take 20 steps; RK4 steps and initial states are found).
 UNUSED = ("functions", "variables", "named_constants", "interval_constants", "coefficients",
-          "refine_iterations", "substeps", "initial_conditions")
+          "refine_iterations", "substeps", "initial_conditions", "selection_alpha")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -39,13 +39,16 @@ class SystemSearch:
     Attributes:
         config: the GP settings (population, generations, epsilon, operator
             probabilities, tree limits, max_degree, tournament size, refine_top,
-            local_search, selection_tolerance, input_interpolation, the objective's
+            local_search, input_interpolation, the objective's
             weights and bins, convergence_tolerance); :data:`UNUSED` fields must keep
             their defaults.
         p_swap: probability that a crossover swaps a whole equation between the parents.
         local_steps: most one-term descent steps per local-search start.
         third_law: each coupling force acts on both of its coordinates with opposite
             signs, its constants shared (:mod:`gpjax._system_couplings`).
+        selection_tolerance: the reported system is the simplest whose objective is within
+            this fraction of the best (the one-coordinate GP's held-out test,
+            ``GPConfig.selection_alpha``, is not yet used for systems).
 
     Raises:
         ConfigError: a value out of range or of the wrong type, or a :data:`UNUSED` field
@@ -56,6 +59,7 @@ class SystemSearch:
     p_swap: float = 0.3
     local_steps: int = 4
     third_law: bool = False
+    selection_tolerance: float = 0.05
 
     def __post_init__(self) -> None:
         if not isinstance(self.config, GPConfig):
@@ -72,6 +76,10 @@ class SystemSearch:
                 self.local_steps < 0:
             raise ConfigError(f"local_steps must be a non-negative integer, got "
                               f"{self.local_steps!r}")
+        if isinstance(self.selection_tolerance, bool) or not isinstance(
+                self.selection_tolerance, (int, float)) or not 0 <= self.selection_tolerance < 1:
+            raise ConfigError("selection_tolerance must be a number in [0, 1), got "
+                              f"{self.selection_tolerance!r}")
         if not isinstance(self.third_law, bool):
             raise ConfigError(f"third_law must be true or false, got {self.third_law!r}")
 

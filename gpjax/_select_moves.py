@@ -1,0 +1,139 @@
+"""Neighbours of a model for the final selection (:func:`gpjax._select.simplify`).
+
+A neighbour is the model with one of these changes, refitted afterwards:
+
+* **removal** of one term (never the input whose coefficient is normalised to 1);
+* **swap**: one term replaced by another basis feature (:meth:`Fitness.basis_features`);
+* **snap** of an inner constant to its simple value, *held* from then on (never refined,
+  not counted as fitted): in sin/cos(a·z + b) the phase b to 0 (an odd law), the scale a
+  to 1 (the variable is itself the angle, in radians), or both; in tanh(a·z) the scale to
+  the smoothed sign's, 1/(SIGN_WIDTH·RMS z) (dry friction's sign law has no scale of its
+  own; :mod:`gpjax._features`). exp's scale carries the units of z and has no simple value;
+* **function → powers**: a bank feature replaced by two powers z^j, z^k of its variable
+  (a Taylor pair: x and x³ in place of sin(a·x + b) or of x·|x|);
+* **powers → function**: one or two powers of z replaced by one bank feature of z with no
+  fitted inner constant (z^k·|z|, or sin/cos(z) with a = 1 and b = 0 held).
+
+A single power replacing a function is a swap already.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import itertools
+
+from ._canonical import CanonicalForm
+from ._features import SIGN_WIDTH, match
+from ._fitness import structure_key
+
+#: Simple values of sin/cos(a·z + b): slot 0 is a, slot 1 is b (see the module docstring).
+SNAPS = ({1: 0.0}, {0: 1.0}, {0: 1.0, 1: 0.0})
+
+
+@dataclasses.dataclass(frozen=True)
+class Move:
+    """A neighbour's terms (feature -> start value) and held inner-constant slots."""
+
+    state: dict
+    forcing: dict
+    held: tuple[int, ...]
+
+    def form(self, mass: float) -> CanonicalForm:
+        return CanonicalForm(mass=mass, state=tuple(self.state.items()),
+                             forcing=tuple(self.forcing.items()))
+
+
+def neighbours(fitness, record) -> list[Move]:
+    """Every neighbour of ``record`` (module docstring), once."""
+    ev, symbols = fitness.evaluator, fitness.symbols
+    now = record.coefficients
+    held = set(record.held)
+
+    def slots(feature) -> set[int]:
+        where, _ = ev.inner_of(feature)
+        return set(range(where.start, where.stop))
+
+    def move(state, forcing, dropped=(), added=()) -> Move:
+        kept = held - set().union(*map(slots, dropped)) if dropped else set(held)
+        return Move(dict(state), dict(forcing), tuple(sorted(kept | set(added))))
+
+    basis = fitness.basis_features()
+    normaliser = symbols.u[0] if symbols.u else None
+    state, forcing = dict(now.state), dict(now.forcing)
+    moves = []
+    for name, value in state.items():  # removals and swaps of state terms
+        rest = {t: v for t, v in state.items() if t != name}
+        moves.append(move(rest, forcing, [name]))
+        moves += [move({**rest, other: value}, forcing, [name])
+                  for other in basis["state"] if other not in state]
+    for name, value in forcing.items():
+        if name == normaliser:
+            continue
+        rest = {t: v for t, v in forcing.items() if t != name}
+        moves.append(move(state, rest))
+        moves += [move(state, {**rest, other: value})
+                  for other in basis["forcing"] if other not in forcing]
+    for name, value in state.items():
+        found = match(name, symbols)
+        if found is None:
+            continue
+        family, theta = found
+        first = ev.inner_of(name)[0].start
+        rest = {t: v for t, v in state.items() if t != name}
+        if family.function in ("sin", "cos"):
+            for snap in SNAPS:
+                if any(first + k in held for k in snap):
+                    continue
+                snapped = tuple(snap.get(k, v) for k, v in enumerate(theta))
+                moves.append(move({**rest, family.feature(symbols, snapped): value}, forcing,
+                                  added=[first + k for k in snap]))
+        if family.function == "tanh" and first not in held:
+            sign = (1.0 / (SIGN_WIDTH * fitness.scales[family.role]),)
+            moves.append(move({**rest, family.feature(symbols, sign): value}, forcing,
+                              added=[first]))
+        z = family.variable(symbols)
+        for j, k in itertools.combinations(range(1, fitness.config.max_degree + 1), 2):
+            moves.append(move({**rest, z ** j: rest.get(z ** j, value),
+                               z ** k: rest.get(z ** k, value)}, forcing, [name]))
+    moves += _powers_to_function(fitness, state, forcing, move)
+    unique = {}
+    for m in moves:
+        unique.setdefault((tuple(map(str, m.state)), tuple(map(str, m.forcing)), m.held), m)
+    return list(unique.values())
+
+
+def _powers_to_function(fitness, state: dict, forcing: dict, move) -> list[Move]:
+    """One or two powers of x (or of x') replaced by a bank feature of that variable with
+    no fitted inner constant (module docstring)."""
+    ev, symbols = fitness.evaluator, fitness.symbols
+    moves = []
+    used = {ev.state_index(f) for f in state}
+    for family in ev.families:
+        z = family.variable(symbols)
+        powers = [f for f in state if f == z or (f.is_Pow and f.base == z)]
+        if family.function in ("sin", "cos"):
+            feature = family.feature(symbols, (1.0, 0.0))
+            slots = ev.inner_of(feature)[0]
+            added = list(range(slots.start, slots.stop))
+        elif family.n_inner == 0:
+            feature, added = family.feature(symbols), []
+        else:
+            continue
+        if ev.state_index(feature) in used:
+            continue
+        for count in (1, 2):
+            for replaced in itertools.combinations(powers, count):
+                rest = {t: v for t, v in state.items() if t not in replaced}
+                moves.append(move({**rest, feature: state[replaced[0]]}, forcing,
+                                  added=added))
+    return moves
+
+
+def move_key(move: Move, mass: float, tree_mode: bool) -> str:
+    """The record key of a neighbour: its structure key, the held slots, and in tree mode
+    the ``pruned`` prefix (:func:`gpjax._fitness.structure_key`)."""
+    key = structure_key(move.form(mass), with_coefficients=False)
+    if move.held:
+        key += " | held " + ",".join(map(str, move.held))
+    return "pruned " + key if tree_mode else key
+

@@ -1,0 +1,88 @@
+"""The reported model's selection (gpjax._select): complexity as fitted constants, the
+held-out test at level alpha, and the moves that reach a truth from its stand-ins."""
+
+import types
+
+import numpy as np
+import pytest
+import sympy as sp
+
+from gpjax import GPConfig
+from gpjax._canonical import CanonicalForm
+from gpjax._config import ConfigError
+from gpjax._diagnose_acceptance import predictive_test
+from gpjax._fitness import Fitness
+from gpjax._select import _replaces, held_out_residual, simplify
+from gpjax.systems import generate
+
+FUNCTIONS = ("add", "sub", "mul", "sin", "abs", "sign", "tanh", "exp")
+X, V, U = sp.symbols("x x_dot u")
+
+
+def _fitness(system: str) -> Fitness:
+    """The suite's seed-0 fit record (2,001 samples, 1 % noise; half of it does not tell
+    the pendulum's sine from its Taylor pair, p = 0.81)."""
+    measurement = generate(system, seed=0).fit.measurement()
+    return Fitness(measurement, GPConfig(population=8, generations=1, functions=FUNCTIONS,
+                                         max_degree=3))
+
+
+def _record(fitness: Fitness, state: dict):
+    form = CanonicalForm(mass=1.0, state=tuple(state.items()), forcing=((U, 1.0),))
+    key = "start " + str(state)
+    fitness.score_forms({key: form})
+    record = fitness.records[key]
+    fitness.refine([record])
+    return record
+
+
+def _sin(a: float, b: float) -> sp.Expr:
+    return sp.sin(sp.Float(a) * X + sp.Float(b))
+
+
+def test_duffing_cubic_over_a_cancelling_sine():
+    """Duffing (k·x + k3·x³): from the physics suite's stand-in k·x + K·sin(a·x + b) with
+    cancelling k ≈ −K ≈ 2500 (7 fitted constants), the walk reaches k·x + k3·x³ (5)."""
+    fitness = _fitness("duffing")
+    stand_in = _record(fitness, {X: 2492.0, _sin(0.995, 6e-6): -2464.0, V: 2.0})
+    assert stand_in.complexity == (7, 5, 0)
+    chosen, path = simplify(fitness, stand_in, 0.05)
+    assert set(chosen.coefficients.state) == {X, X ** 3, V}, [r.key for r in path]
+    assert chosen.coefficients.state[X ** 3] == pytest.approx(400.0, rel=0.02)
+
+
+def test_pendulum_keeps_the_sine():
+    """Pendulum (k·sin x): sin(a·x + b) stays a sine (its constants snapped to a = 1, b = 0)
+    and is not traded for the Taylor pair k·x + k3·x³, which the test rejects."""
+    fitness = _fitness("pendulum")
+    best = _record(fitness, {_sin(0.999, -2e-4): 39.5, V: 1.5})
+    chosen, path = simplify(fitness, best, 0.05)
+    state = chosen.coefficients.state
+    assert any(f.func == sp.sin for f in state) and X ** 3 not in state, [r.key for r in path]
+    taylor = _record(fitness, {X: 39.4, X ** 3: -6.3, V: 1.5})
+    p = predictive_test(held_out_residual(fitness, taylor),
+                        held_out_residual(fitness, chosen))["p_value"]
+    assert p < 0.05
+
+
+def test_the_level_decides():
+    """A simpler model replaces the current one exactly when the current one's held-out
+    gain has p ≥ alpha; at equal complexity the candidate must pass at alpha/peers."""
+    rng = np.random.default_rng(3)
+    current_residual = rng.normal(size=400)
+    simpler_residual = current_residual * 1.08 + 0.1 * rng.normal(size=400)
+    p = predictive_test(simpler_residual, current_residual)["p_value"]
+    assert 0.0 < p < 0.5
+    current = types.SimpleNamespace(complexity=(5, 4, 0))
+    simpler = types.SimpleNamespace(complexity=(4, 3, 0))
+    assert _replaces(simpler, simpler_residual, current, current_residual, p / 2, 1)
+    assert not _replaces(simpler, simpler_residual, current, current_residual, p * 2, 1)
+    equal = types.SimpleNamespace(complexity=(5, 4, 0))
+    assert _replaces(equal, current_residual, current, simpler_residual, p * 2, 1)
+    assert not _replaces(equal, current_residual, current, simpler_residual, p * 2, 4)
+
+
+@pytest.mark.parametrize("alpha", [0.0, 1.0, -0.1])
+def test_selection_alpha_is_validated(alpha):
+    with pytest.raises(ConfigError, match="selection_alpha"):
+        GPConfig(selection_alpha=alpha)
