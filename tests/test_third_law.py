@@ -129,6 +129,10 @@ def test_system_search_takes_a_gpconfig_and_refuses_fields_it_does_not_use(tmp_p
         SystemSearch(p_swap=1.5)
     with pytest.raises(ConfigError, match="third_law"):
         SystemSearch(third_law="yes")
+    with pytest.raises(ConfigError, match="selection_tolerance must be"):
+        SystemSearch(selection_tolerance=1.0)
+    with pytest.raises(ConfigError, match="selection_alpha is not used"):
+        SystemSearch(config=GPConfig(selection_alpha=0.01))
     with pytest.raises(ConfigError, match="population"):
         SystemSearch.of(population=2)
     with pytest.raises(TypeError):
