@@ -79,11 +79,12 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ._canonical import Symbols
-from ._convergence import MAX_SUBSTEPS, check_model, initial_substeps, next_substeps
+from ._convergence import (MAX_SUBSTEPS, Convergence, check_model, initial_substeps,
+                           next_substeps)
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._diagnose_acceptance import accepted
 from ._diagnose_evidence import (Candidate, charge, input_lines, rank_by_output_error,
-                                 rank_effects)
+                                 rank_effects, score_statistics)
 from ._diagnose_fits import Fit, FitProblem, Structure, drifts, fit_structures
 from ._diagnose_noise import input_lines_only, noise_floor
 from ._diagnose_residual import FAR_ABOVE, describe_residual
@@ -255,6 +256,7 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         raise UserInputError(f"holdout must lie in [0.05, 0.5], got {holdout}; use e.g. 0.25")
     if mode not in ("auto", "simulation", "equation_error"):
         raise UserInputError(f"mode {mode!r} is unknown; use auto, simulation or equation_error")
+    given_interpolation = input_interpolation
     input_interpolation = input_interpolation or model.input_interpolation
     if input_interpolation not in INPUT_INTERPOLATIONS:
         raise UserInputError(f"input interpolation {input_interpolation!r} is unknown; use "
@@ -273,15 +275,20 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
     input_noise = None
     if denoise_inputs:
         measurement, input_noise = input_lines_only(measurement, alpha=alpha)
+        if (given_interpolation is None and input_interpolation == "linear" and input_noise
+                and all(entry["denoised"] for entry in input_noise.values())):
+            input_interpolation = "bandlimited"  # a sum of lines: exact between samples
     structure = start = structure_of(model)
     chosen: list[Candidate] = []
     drifting = drifts(structure, symbols)
     chosen_mode = "equation_error" if mode == "equation_error" or (
         mode == "auto" and drifting) else "simulation"
-    problem = FitProblem(measurement, symbols, holdout=holdout, iterations=iterations,
-                       substeps=substeps, batch=shortlist + 1,
-                       input_interpolation=input_interpolation,
-                       rate_band=drifting)
+    def problem_at(steps: int) -> FitProblem:
+        return FitProblem(measurement, symbols, holdout=holdout, iterations=iterations,
+                          substeps=steps, batch=shortlist + 1,
+                          input_interpolation=input_interpolation, rate_band=drifting)
+
+    problem = problem_at(substeps)
     lines = tuple(dict.fromkeys([*map(float, frequencies), *input_lines(problem.train)]))
     current = None
     steps, rankings, fits = [], [], []
@@ -296,6 +303,17 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             problem.pool_forcing = tuple(dict.fromkeys(f for c in ranked for f in c.terms.forcing))
         shortlisted = ranked[:shortlist] if round_number < max_steps else []
         candidates = [structure.plus(c.terms) for c in shortlisted]
+        while chosen_mode == "simulation" and automatic:  # integrate the current model
+            probe = current or problem.fit_equation_error([structure])[0]  # converged
+            check = _integration(probe, problem, convergence_tolerance)
+            if check.converged or substeps >= MAX_SUBSTEPS or not math.isfinite(check.ratio):
+                break
+            substeps = next_substeps(check)
+            pools = problem.pool_lhs, problem.pool_forcing
+            problem = problem_at(substeps)
+            problem.pool_lhs, problem.pool_forcing = pools
+            if current is not None:  # the last accepted structure, refitted
+                current = fits[-1] = fit_structures(problem, chosen_mode, [structure])[0]
         if current is None:
             results = fit_structures(problem, chosen_mode, [structure] + candidates)
             current, results = results[0], results[1:]
@@ -306,7 +324,10 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             order = rank_by_output_error(problem, shortlisted, results, min_gain)
             ranked = [shortlisted[i] for i in order] + ranked[len(shortlisted):]
             shortlisted, results = ranked[:len(order)], [results[i] for i in order]
-        tests = accepted(current.holdout, [r.holdout for r in results], alpha=alpha)
+        scores = (score_statistics(problem, current, shortlisted)
+                  if chosen_mode == "simulation" and results else None)
+        tests = accepted(current.holdout, [r.holdout for r in results], alpha=alpha,
+                         scores=scores)
         rankings.append([{"effect": c.effect.name, "explained": c.explained,
                           "parameters": c.parameters, "evidence": c.evidence,
                           **({"predicted": c.predicted} if c.predicted else {}),
@@ -350,6 +371,15 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             result.convergence = check.to_json()
             return result
         substeps = next_substeps(check)
+
+
+def _integration(fit: Fit, problem: FitProblem, tolerance: float) -> Convergence:
+    """The integration check (:func:`check_model`) of ``fit``'s constants and initial state
+    on the estimation part, at the problem's step count and input interpolation."""
+    model = Model.from_coefficients(problem.symbols, fit.coefficients,
+                                    input_interpolation=problem.input_interpolation,
+                                    substeps=problem.substeps)
+    return check_model(model, problem.train, tolerance=tolerance)[0]
 
 
 def _noise(d: Diagnosis, problem: FitProblem) -> dict:

@@ -86,16 +86,58 @@ def predictive_test(current: np.ndarray, candidate: np.ndarray) -> dict:
             "bandwidth": bandwidth, "batches": int(means.size), "n": int(n)}
 
 
-def accepted(current: np.ndarray, candidates: list[np.ndarray], *, alpha: float
-             ) -> list[dict]:
+def score_test(residual: np.ndarray, base: np.ndarray, extra: np.ndarray) -> dict:
+    """Score (Lagrange-multiplier) test that the coefficients of the columns ``extra`` are
+    zero, at the fit of the model of columns ``base`` (sensitivities of the simulated
+    response on the estimation samples; ``residual`` = measured − simulated there), with
+    Andrews & Monahan's (1992) prewhitened HAC variance: residual and columns filtered by
+    (1 − ρ̂L), ρ̂ the residual's lag-1 autocorrelation; Z, the filtered extra columns with
+    the filtered base ones projected out; the score g = Σ zₜr̃ₜ; W = gᵀŜ⁻¹g with Ŝ the
+    Newey–West sum of the rows zₜr̃ₜ (Bartlett weights, Andrews' bandwidth, the largest
+    over the columns); W ~ χ²ₖ, k the independent columns. Returns ``statistic``,
+    ``p_value``, ``dof``, ``bandwidth``."""
+    if not np.all(np.isfinite(residual)) or residual.size < 3:
+        return {"statistic": 0.0, "p_value": 1.0, "dof": 0, "bandwidth": 0}
+    centred = residual - np.mean(residual)
+    rho = float(np.clip(centred[1:] @ centred[:-1] / max(centred @ centred, 1e-300),
+                        -0.97, 0.97))
+    r, base, extra = (a[1:] - rho * a[:-1] for a in (residual, base, extra))
+    scale = np.linalg.norm(base, axis=0)
+    q, _ = np.linalg.qr(base / np.where(scale > 0, scale, 1.0))
+    z = extra - q @ (q.T @ extra)
+    norms = np.linalg.norm(z, axis=0)
+    keep = norms > 1e-9 * max(float(np.max(norms, initial=0.0)), 1e-300)
+    if not np.any(keep):
+        return {"statistic": 0.0, "p_value": 1.0, "dof": 0, "bandwidth": 0}
+    rows = z[:, keep] / norms[keep] * r[:, None]
+    bandwidth = max(long_run_variance(rows[:, k])[1] for k in range(rows.shape[1]))
+    covariance = rows.T @ rows
+    for lag in range(1, bandwidth + 1):
+        cross = rows[lag:].T @ rows[:-lag]
+        covariance += (1.0 - lag / (bandwidth + 1)) * (cross + cross.T)
+    score = rows.sum(axis=0)
+    k = int(np.linalg.matrix_rank(covariance))
+    statistic = float(score @ np.linalg.pinv(covariance) @ score) if k else 0.0
+    return {"statistic": statistic, "p_value": float(stats.chi2.sf(statistic, max(k, 1))),
+            "dof": k, "bandwidth": int(bandwidth)}
+
+
+def accepted(current: np.ndarray, candidates: list[np.ndarray], *, alpha: float,
+             scores: list[dict] | None = None) -> list[dict]:
     """Per candidate, :func:`predictive_test` with its Bonferroni-adjusted p-value
-    (``p_adjusted`` = min(1, m·p), m = the candidates tested) and ``passed`` (p_adjusted <
-    ``alpha``)."""
+    (min(1, m·p), m = the candidates tested) and ``passed``; with ``scores`` (the
+    candidates' :func:`score_test`, module docstring) both must pass: ``p_adjusted`` is then
+    the larger of the two adjusted p-values (the intersection–union test's), ``p_holdout``
+    and ``score`` keep each."""
     m = max(len(candidates), 1)
     results = []
-    for residual in candidates:
+    for k, residual in enumerate(candidates):
         test = predictive_test(current, residual)
         test["p_adjusted"] = min(1.0, m * test["p_value"])
+        if scores is not None:
+            score = dict(scores[k], p_adjusted=min(1.0, m * scores[k]["p_value"]))
+            test |= {"p_holdout": test["p_adjusted"], "score": score,
+                     "p_adjusted": max(test["p_adjusted"], score["p_adjusted"])}
         test["passed"] = bool(test["p_adjusted"] < alpha)
         results.append(test)
     return results
