@@ -196,5 +196,5 @@ def test_held_out_sweep_subset(name, torque_noise):
             assert result.effects_added == [], (seed, result.steps)
         else:
             assert result.effects_added[:1] == [name], (seed, result.rankings[0][:3])
-            truth = case.truth_rms(result.measurement)
+            truth = case.truth_rms(result.measurement, settings=result.settings)
             assert result.after.metrics["rms"] <= 1.5 * truth, (seed, truth)
