@@ -187,7 +187,9 @@ class Diagnosis:
 
 _TEST = ("a one-sided Diebold-Mariano test (squared-error loss, batch means longer than "
          "Andrews' AR(1) bandwidth, Wilcoxon signed-rank) that it predicts the held-out segment better "
-         "than the current model, Bonferroni over the candidates of the round, at level alpha")
+         "than the current model and, in simulation mode, a score test (prewhitened HAC) "
+         "that its coefficients are not zero on the estimation part, both required "
+         "(p = the larger), Bonferroni over the candidates of the round, at level alpha")
 CRITERION = {
     "simulation": "effects ranked by held-out output error charged (1 - min_gain)^-p, "
                   "refitted alone and, one Gauss-Newton step ahead, with the best partner "
