@@ -340,8 +340,9 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             shortlisted, results = ranked[:len(order)], [results[i] for i in order]
         # the score test needs a current fit that simulates; where it does not, the
         # held-out test alone decides (any finite candidate beats a diverged model)
-        scores = (score_statistics(problem, current, shortlisted) if chosen_mode ==
-                  "simulation" and results and math.isfinite(current.criterion) else None)
+        scores = None
+        if chosen_mode == "simulation" and results and math.isfinite(current.criterion):
+            scores = score_statistics(problem, current, shortlisted, results)
         tests = accepted(current.holdout, [r.holdout for r in results], alpha=alpha,
                          scores=scores)
         rankings.append([{"effect": c.effect.name, "explained": c.explained,

@@ -99,22 +99,28 @@ def predictive_test(current: np.ndarray, candidate: np.ndarray) -> dict:
             "bandwidth": bandwidth, "batches": int(means.size), "n": int(n)}
 
 
-def score_test(residual: np.ndarray, base: np.ndarray, extra: np.ndarray) -> dict:
+def score_test(residual: np.ndarray, base: np.ndarray, extra: np.ndarray,
+               noise: np.ndarray | None = None) -> dict:
     """Score (Lagrange-multiplier) test that the coefficients of the columns ``extra`` are
     zero, at the fit of the model of columns ``base`` (sensitivities of the simulated
     response on the estimation samples; ``residual`` = measured − simulated there), with
-    Andrews & Monahan's (1992) prewhitened HAC variance: residual and columns filtered by
-    (1 − ρ̂L), ρ̂ the residual's lag-1 autocorrelation; Z, the filtered extra columns with
-    the filtered base ones projected out; the score g = Σ zₜr̃ₜ; W = gᵀŜ⁻¹g with Ŝ the
-    Newey–West sum of the rows zₜr̃ₜ (Bartlett weights, Andrews' bandwidth, the largest
-    over the columns); W ~ χ²ₖ, k the independent columns. Returns ``statistic``,
-    ``p_value``, ``dof``, ``bandwidth``."""
-    if not np.all(np.isfinite(residual)) or residual.size < 3:
+    Andrews & Monahan's (1992) prewhitened HAC variance: columns and residuals filtered by
+    (1 − ρ̂L); Z, the filtered extra columns with the filtered base ones projected out; the
+    score g = Σ zₜr̃ₜ; W = gᵀŜ⁻¹g with Ŝ the Newey–West sum of the rows zₜẽₜ (Bartlett
+    weights, Andrews' bandwidth, the largest over the columns); W ~ χ²ₖ, k the independent
+    columns. ``noise`` (default ``residual``): the residual of the model with the extra
+    terms fitted, whose lag-1 autocorrelation gives ρ̂ and whose rows give Ŝ — the same
+    noise as ``residual`` under the null, and under the alternative without the signal the
+    extra terms explain, which a variance from ``residual`` would count as noise (the
+    Wald test's variance rather than the score test's; the two agree at the null). Returns
+    ``statistic``, ``p_value``, ``dof``, ``bandwidth``."""
+    noise = residual if noise is None else noise
+    if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(noise))) or residual.size < 3:
         return {"statistic": 0.0, "p_value": 1.0, "dof": 0, "bandwidth": 0}
-    centred = residual - np.mean(residual)
+    centred = noise - np.mean(noise)
     rho = float(np.clip(centred[1:] @ centred[:-1] / max(centred @ centred, 1e-300),
                         -0.97, 0.97))
-    r, base, extra = (a[1:] - rho * a[:-1] for a in (residual, base, extra))
+    r, e, base, extra = (a[1:] - rho * a[:-1] for a in (residual, noise, base, extra))
     scale = np.linalg.norm(base, axis=0)
     q, _ = np.linalg.qr(base / np.where(scale > 0, scale, 1.0))
     z = extra - q @ (q.T @ extra)
@@ -122,13 +128,14 @@ def score_test(residual: np.ndarray, base: np.ndarray, extra: np.ndarray) -> dic
     keep = norms > 1e-9 * max(float(np.max(norms, initial=0.0)), 1e-300)
     if not np.any(keep):
         return {"statistic": 0.0, "p_value": 1.0, "dof": 0, "bandwidth": 0}
-    rows = z[:, keep] / norms[keep] * r[:, None]
+    z = z[:, keep] / norms[keep]
+    rows = z * e[:, None]
     bandwidth = max(long_run_variance(rows[:, k])[1] for k in range(rows.shape[1]))
     covariance = rows.T @ rows
     for lag in range(1, bandwidth + 1):
         cross = rows[lag:].T @ rows[:-lag]
         covariance += (1.0 - lag / (bandwidth + 1)) * (cross + cross.T)
-    score = rows.sum(axis=0)
+    score = z.T @ r
     k = int(np.linalg.matrix_rank(covariance))
     statistic = float(score @ np.linalg.pinv(covariance) @ score) if k else 0.0
     return {"statistic": statistic, "p_value": float(stats.chi2.sf(statistic, max(k, 1))),

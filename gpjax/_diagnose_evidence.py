@@ -237,19 +237,21 @@ def _sensitivities(problem: FitProblem, fit: Fit):
         columns(terms.state + terms.parametric, terms.forcing)))
 
 
-def score_statistics(problem: FitProblem, current: Fit, candidates: list[Candidate]
-                     ) -> list[dict]:
+def score_statistics(problem: FitProblem, current: Fit, candidates: list[Candidate],
+                     results: list[Fit]) -> list[dict]:
     """Per candidate, the robust score test (:func:`gpjax._diagnose_acceptance.score_test`)
     that its coefficients are zero, on the estimation part of the current fit's residual
-    with the simulated response's sensitivities at the current fit."""
+    with the simulated response's sensitivities at the current fit, the variance from the
+    candidate's refit (``results``, same order) residual."""
     problem.simulator_for([current.structure] + [current.structure.plus(c.terms)
                                                  for c in candidates])
     jacobian, base, columns = _sensitivities(problem, current)
-    n = problem.n_train
-    residual = (problem.measurement.response - current.simulated)[:n]
+    n, measured = problem.n_train, problem.measurement.response
+    residual = (measured - current.simulated)[:n]
     return [score_test(residual, jacobian[:n, base],
-                       jacobian[:n, [c for c in columns(c.terms) if c not in base]])
-            for c in candidates]
+                       jacobian[:n, [c for c in columns(c.terms) if c not in base]],
+                       noise=(measured - fit.simulated)[:n])
+            for c, fit in zip(candidates, results)]
 
 
 def charge(candidate: Candidate, min_gain: float) -> float:

@@ -55,7 +55,8 @@ def test_a_null_term_that_predicts_the_tail_better_by_chance_is_refused():
         y = base @ np.array([1.0, 2.0, 0.5, 0.3]) + rng.standard_normal(n)
         current = y - base @ np.linalg.lstsq(base[:n_train], y[:n_train], rcond=None)[0]
         candidate = y - bigger @ np.linalg.lstsq(bigger[:n_train], y[:n_train], rcond=None)[0]
-        score = score_test(current[:n_train], base[:n_train], bigger[:n_train, 4:])
+        score = score_test(current[:n_train], base[:n_train], bigger[:n_train, 4:],
+                           noise=candidate[:n_train])
         held_out += accepted(current[n_train:], [candidate[n_train:]], alpha=0.05)[0]["passed"]
         both += accepted(current[n_train:], [candidate[n_train:]], alpha=0.05,
                          scores=[score])[0]["passed"]
