@@ -2,7 +2,10 @@
 controls.
 
 Usage: python benchmarks/diagnose_sweep.py [--json FILE] [--seeds S ...] [--noise K ...]
-       [--effects NAME ...] [--no-controls] [--rescore]
+       [--effects NAME ...] [--no-controls] [--rescore] [--merge FILE ...]
+
+Rows are written to ``--json`` as each case ends, so a run cut short is still evidence;
+``--merge`` joins the files of runs made in parts.
 
 Runs :func:`gpjax.diagnose` on the cases of :func:`gpjax.gear.undeclared_effect_case`
 (every library effect, the effects outside the library of :data:`gpjax.gear.OUTSIDE`, and
@@ -40,7 +43,9 @@ def run(name: str, seed: int, torque_noise: float) -> dict:
     return score({"effect": name, "seed": seed, "torque_noise": torque_noise,
                   "added": result.effects_added,
                   "rms_after_sigma": result.after.metrics["rms"] / NOISE_PHI,
-                  "truth_rms_sigma": case.truth_rms(result.measurement) / NOISE_PHI,
+                  "truth_rms_sigma": case.truth_rms(result.measurement,
+                                                    settings=result.settings) / NOISE_PHI,
+                  "substeps": result.settings["substeps"],
                   "truth_rms_measured_torque_sigma": case.truth_rms() / NOISE_PHI,
                   "p_values": [s["test"]["p_adjusted"] for s in result.steps],
                   "unexplained": result.unexplained is not None,
@@ -76,7 +81,10 @@ def totals(rows: list[dict]) -> dict:
                 out[f"{kind}@{noise:g}x"] = {
                     "cases": len(chosen), "passed": sum(r["passed"] for r in chosen),
                     "named_first": sum(r["named_first"] for r in chosen),
-                    "with_spurious": sum(bool(r["spurious"]) for r in chosen)}
+                    "with_spurious": sum(bool(r["spurious"]) for r in chosen),
+                    "within_1.5x_truth": sum(r["rms_after_sigma"] <= 1.5 * r["truth_rms_sigma"]
+                                             for r in chosen),
+                    "seeds": sorted({r["seed"] for r in chosen})}
     return out
 
 
@@ -89,9 +97,12 @@ def main() -> None:
     parser.add_argument("--no-controls", action="store_true")
     parser.add_argument("--rescore", action="store_true",
                         help="re-score the rows of --json with this version's criteria")
+    parser.add_argument("--merge", nargs="+", metavar="FILE",
+                        help="write the rows of these sweep files, re-scored, into --json")
     args = parser.parse_args()
-    if args.rescore:
-        rows = [score(r) for r in json.loads(Path(args.json).read_text())["rows"]]
+    if args.rescore or args.merge:
+        files = args.merge or [args.json]
+        rows = [score(r) for f in files for r in json.loads(Path(f).read_text())["rows"]]
         _write(args.json, rows)
         print(json.dumps(totals(rows), indent=1))
         return

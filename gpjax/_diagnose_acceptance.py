@@ -21,14 +21,31 @@ Newey–West variance with the same bandwidth referred to the normal rejects a t
 of the time at 5 % on 334 samples of an AR(1) with ρ = 0.9; the batch means hold the
 level (``tests/test_diagnose_statistics.py``). The m candidates tested in one round are
 Bonferroni-corrected (p·m), so a round adds a term that does not belong with probability at
-most ``alpha``: a correct model gains a spurious term with probability ≤ α, the stated
-false-discovery rate of the diagnosis. A candidate nests the current model, so under the
-null its extra coefficients fit noise on the estimation part and its held-out loss is, if
-anything, higher (Clark & McCracken 2001): the test is conservative there.
+most ``alpha`` — if the test held its level, which alone it does not (below). A candidate
+nests the current model, so under the null its extra coefficients fit noise on the
+estimation part and its held-out loss is higher *on average* (Clark & McCracken 2001), but
+not in every draw of the estimation noise.
 
-A likelihood-ratio or F test on the estimation part was the alternative; it needs the
-residual's effective degrees of freedom, which a resonant, coloured residual makes hard to
-state, whereas the held-out comparison needs only the long-run variance of d.
+Why a second test. The held-out comparison is conditional on the two fits: it asks
+whether *these* fitted models predict differently, and the base fit's own estimation
+error, extrapolated into the held-out tail, is a real difference that a null term
+sometimes happens to correct. On nested least squares with a null extra column it rejects
+~8 % of the time at 5 % (``tests/test_diagnose_statistics.py``). On the gear control of
+reporting seed 205 (examined to find this, so no longer a held-out seed for controls) it
+added ``cubic_stiffness`` (adjusted p 0.033; with the loop converged and the torque
+band-limited still static_offset at 0.047), whose coefficient is not significant on the
+estimation part (score statistic 1.0, adjusted p 1): the base fit's held-out error was
+0.26σ from the clean response, the candidate's 0.12σ, on the same estimation noise.
+So in simulation mode a candidate must also pass :func:`score_test`: that its coefficients
+are not zero at the current model's fit on the estimation part, which counts the training
+noise, prewhitened against a coloured residual (Andrews & Monahan 1992), its variance from
+the candidate's refit residual (a variance from the current residual counts the missing
+force as noise: ``input_gain`` at 4× the torque noise was missed that way). Requiring both
+(an intersection–union test, Berger 1982) keeps the level α whenever either test holds it
+— the score test for coefficients, the held-out test for the nonlinear parameters found on
+the estimation part, which make the score statistic's null distribution non-standard —
+and it can only remove acceptances. Equation-error mode keeps the blocked cross-validation
+alone: every window is held out once, there is no single extrapolated tail.
 """
 
 from __future__ import annotations
@@ -86,16 +103,65 @@ def predictive_test(current: np.ndarray, candidate: np.ndarray) -> dict:
             "bandwidth": bandwidth, "batches": int(means.size), "n": int(n)}
 
 
-def accepted(current: np.ndarray, candidates: list[np.ndarray], *, alpha: float
-             ) -> list[dict]:
+def score_test(residual: np.ndarray, base: np.ndarray, extra: np.ndarray,
+               noise: np.ndarray | None = None) -> dict:
+    """Score (Lagrange-multiplier) test that the coefficients of the columns ``extra`` are
+    zero, at the fit of the model of columns ``base`` (sensitivities of the simulated
+    response on the estimation samples; ``residual`` = measured − simulated there), with
+    Andrews & Monahan's (1992) prewhitened HAC variance: columns and residuals filtered by
+    (1 − ρ̂L); Z, the filtered extra columns with the filtered base ones projected out; the
+    score g = Σ zₜr̃ₜ; W = gᵀŜ⁻¹g with Ŝ the Newey–West sum of the rows zₜẽₜ (Bartlett
+    weights, Andrews' bandwidth, the largest over the columns); W ~ χ²ₖ, k the independent
+    columns. ``noise`` (default ``residual``): the residual of the model with the extra
+    terms fitted, whose lag-1 autocorrelation gives ρ̂ and whose rows give Ŝ — the same
+    noise as ``residual`` under the null, and under the alternative without the signal the
+    extra terms explain, which a variance from ``residual`` would count as noise (the
+    Wald test's variance rather than the score test's; the two agree at the null). Returns
+    ``statistic``, ``p_value``, ``dof``, ``bandwidth``."""
+    noise = residual if noise is None else noise
+    if not (np.all(np.isfinite(residual)) and np.all(np.isfinite(noise))) or residual.size < 3:
+        return {"statistic": 0.0, "p_value": 1.0, "dof": 0, "bandwidth": 0}
+    centred = noise - np.mean(noise)
+    rho = float(np.clip(centred[1:] @ centred[:-1] / max(centred @ centred, 1e-300),
+                        -0.97, 0.97))
+    r, e, base, extra = (a[1:] - rho * a[:-1] for a in (residual, noise, base, extra))
+    scale = np.linalg.norm(base, axis=0)
+    q, _ = np.linalg.qr(base / np.where(scale > 0, scale, 1.0))
+    z = extra - q @ (q.T @ extra)
+    norms = np.linalg.norm(z, axis=0)
+    keep = norms > 1e-9 * max(float(np.max(norms, initial=0.0)), 1e-300)
+    if not np.any(keep):
+        return {"statistic": 0.0, "p_value": 1.0, "dof": 0, "bandwidth": 0}
+    z = z[:, keep] / norms[keep]
+    rows = z * e[:, None]
+    bandwidth = max(long_run_variance(rows[:, k])[1] for k in range(rows.shape[1]))
+    covariance = rows.T @ rows
+    for lag in range(1, bandwidth + 1):
+        cross = rows[lag:].T @ rows[:-lag]
+        covariance += (1.0 - lag / (bandwidth + 1)) * (cross + cross.T)
+    score = z.T @ r
+    k = int(np.linalg.matrix_rank(covariance))
+    statistic = float(score @ np.linalg.pinv(covariance) @ score) if k else 0.0
+    return {"statistic": statistic, "p_value": float(stats.chi2.sf(statistic, max(k, 1))),
+            "dof": k, "bandwidth": int(bandwidth)}
+
+
+def accepted(current: np.ndarray, candidates: list[np.ndarray], *, alpha: float,
+             scores: list[dict] | None = None) -> list[dict]:
     """Per candidate, :func:`predictive_test` with its Bonferroni-adjusted p-value
-    (``p_adjusted`` = min(1, m·p), m = the candidates tested) and ``passed`` (p_adjusted <
-    ``alpha``)."""
+    (min(1, m·p), m = the candidates tested) and ``passed``; with ``scores`` (the
+    candidates' :func:`score_test`, module docstring) both must pass: ``p_adjusted`` is then
+    the larger of the two adjusted p-values (the intersection–union test's), ``p_holdout``
+    and ``score`` keep each."""
     m = max(len(candidates), 1)
     results = []
-    for residual in candidates:
+    for k, residual in enumerate(candidates):
         test = predictive_test(current, residual)
         test["p_adjusted"] = min(1.0, m * test["p_value"])
+        if scores is not None:
+            score = dict(scores[k], p_adjusted=min(1.0, m * scores[k]["p_value"]))
+            test |= {"p_holdout": test["p_adjusted"], "score": score,
+                     "p_adjusted": max(test["p_adjusted"], score["p_adjusted"])}
         test["passed"] = bool(test["p_adjusted"] < alpha)
         results.append(test)
     return results

@@ -16,6 +16,7 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ._data import Measurement
+from ._diagnose_acceptance import score_test
 from ._diagnose_fits import Fit, FitProblem, Structure
 from ._effects import Context, Effect, Terms
 from ._objective import amplitude_spectrum
@@ -198,12 +199,30 @@ def _gauss_newton(problem: FitProblem, fit: Fit):
     Gauss–Newton step from ``fit`` predicts with them added (their coefficients from 0,
     the fit's own parameters free): least squares of the residual measured − simulated on
     the estimation part, applied to the held-out part."""
+    jacobian, base, columns = _sensitivities(problem, fit)
+    residual = problem.measurement.response - fit.simulated
+    n = problem.n_train
+
+    def predicted(terms: Terms) -> float:
+        a = jacobian[:, base + [c for c in columns(terms) if c not in base]]
+        scale = np.linalg.norm(a[:n], axis=0)
+        a = a / np.where(scale > 0, scale, 1.0)
+        step = np.linalg.lstsq(a[:n], residual[:n], rcond=None)[0]
+        return float(np.mean((residual[n:] - a[n:] @ step) ** 2))
+
+    return predicted
+
+
+def _sensitivities(problem: FitProblem, fit: Fit):
+    """(Jacobian of the simulated response over the record at ``fit``, its columns of the
+    fit's free parameters — mass where the first input's gain is held at 1, the
+    coefficients, the initial state — and a function: terms -> their coefficients'
+    columns)."""
     structure = fit.structure
     simulator = problem.simulator_for([structure])
     ev = simulator.full
     jacobian = simulator.jacobian(fit)
-    residual = problem.measurement.response - fit.simulated
-    layout, n = ev.layout, problem.n_train
+    layout = ev.layout
 
     def columns(lhs, forcing, fixed=None):
         return ([layout.state_column(ev.state_index(f)) for f in lhs]
@@ -214,16 +233,25 @@ def _gauss_newton(problem: FitProblem, fit: Fit):
             + columns(structure.state + structure.parametric, structure.forcing,
                       problem.u0 if normalised else None)
             + [jacobian.shape[1] - 2, jacobian.shape[1] - 1])
+    return jacobian, base, lambda terms: list(dict.fromkeys(
+        columns(terms.state + terms.parametric, terms.forcing)))
 
-    def predicted(terms: Terms) -> float:
-        extra = columns(terms.state + terms.parametric, terms.forcing)
-        a = jacobian[:, base + [c for c in dict.fromkeys(extra) if c not in base]]
-        scale = np.linalg.norm(a[:n], axis=0)
-        a = a / np.where(scale > 0, scale, 1.0)
-        step = np.linalg.lstsq(a[:n], residual[:n], rcond=None)[0]
-        return float(np.mean((residual[n:] - a[n:] @ step) ** 2))
 
-    return predicted
+def score_statistics(problem: FitProblem, current: Fit, candidates: list[Candidate],
+                     results: list[Fit]) -> list[dict]:
+    """Per candidate, the robust score test (:func:`gpjax._diagnose_acceptance.score_test`)
+    that its coefficients are zero, on the estimation part of the current fit's residual
+    with the simulated response's sensitivities at the current fit, the variance from the
+    candidate's refit (``results``, same order) residual."""
+    problem.simulator_for([current.structure] + [current.structure.plus(c.terms)
+                                                 for c in candidates])
+    jacobian, base, columns = _sensitivities(problem, current)
+    n, measured = problem.n_train, problem.measurement.response
+    residual = (measured - current.simulated)[:n]
+    return [score_test(residual, jacobian[:n, base],
+                       jacobian[:n, [c for c in columns(c.terms) if c not in base]],
+                       noise=(measured - fit.simulated)[:n])
+            for c, fit in zip(candidates, results)]
 
 
 def charge(candidate: Candidate, min_gain: float) -> float:

@@ -27,7 +27,7 @@ from ._model import Model
 from ._objective import amplitude_spectrum, default_n_bins
 from ._refine import Refiner
 from ._diagnose_noise import signal_band_hz
-from ._weak_form import (WeakForm, _solve, design, evaluate, least_squares, savgol_window,
+from ._weak_form import (WeakForm, design, evaluate, least_squares, savgol_window, scaled_lstsq,
                          smoothed_derivatives, smoothing_cutoff_hz)
 
 #: Continuation of the refit when a start and its refinement both diverge (fractions of the
@@ -283,7 +283,7 @@ def blocked_cv_residual(matrix: np.ndarray, target: np.ndarray, weak: WeakForm) 
     for start, stop in zip(bounds[:-1], bounds[1:]):
         fold = slice(start, stop)
         train = (centres < centres[start] - 2 * h) | (centres > centres[stop - 1] + 2 * h)
-        solution = _solve(matrix[train], target[train])
+        solution = scaled_lstsq(matrix[train], target[train])
         residual[fold] = target[fold] - matrix[fold] @ solution
     return residual / weak.kernel_area
 

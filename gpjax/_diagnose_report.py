@@ -120,8 +120,11 @@ def _stop_lines(d: Diagnosis) -> list[str]:
     if not tested or len(d.steps) == len(d.rankings):
         return []
     best = min(tested, key=lambda e: e["test"]["p_adjusted"])
+    test = best["test"]
+    parts = (f": held-out {test['p_holdout']:.3g}, score {test['score']['p_adjusted']:.3g}"
+             if "score" in test else "")
     return ["", f"Stopped: no candidate passed the test at level {d.settings['alpha']}; the "
-            f"best, {best['effect']}, had adjusted p = {best['test']['p_adjusted']:.3g} "
+            f"best, {best['effect']}, had adjusted p = {test['p_adjusted']:.3g}{parts} "
             f"({len(tested)} tested)."]
 
 

@@ -187,7 +187,7 @@ def least_squares(weak: WeakForm, lhs: tuple[sp.Expr, ...], forcing: tuple[sp.Ex
     coefficients, solution vector of :func:`design`'s problem), columns scaled to unit norm
     for the solve. The first input's coefficient is 1 if present, else the mass is 1."""
     matrix, target, normalise = design(weak, lhs, forcing)
-    solution = _solve(matrix, target)
+    solution = scaled_lstsq(matrix, target)
     k = 1 if normalise else 0
     mass = float(solution[0]) if normalise else 1.0
     coefficients = solution[k:k + len(lhs)]
@@ -202,10 +202,10 @@ def least_squares_residual(weak: WeakForm, lhs: tuple[sp.Expr, ...],
     """Norm of the weak-form least-squares residual of a structure (how much of the data
     its features leave unexplained), in the weak form's units."""
     matrix, target, _ = design(weak, lhs, forcing)
-    return float(np.linalg.norm(target - matrix @ _solve(matrix, target)))
+    return float(np.linalg.norm(target - matrix @ scaled_lstsq(matrix, target)))
 
 
-def _solve(matrix: np.ndarray, target: np.ndarray) -> np.ndarray:
+def scaled_lstsq(matrix: np.ndarray, target: np.ndarray) -> np.ndarray:
     """Least-squares solution with columns scaled to unit norm for the solve; NaN where a
     column or the target is not finite (the structure then scores as diverged)."""
     if not matrix.shape[1]:

@@ -129,6 +129,11 @@ def test_control_with_no_missing_effect_adds_nothing(tmp_path):
     result = diagnose(case.measurement, case.start, frequencies=(285.0,))
     assert result.effects_added == []
     assert result.after.metrics["rms"] <= 1.5 * NOISE
+    # the torque reduced to its lines is simulated band-limited, the loop integrated
+    # converged; the last round's candidates carry both tests
+    assert result.settings["input_interpolation"] == "bandlimited"
+    assert result.convergence["converged"] and result.settings["substeps"] > 1
+    assert all("score" in e["test"] for e in result.rankings[-1] if "test" in e)
     write_report(result, tmp_path)
     report = json.loads((tmp_path / "report.json").read_text())
     assert report["effects_added"] == [] and report["steps"] == []

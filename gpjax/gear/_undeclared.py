@@ -101,11 +101,18 @@ class UndeclaredEffectCase:
         return Model(symbols=self.start.symbols, mass=t["J"], state=state, forcing=forcing,
                      parametric=parametric, initial_conditions=(PAPER_PHI0, PAPER_PHI_DOT0))
 
-    def truth_rms(self, measurement: Measurement | None = None) -> float:
+    def truth_rms(self, measurement: Measurement | None = None, *,
+                  settings: dict | None = None) -> float:
         """RMS error (deg) of :meth:`truth_model` simulated by gpjax's engine on the
         torque of ``measurement`` (default: the measured, noisy one), against the measured
-        response: the yardstick where the engine cannot reach the noise."""
+        response: the yardstick where the engine cannot reach the noise. ``settings``
+        (a diagnosis' ``substeps`` and ``input_interpolation``) simulate it as the diagnosis
+        simulates its own model (the defaults, one RK4 step a sample and linear
+        interpolation, miss a stiff case's truth by several σ)."""
         truth = self.truth_model()
+        if settings:
+            truth = dataclasses.replace(truth, substeps=settings["substeps"],
+                                        input_interpolation=settings["input_interpolation"])
         response, _ = simulate_model(truth, measurement or self.measurement,
                                      initial_conditions=truth.initial_conditions)
         return float(np.sqrt(np.mean((self.measurement.response - response) ** 2)))
