@@ -114,6 +114,7 @@ def _check_recovers(name: str, seed: int, strength: float):
     return result
 
 
+@pytest.mark.slow  # 10–26 s: the CI slow step keeps it; the fast tier stays within 5 min
 def test_mesh_stiffness_variation_is_found_and_closes_the_residual():
     result = _check_recovers("mesh_stiffness_variation", seed=1, strength=1.0)
     step = result.steps[0]
