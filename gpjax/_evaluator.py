@@ -469,20 +469,32 @@ class PopulationEvaluator(SystemTerms):
                 self._coordinates(forcing_matrix, -2), self._coordinates(y0, -2))
 
     def _acceleration_fn(self, mass, state, inner):
-        """x''(x, v, force, t) for all models: positions, velocities and forces given per
-        coordinate (sequences of D (P,) arrays, or (D, P) arrays), the accelerations
-        returned as a list of D (P,) arrays; ``mass`` (D, P), ``state`` (P, D, F); states
-        clipped. Coordinates stay separate arrays, so the scan carries no stacked state.
+        """x''(x, v, force, t) for all models, states clipped; ``mass`` (D, P), ``state``
+        (P, D, F). One coordinate: x, x' and the force as one-element sequences of (P,)
+        arrays, the acceleration returned likewise (the scan carries no stacked state: faster
+        for D = 1). D > 1: (D, P) arrays in and out (one stacked Horner sum).
 
         The one right-hand side both integrators use (:meth:`_restoring_fn`).
         """
-        rows = self._restoring_fn(state, inner, stacked=False)
         inverse_mass = 1.0 / mass
+        if self.n_coordinates > 1:  # (D, P) arrays in and out
+            restoring = self._restoring_fn(state, inner, stacked=False)
+
+            def clipped(z, which):  # row by row: faster than one broadcast clip in scan_jvp
+                return [jnp.clip(z[e], -b[which], b[which]) for e, b in enumerate(self._bounds)]
+
+            def system_acceleration(xs, vs, forces, t):
+                rows = restoring(clipped(xs, 0), clipped(vs, 1), t)
+                return jnp.stack([(forces[e] - r) * inverse_mass[e] for e, r in enumerate(rows)])
+
+            return system_acceleration
+        rows = self._restoring_fn(state, inner, stacked=False)
+
+        (bx, bv), = self._bounds
 
         def acceleration(xs, vs, forces, t):
-            xs = [jnp.clip(xs[e], -bx, bx) for e, (bx, _) in enumerate(self._bounds)]
-            vs = [jnp.clip(vs[e], -bv, bv) for e, (_, bv) in enumerate(self._bounds)]
-            return [(forces[e] - r) * inverse_mass[e] for e, r in enumerate(rows(xs, vs, t))]
+            (r,) = rows([jnp.clip(xs[0], -bx, bx)], [jnp.clip(vs[0], -bv, bv)], t)
+            return [(forces[0] - r) * inverse_mass[0]]
 
         return acceleration
 
@@ -494,10 +506,12 @@ class PopulationEvaluator(SystemTerms):
         (D, P) arrays or sequences of D (P,) arrays and returns (..., D, P) (``stacked``
         False: a list of D (..., P) arrays). A family no model of the call uses is skipped
         (``lax.cond`` on a loop-invariant flag)."""
-        d, count = self.max_degree, self.n_coordinates
-        coefficients = [[jnp.moveaxis(state[..., e, k * d:(k + 1) * d], -1, 0)
-                         for k in range(2 * count)] for e in range(count)]
-        n_poly, n_extra = 2 * count * d, len(self._extra_fns)
+        if self.n_coordinates > 1:
+            return self._system_restoring(state, stacked=stacked)
+        d = self.max_degree
+        position, velocity = (jnp.moveaxis(state[..., 0, k * d:(k + 1) * d], -1, 0)
+                              for k in (0, 1))
+        n_poly, n_extra = 2 * d, len(self._extra_fns)
         extra = jnp.moveaxis(state[..., 0, n_poly:n_poly + n_extra], -1, 0)
         bank = jnp.moveaxis(state[..., 0, n_poly + n_extra:], -1, 0)
         used = [jnp.any(c != 0) for c in bank]
@@ -508,20 +522,9 @@ class PopulationEvaluator(SystemTerms):
                 total = total * z + c[k]
             return total * z
 
-        if count > 1:
-            return self._system_restoring(state, stacked=stacked)
-
         def restoring(xs, vs, t):
-            rows = []
-            for e in range(count):
-                order = [e, *(j for j in range(count) if j != e)]
-                variables = [z[e] if j == e else z[e] - z[j] for z in (xs, vs) for j in order]
-                total = horner(coefficients[e][0], variables[0])
-                for c, z in zip(coefficients[e][1:], variables[1:]):
-                    total = total + horner(c, z)
-                rows.append(total)
             x, v = xs[0], vs[0]
-            total = rows[0]
+            total = horner(position, x) + horner(velocity, v)
             for c, fn in zip(extra, self._extra_fns):
                 total = total + c * fn(x, v, t)
             for c, flag, family, slots in zip(bank, used, self.families, self._inner_slots):
@@ -530,7 +533,7 @@ class PopulationEvaluator(SystemTerms):
                                     c * family(z, inner[..., slots]),
                                     lambda c=c: jnp.zeros(jnp.broadcast_shapes(c.shape, x.shape)))
                 total = total + term
-            return [total, *rows[1:]]
+            return [total]
 
         if stacked:
             return lambda xs, vs, t: jnp.stack(restoring(xs, vs, t), axis=-2)
@@ -562,15 +565,21 @@ class PopulationEvaluator(SystemTerms):
         rows = forcing_matrix  # (n_stage, P) or (n_stage, D, P): scanned as given
         mass, state, forcing_matrix, y0 = self._internal(mass, state, forcing_matrix, y0)
         acceleration = self._acceleration_fn(mass, state, inner)
-        count = self.n_coordinates
+        if self.n_coordinates > 1:  # one carried (2, D, P) array
+            def stacked_rates(y, force, t):
+                (y,) = y
+                return (jnp.stack([y[1], acceleration(y[0], y[1], force, t)]),)
 
-        def rates(y, force, t):
-            xs, vs = y[:count], y[count:]
-            return (*vs, *acceleration(xs, vs, (force,) if count == 1 else force, t))
+            (path,) = self._rk4_scan(stacked_rates, (jnp.transpose(y0, (2, 1, 0)),), rows,
+                                     lambda y: (y[0][0],))
+            return path
 
-        start = tuple(y0[:, e, k] for k in (0, 1) for e in range(count))
-        paths = self._rk4_scan(rates, start, rows, lambda y: y[:count])
-        return paths[0] if count == 1 else jnp.stack(paths, axis=1)
+        def rates(y, force, t):  # x and x' carried as two (P,) arrays
+            (x, v) = y
+            return (v, *acceleration([x], [v], [force], t))
+
+        (path,) = self._rk4_scan(rates, (y0[:, 0, 0], y0[:, 0, 1]), rows, lambda y: y[:1])
+        return path
 
     def scan_jvp(self, mass, state, forcing_matrix, y0, d_y0, *, inner=None, d_mass=None,
                  d_state=None, d_forcing=None, d_inner=None, fold=None):
@@ -628,7 +637,7 @@ class PopulationEvaluator(SystemTerms):
             (y,) = y
             x, v, s, w = y[0, 0], y[1, 0], y[0, 1:], y[1, 1:]
             f, df = force
-            a = jnp.stack(acceleration(x, v, f, t))
+            a = acceleration(x, v, f, t) if count > 1 else jnp.stack(acceleration(x, v, f, t))
             xs, vs = [x[e] for e in range(count)], [v[e] for e in range(count)]
             r_x, r_v = (system_partials(xs, vs) if count > 1 else
                         (partials(xs, vs, t, 0), partials(xs, vs, t, 1)))
@@ -748,15 +757,15 @@ class PopulationEvaluator(SystemTerms):
         status = jnp.where(positive, jnp.where(finite & bounded, OK, DIVERGED), NONPOSITIVE_MASS)
         x = jnp.where(jnp.isfinite(x), x, 0.0)
         measured = jnp.asarray(self.measurement.responses)
-        parts = [_objective_parts(measured[:, d, None], x[:, d], jnp.asarray(self._dft),
-                                  jnp.asarray(self._measured_amplitude[:, d:d + 1]), self.n_bins)
-                 for d in range(self.n_coordinates)]
+        f_time, f_freq, rms = _objective_parts(  # (D, P) each
+            measured[:, :, None], x, jnp.asarray(self._dft),
+            jnp.asarray(self._measured_amplitude)[:, :, None], self.n_bins)
         if self.n_coordinates == 1:
-            f_time, f_freq, rms = parts[0]
+            f_time, f_freq, rms = f_time[0], f_freq[0], rms[0]
         else:
-            f_time, f_freq = (sum(w * p[k] for w, p in zip(self.weights, parts)) for k in (0, 1))
-            rms = jnp.sqrt(sum((w * p[2]) ** 2 for w, p in zip(self.weights, parts))
-                           / self.n_coordinates)
+            weights = jnp.asarray(self.weights)[:, None]
+            f_time, f_freq = jnp.sum(weights * f_time, 0), jnp.sum(weights * f_freq, 0)
+            rms = jnp.sqrt(jnp.mean((weights * rms) ** 2, 0))
         objective = self.w_time * f_time + self.w_freq * f_freq
         good = status == OK
         out = (jnp.where(good, objective, PENALTY), jnp.where(good, f_time, PENALTY),

@@ -47,7 +47,7 @@ def _amplitude(dft, signal, n_bins: int):
     """
     if dft.shape[0] == 1:
         return dft[0, :n_bins, None] * jnp.abs(jnp.fft.rfft(signal, axis=0)[:n_bins])
-    parts = dft @ signal
+    parts = jnp.tensordot(dft, signal, axes=1)
     return jnp.hypot(parts[:n_bins], parts[n_bins:])
 
 
