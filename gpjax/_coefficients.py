@@ -131,9 +131,7 @@ class Population:
 class Columns(Protocol):
     """Where each feature's coefficient lives in a :class:`Population` (an evaluator)."""
 
-    def state_index(self, feature: sp.Expr) -> int | None: ...
-
-    def inner_of(self, feature: sp.Expr) -> tuple[slice, tuple[float, ...]]: ...
+    def state_columns(self, features) -> list[tuple[int | None, slice, tuple[float, ...]]]: ...
 
     def feature_at(self, column: int, theta) -> sp.Expr: ...
 
@@ -155,17 +153,16 @@ def to_population(models: Sequence[Coefficients], columns: Columns) -> Populatio
             columns.forcing_index(feature)
     population = columns.empty(len(models))
     for i, model in enumerate(models):
-        taken = [columns.state_index(feature) for feature in model.state]
+        placed = columns.state_columns(list(model.state))
+        taken = [column for column, _, _ in placed]
         if len(set(taken)) < len(taken):
-            raise ValueError(f"two state features of one model share a column (two members "
-                             f"of one feature-bank family?): {list(model.state)}")
+            raise ValueError(f"two state features of one model share a column (more members "
+                             f"of one feature-bank family than its slots?): {list(model.state)}")
         population.mass[i] = model.mass if math.isfinite(model.mass) else 1.0
-        for feature, value in model.state.items():
-            column = columns.state_index(feature)
+        for (feature, value), (column, slots, theta) in zip(model.state.items(), placed):
             if column is None:
                 raise ValueError(f"state feature {feature} is outside the evaluator's basis")
             population.state[i, column] = value
-            slots, theta = columns.inner_of(feature)
             population.inner[i, slots] = theta
         for feature, value in model.forcing.items():
             population.forcing[i, columns.forcing_index(feature)] = value
@@ -179,9 +176,7 @@ def from_population(population: Population, columns: Columns,
     feature with inner constants comes back with row i's (refined) values inside."""
     def state(i: int, model: Coefficients) -> dict[sp.Expr, float]:
         out = {}
-        for feature in model.state:
-            column = columns.state_index(feature)
-            slots, _ = columns.inner_of(feature)
+        for column, slots, _ in columns.state_columns(list(model.state)):
             out[columns.feature_at(column, population.inner[i, slots])] = float(
                 population.state[i, column])
         return out

@@ -225,7 +225,7 @@ def _sensitivities(problem: FitProblem, fit: Fit):
     layout = ev.layout
 
     def columns(lhs, forcing, fixed=None):
-        return ([layout.state_column(ev.state_index(f)) for f in lhs]
+        return ([layout.state_column(c) for c, _, _ in ev.state_columns(lhs)]
                 + [layout.forcing_column(ev.forcing_index(g)) for g in forcing if g != fixed])
 
     normalised = problem.u0 is not None and problem.u0 in structure.forcing

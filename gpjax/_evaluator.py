@@ -53,7 +53,7 @@ from ._canonical import Symbols
 from ._coefficients import FlatLayout, Population, padded_chunks
 from ._data import Measurement, between_samples
 from ._evaluator_systems import SystemTerms, system_state_features
-from ._features import Family, match
+from ._features import SLOTS, Family, match
 from ._integrate import RK4, enable_float64, rk4_scan
 from ._objective import _amplitude, _dft_matrix, _objective_parts, default_n_bins
 
@@ -89,20 +89,24 @@ def split_state_features(features, symbols: Symbols, *, families: bool = True
                          ) -> tuple[int, tuple[sp.Expr, ...], tuple[Family, ...]]:
     """(max_degree, extra features, families) of an evaluator whose basis holds
     ``features``: the highest power of x or x' among the plain powers, the families of the
-    feature-bank members (:func:`gpjax._features.match`; one column per family, so a
-    second member of a family, and every member with ``families=False``, is an extra
-    feature, its inner constants fixed), and every other feature (products with functions
-    of time, sign(x'), …) compiled in as an extra feature."""
+    feature-bank members (:func:`gpjax._features.match`; the k-th member of a family takes
+    its k-th slot, :data:`gpjax._features.SLOTS`; a member beyond them, and every member
+    with ``families=False``, is an extra feature, its inner constants fixed), and every
+    other feature (products with functions of time, sign(x'), …) compiled in as an extra
+    feature."""
     degree, extra, found_families = 1, [], []
     powers = {symbols.x, symbols.x_dot}
     for feature in features:
         base, exponent = feature.as_base_exp()
         found = match(feature, symbols) if families else None
+        free = [] if found is None else [
+            dataclasses.replace(found[0], slot=k) for k in range(SLOTS.get(found[0].function, 1))
+            if dataclasses.replace(found[0], slot=k) not in found_families]
         if base in powers and exponent.is_Integer and exponent > 0:
             degree = max(degree, int(exponent))
-        elif found is not None and found[0] not in found_families:
-            found_families.append(found[0])
-        else:  # a further member of a family (exp(a·x) beside exp(b·x)) is fixed too
+        elif free:
+            found_families.append(free[0])
+        else:  # a member beyond the family's slots is fixed
             extra.append(feature)
     return degree, tuple(extra), tuple(found_families)
 
@@ -273,14 +277,36 @@ class PopulationEvaluator(SystemTerms):
         return between_samples(values, 2 * self.substeps, self.input_interpolation)
 
     # --- feature bookkeeping ----------------------------------------------------------
+    def state_columns(self, features) -> list[tuple[int | None, slice, tuple[float, ...]]]:
+        """Per state feature of one model: its column in the basis (``None``: not
+        supported), the slots of its inner constants in :attr:`Population.inner` and their
+        values in the feature. The k-th member of a family takes the family's k-th slot
+        (:data:`gpjax._features.SLOTS`); members beyond them share the last slot's column,
+        which :func:`gpjax._coefficients.to_population` refuses."""
+        out, taken = [], set()
+        for feature in features:
+            column = self._state_index.get(feature)
+            found = None if column is not None or not self.families else match(
+                feature, self.symbols)
+            if found is None:
+                out.append((column, slice(0, 0), ()))
+                continue
+            slots = [dataclasses.replace(found[0], slot=k)
+                     for k in range(SLOTS.get(found[0].function, 1))]
+            slots = [f for f in slots if f in self._family_column]
+            if not slots:
+                out.append((None, slice(0, 0), ()))
+                continue
+            family = next((f for f in slots if self._family_column[f] not in taken), slots[-1])
+            taken.add(self._family_column[family])
+            out.append((self._family_column[family],
+                        self._inner_slots[self.families.index(family)], found[1]))
+        return out
+
     def state_index(self, feature: sp.Expr) -> int | None:
         """Column of a state feature in the basis (a power, an extra feature, or a member
-        of one of the families), or ``None`` if it is not supported."""
-        column = self._state_index.get(feature)
-        if column is None and self.families:
-            found = match(feature, self.symbols)
-            column = None if found is None else self._family_column.get(found[0])
-        return column
+        of one of the families, its first slot), or ``None`` if it is not supported."""
+        return self.state_columns([feature])[0][0]
 
     def equation_index(self, feature: sp.Expr, equation: int) -> int | None:
         """Column of a state feature in ``equation``'s basis (:attr:`equation_features`),
@@ -290,12 +316,10 @@ class PopulationEvaluator(SystemTerms):
         return self._equation_index[equation].get(feature)
 
     def inner_of(self, feature: sp.Expr) -> tuple[slice, tuple[float, ...]]:
-        """The slots of a state feature's inner constants in :attr:`Population.inner` and
-        their values in ``feature`` (none for powers and extra features)."""
-        if feature in self._state_index or not self.families:
-            return slice(0, 0), ()
-        family, theta = match(feature, self.symbols)
-        return self._inner_slots[self.families.index(family)], theta
+        """The slots of a state feature's inner constants in :attr:`Population.inner` (its
+        family's first slot) and their values in ``feature`` (none for powers and extra
+        features)."""
+        return self.state_columns([feature])[0][1:]
 
     def inner_columns(self) -> list[tuple[int, slice]]:
         """(state column, slots in :attr:`Population.inner`) of every family."""

@@ -15,6 +15,12 @@ family     feature               θ   made by the tree functions
 ``exp``    exp(θ0·z)             1   exp (a factor e^b of exp(a·z + b) is a coefficient)
 =========  ====================  ==  =========================================
 
+**Slots.** A model holds one member of each family, except ``exp``, which has two
+(:data:`SLOTS`): sinh(z/a) and cosh(z/a), the symmetric exponential laws of stiffening
+springs, are two exp members with opposite scales, k/2·(exp(z/a) − exp(−z/a)). Each slot is
+a column with its own inner constant; the k-th member of a model takes the k-th slot
+(:meth:`gpjax._evaluator.PopulationEvaluator.state_columns`).
+
 **sign, smoothed.** A GP candidate's sign(z) (dry friction) enters the search as
 tanh(z/ε) with ε = :data:`SIGN_WIDTH` × RMS(z) on the data: a discontinuous right-hand side
 would cost the fixed-step RK4 its order at every zero crossing, and the smoothed law is a
@@ -45,16 +51,21 @@ EXP_LIMIT = 700.0
 INNER_GRID = {"tanh": (1.0, 3.0, 10.0, 100.0), "sin": (0.5, 1.0, 2.0), "cos": (0.5, 1.0, 2.0),
               "exp": (-2.0, -1.0, -0.5, 0.5, 1.0, 2.0)}
 _INNER = {"abs": 0, "tanh": 1, "sin": 2, "cos": 2, "exp": 1}
+#: Members of one family a model may hold (columns per family and variable; module
+#: docstring, "Slots").
+SLOTS = {"exp": 2}
 
 
 @dataclasses.dataclass(frozen=True)
 class Family:
     """One compiled feature of one variable: ``function`` of ``role`` (``"x"`` or
-    ``"x_dot"``); ``power`` k of the ``abs`` family's z^k·|z|."""
+    ``"x_dot"``); ``power`` k of the ``abs`` family's z^k·|z|; ``slot``: which of the
+    family's columns (:data:`SLOTS`)."""
 
     function: str
     role: str
     power: int = 0
+    slot: int = 0
 
     @property
     def n_inner(self) -> int:
@@ -104,13 +115,15 @@ def families_for(functions, roles, max_degree: int) -> tuple[Family, ...]:
             if role not in roles:
                 continue
             powers = range(max_degree) if name == "abs" else (0,)
-            found += [Family(name, role, k) for k in powers]
+            found += [Family(name, role, k, slot) for k in powers
+                      for slot in range(SLOTS.get(name, 1))]
     return tuple(found)
 
 
 def match(feature: sp.Expr, symbols: Symbols) -> tuple[Family, tuple[float, ...]] | None:
-    """The family of a concrete state feature and its inner constants, or ``None`` when
-    the feature is no family member (a power, a product of functions, sin(x²), …).
+    """The family (its first slot) of a concrete state feature and its inner constants,
+    or ``None`` when the feature is no family member (a power, a product of functions,
+    sin(x²), …).
     ``sign(z)`` is not matched here: it becomes a tanh with the data's width first
     (:func:`smoothed_sign`)."""
     return _match(feature, symbols)

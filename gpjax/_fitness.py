@@ -173,14 +173,14 @@ class Fitness:
         """Why the evaluator cannot score ``form`` ("" if it can): a state feature outside
         its basis, two members of one family (one column each), or a forcing term that is
         not finite on the data."""
-        columns = [self.evaluator.state_index(f) for f, _ in form.state]
+        columns = [c for c, _, _ in self.evaluator.state_columns([f for f, _ in form.state])]
         outside = [f for (f, _), c in zip(form.state, columns) if c is None]
         if outside:
             return (f"state feature {outside[0]} is outside the evaluator's basis (powers of x "
                     f"and x' up to {self.config.max_degree} and the feature bank)")
         if len(set(columns)) < len(columns):
-            return ("two members of one feature-bank family (e.g. exp(a·x) and exp(b·x)): a "
-                    "model holds at most one of each")
+            return ("more members of one feature-bank family than its slots (e.g. two sines "
+                    "of x): a model holds one of each, two of exp")
         if not all(self.evaluator.forcing_finite(g) for g, _ in form.forcing):
             return "a forcing term is not finite on the data (e.g. exp(a·t) overflows)"
         return ""
@@ -255,8 +255,9 @@ class Fitness:
                 continue
             family, theta = found
             scale = self.scales[family.role]
-            options = [feature] + [family.feature(self.symbols, (g / scale, *theta[1:]))
-                                   for g in INNER_GRID[family.function]]
+            options = [f for f in [feature] + [family.feature(self.symbols, (g / scale, *theta[1:]))
+                                               for g in INNER_GRID[family.function]]
+                       if f == feature or f not in chosen]  # two members stay distinct
             chosen[i] = min(options, key=lambda f: least_squares_residual(
                 self.weak_form, tuple(chosen[:i] + [f] + chosen[i + 1:]), forcing))
         return tuple(chosen)
@@ -265,8 +266,8 @@ class Fitness:
     def basis_features(self) -> dict[str, list[sp.Expr]]:
         """Features a one-term move may add: x^k and x'^k (k <= max_degree, where the
         configured variables allow them), each family of the feature bank with default
-        inner constants (sin(z), tanh(z/ε) = smoothed sign(z), exp(z/RMS z)), a constant
-        force and each input."""
+        inner constants (sin(z), tanh(z/ε) = smoothed sign(z), exp(±z/RMS z) for exp's two
+        slots), a constant force and each input."""
         variables = self.config.variables
         state = [symbol ** k for symbol, role in ((self.symbols.x, "x"),
                                                   (self.symbols.x_dot, "x_dot"))
@@ -274,7 +275,8 @@ class Fitness:
         defaults = {"abs": lambda s: (), "tanh": lambda s: (1.0 / (SIGN_WIDTH * s),),
                     "sin": lambda s: (1.0, 0.0), "cos": lambda s: (1.0, 0.0),
                     "exp": lambda s: (1.0 / s,)}
-        state += [f.feature(self.symbols, defaults[f.function](self.scales[f.role]))
+        state += [f.feature(self.symbols, tuple((-1) ** f.slot * v for v in
+                                                defaults[f.function](self.scales[f.role])))
                   for f in self.evaluator.families]
         forcing = [sp.Integer(1)] + (list(self.symbols.u) if "u" in variables else [])
         return {"state": state, "forcing": forcing}

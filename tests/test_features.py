@@ -259,20 +259,34 @@ def test_inner_constants_start_from_the_grid_when_the_tree_scale_is_wrong(pendul
         least_squares_residual(fitness.weak_form, (V, sp.sin(X)), forcing)
 
 
-def test_two_members_of_one_family_invalidate_a_candidate_but_simulate_in_a_model(pendulum):
-    """The GP's bank has one column per family: exp(x) beside exp(−x) is refused with the
-    reason; a model holding both (sinh) simulates them exactly, the second as a fixed
-    feature."""
+def test_exp_has_two_slots_so_sinh_is_a_candidate_and_a_third_member_is_refused(pendulum):
+    """exp(x) beside exp(−x) (k·sinh x) takes exp's two columns, each with its own inner
+    constant, and is scored; a third exp member, or a second sine, is refused with the
+    reason; a model holding sinh's pair simulates it as any accurate solver does."""
     from gpjax import Model
     from gpjax._config import GPConfig
     from gpjax._fitness import Fitness
 
     data, _ = pendulum
-    fitness = Fitness(data, GPConfig(population=8, functions=("add", "sub", "mul", "exp")))
-    tree = ("sub", ("add", ("x_ddot",), ("sub", ("exp", ("x",)),
-                                            ("exp", ("mul", ("n", -1.0), ("x",))))), ("u", 0))
-    key, form, reason = fitness.classify(tree)
-    assert form is None and "at most one of each" in reason
+    fitness = Fitness(data, GPConfig(population=8,
+                                     functions=("add", "sub", "mul", "exp", "sin")))
+    pair = ("sub", ("exp", ("x",)), ("exp", ("mul", ("n", -1.0), ("x",))))
+    sinh = ("sub", ("add", ("x_ddot",), pair), ("u", 0))
+    _, form, reason = fitness.classify(sinh)
+    assert form is not None, reason
+    placed = fitness.evaluator.state_columns([f for f, _ in form.state])
+    assert len({column for column, _, _ in placed}) == 2
+    assert len({slots.start for _, slots, _ in placed}) == 2
+    assert sorted(theta for _, _, theta in placed) == [(-1.0,), (1.0,)]
+    record, = fitness.records_for([sinh])
+    assert record.valid and np.isfinite(record.objective)
+    three = ("sub", ("add", ("x_ddot",), ("add", pair, ("exp", ("mul", ("n", 2.0), ("x",))))),
+             ("u", 0))
+    two_sines = ("sub", ("add", ("x_ddot",), ("add", ("sin", ("x",)),
+                                              ("sin", ("mul", ("n", 2.0), ("x",))))), ("u", 0))
+    for tree in (three, two_sines):
+        _, form, reason = fitness.classify(tree)
+        assert form is None and "more members of one feature-bank family" in reason
     model = Model(symbols=S, mass=1.0, state={"x_dot": 0.4, "exp(1.1*x)": 4.5,
                                               "exp(-1.1*x)": -4.5}, forcing={"u": 1.0},
                   initial_conditions=(0.1, 0.0), substeps=4)
@@ -313,4 +327,4 @@ def test_a_local_search_move_to_a_second_family_member_is_an_invalid_record(pend
                          forcing=((U, 1.0),))
     fitness.score_forms({"two sines": form})
     record = fitness.records["two sines"]
-    assert not record.valid and "at most one of each" in record.reason
+    assert not record.valid and "more members of one feature-bank family" in record.reason
