@@ -17,7 +17,8 @@ import sympy as sp
 
 from ._errors import ModelFileError
 
-FUNCTIONS = {"sin": sp.sin, "cos": sp.cos, "exp": sp.exp, "tanh": sp.tanh, "sign": sp.sign,
+FUNCTIONS = {"sin": sp.sin, "cos": sp.cos, "exp": sp.exp, "tanh": sp.tanh, "sinh": sp.sinh,
+             "cosh": sp.cosh, "sign": sp.sign,
              "Abs": sp.Abs, "abs": sp.Abs, "sqrt": sp.sqrt, "log": sp.log}
 MAX_LENGTH = 10_000
 MAX_DEPTH = 100

@@ -13,13 +13,17 @@ family     feature               θ   made by the tree functions
 ``sin``    sin(θ0·z + θ1)        2   sin
 ``cos``    cos(θ0·z + θ1)        2   cos
 ``exp``    exp(θ0·z)             1   exp (a factor e^b of exp(a·z + b) is a coefficient)
+``sinh``   sinh(θ0·z)            1   exp (an exp pair with one scale, below)
+``cosh``   cosh(θ0·z)            1   exp (likewise)
 =========  ====================  ==  =========================================
 
-**Slots.** A model holds one member of each family, except ``exp``, which has two
-(:data:`SLOTS`): sinh(z/a) and cosh(z/a), the symmetric exponential laws of stiffening
-springs, are two exp members with opposite scales, k/2·(exp(z/a) − exp(−z/a)). Each slot is
-a column with its own inner constant; the k-th member of a model takes the k-th slot
-(:meth:`gpjax._evaluator.PopulationEvaluator.state_columns`).
+**exp pairs, sinh and cosh.** The symmetric exponential laws of stiffening springs are
+exp pairs: k·sinh(z/a) = k/2·(exp(z/a) − exp(−z/a)). A model holds one member of each
+family except ``exp``, which has two slots (:data:`SLOTS`; the k-th member of a model takes
+the k-th slot, :meth:`gpjax._evaluator.PopulationEvaluator.state_columns`), each with its
+own scale. A pair with one scale is sinh or cosh: the same law with one fitted constant
+fewer, which the final selection's tie move proposes (:mod:`gpjax._select_moves`). No tree
+function makes them directly; the ``exp`` function brings them into the bank.
 
 **sign, smoothed.** A GP candidate's sign(z) (dry friction) enters the search as
 tanh(z/ε) with ε = :data:`SIGN_WIDTH` × RMS(z) on the data: a discontinuous right-hand side
@@ -41,7 +45,7 @@ from ._canonical import Symbols
 
 #: Tree functions that make state-feature families, by family.
 FAMILY_FUNCTIONS = {"abs": ("abs",), "tanh": ("tanh", "sign"), "sin": ("sin",),
-                    "cos": ("cos",), "exp": ("exp",)}
+                    "cos": ("cos",), "exp": ("exp",), "sinh": ("exp",), "cosh": ("exp",)}
 #: Width of the smoothed sign, as a fraction of the RMS of its argument in the data.
 SIGN_WIDTH = 0.01
 #: Largest |exponent argument| evaluated (beyond it exp overflows float64 at 709.8).
@@ -49,8 +53,12 @@ EXP_LIMIT = 700.0
 #: Starts of a family's scale a tried beside the tree's, as a·RMS(z) (tanh: 100 is the
 #: smoothed sign's width; sin/cos keep the tree's phase b).
 INNER_GRID = {"tanh": (1.0, 3.0, 10.0, 100.0), "sin": (0.5, 1.0, 2.0), "cos": (0.5, 1.0, 2.0),
-              "exp": (-2.0, -1.0, -0.5, 0.5, 1.0, 2.0)}
-_INNER = {"abs": 0, "tanh": 1, "sin": 2, "cos": 2, "exp": 1}
+              "exp": (-2.0, -1.0, -0.5, 0.5, 1.0, 2.0), "sinh": (0.5, 1.0, 2.0, 4.0),
+              "cosh": (0.5, 1.0, 2.0, 4.0)}
+_INNER = {"abs": 0, "tanh": 1, "sin": 2, "cos": 2, "exp": 1, "sinh": 1, "cosh": 1}
+#: The one-scale families, by their sympy and JAX functions.
+_SCALED = {"tanh": (sp.tanh, jnp.tanh), "exp": (sp.exp, jnp.exp), "sinh": (sp.sinh, jnp.sinh),
+           "cosh": (sp.cosh, jnp.cosh)}
 #: Members of one family a model may hold (columns per family and variable; module
 #: docstring, "Slots").
 SLOTS = {"exp": 2}
@@ -80,10 +88,8 @@ class Family:
         a = [sp.Float(v) for v in theta]
         if self.function == "abs":
             return z ** self.power * sp.Abs(z)
-        if self.function == "tanh":
-            return sp.tanh(a[0] * z)
-        if self.function == "exp":
-            return sp.exp(a[0] * z)
+        if self.function in _SCALED:
+            return _SCALED[self.function][0](a[0] * z)
         return (sp.sin if self.function == "sin" else sp.cos)(a[0] * z + a[1])
 
     def __call__(self, z, theta):
@@ -92,15 +98,15 @@ class Family:
             return z ** self.power * jnp.abs(z)
         if self.function == "tanh":
             return jnp.tanh(theta[..., 0] * z)
-        if self.function == "exp":
-            return jnp.exp(jnp.clip(theta[..., 0] * z, -EXP_LIMIT, EXP_LIMIT))
+        if self.function in _SCALED:  # exp, sinh, cosh: clipped below float64's overflow
+            return _SCALED[self.function][1](jnp.clip(theta[..., 0] * z, -EXP_LIMIT, EXP_LIMIT))
         phase = theta[..., 0] * z + theta[..., 1]
         return jnp.sin(phase) if self.function == "sin" else jnp.cos(phase)
 
 
 def inner_constants(feature: sp.Expr) -> int:
-    """Inner constants a state feature's family fits: sin/cos(a·z + b) 2, tanh(a·z) and
-    exp(a·z) 1, powers and z^k·|z| none."""
+    """Inner constants a state feature's family fits: sin/cos(a·z + b) 2, tanh, exp, sinh
+    and cosh of a·z 1, powers and z^k·|z| none."""
     return _INNER.get(feature.func.__name__, 0)
 
 
@@ -138,7 +144,7 @@ def _match(feature: sp.Expr, symbols: Symbols):
         if powers.get(sp.Abs(z)) == 1 and set(powers) <= {z, sp.Abs(z)}:
             k = powers.get(z, 0)
             return (Family("abs", role, int(k)), ()) if sp.Integer(k) == k and k >= 0 else None
-        if not isinstance(feature, (sp.tanh, sp.exp, sp.sin, sp.cos)):
+        if not isinstance(feature, (sp.tanh, sp.exp, sp.sinh, sp.cosh, sp.sin, sp.cos)):
             return None
         linear = _affine(feature.args[0], z)
         if linear is None:
@@ -149,7 +155,7 @@ def _match(feature: sp.Expr, symbols: Symbols):
             return Family(name, role), (slope, offset)
         if offset != 0.0:
             return None
-        return Family("tanh" if isinstance(feature, sp.tanh) else "exp", role), (slope,)
+        return Family(feature.func.__name__, role), (slope,)
     return None
 
 

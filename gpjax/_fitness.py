@@ -21,7 +21,7 @@ from ._config import GPConfig
 from ._convergence import initial_substeps
 from ._data import Measurement
 from ._evaluator import INVALID_STRUCTURE, OK, PENALTY, PopulationEvaluator, Scores
-from ._features import INNER_GRID, SIGN_WIDTH, families_for, match, smoothed_sign
+from ._features import INNER_GRID, SIGN_WIDTH, Family, families_for, match, smoothed_sign
 from ._memory import check_fit_memory
 from ._refine import Refiner
 from ._trees import Tree
@@ -198,6 +198,7 @@ class Fitness:
             if found is not None:
                 feature = found[0].feature(self.symbols, found[1])
             state[feature] = state.get(feature, 0.0) + value
+        state = _hyperbolic_pairs(state)
         return dataclasses.replace(form, state=tuple(sorted(state.items(), key=lambda p: str(p[0]))))
 
     def records_for(self, trees: list[Tree]) -> list[Record]:
@@ -265,21 +266,23 @@ class Fitness:
     # --- records to arrays and back -------------------------------------------------------
     def basis_features(self) -> dict[str, list[sp.Expr]]:
         """Features a one-term move may add: x^k and x'^k (k <= max_degree, where the
-        configured variables allow them), each family of the feature bank with default
-        inner constants (sin(z), tanh(z/ε) = smoothed sign(z), exp(±z/RMS z) for exp's two
-        slots), a constant force and each input."""
+        configured variables allow them), each family of the feature bank as
+        :meth:`default_feature`, a constant force and each input."""
         variables = self.config.variables
         state = [symbol ** k for symbol, role in ((self.symbols.x, "x"),
                                                   (self.symbols.x_dot, "x_dot"))
                  if role in variables for k in range(1, self.config.max_degree + 1)]
-        defaults = {"abs": lambda s: (), "tanh": lambda s: (1.0 / (SIGN_WIDTH * s),),
-                    "sin": lambda s: (1.0, 0.0), "cos": lambda s: (1.0, 0.0),
-                    "exp": lambda s: (1.0 / s,)}
-        state += [f.feature(self.symbols, tuple((-1) ** f.slot * v for v in
-                                                defaults[f.function](self.scales[f.role])))
-                  for f in self.evaluator.families]
+        state += [self.default_feature(f) for f in self.evaluator.families]
         forcing = [sp.Integer(1)] + (list(self.symbols.u) if "u" in variables else [])
         return {"state": state, "forcing": forcing}
+
+    def default_feature(self, family: Family) -> sp.Expr:
+        """``family``'s member with default inner constants: sin(z), cos(z), tanh(z/ε) =
+        smoothed sign(z), exp(±z/RMS z) (exp's two slots), sinh and cosh of z/RMS z."""
+        scale = self.scales[family.role]
+        theta = {"abs": (), "tanh": (1.0 / (SIGN_WIDTH * scale),), "sin": (1.0, 0.0),
+                 "cos": (1.0, 0.0)}.get(family.function, ((-1) ** family.slot / scale,))
+        return family.feature(self.symbols, theta)
 
     def feature_tree(self, feature: sp.Expr) -> tuple:
         """A tree for a feature (powers of x, x', t and inputs, products, constant)."""
@@ -333,6 +336,24 @@ class Fitness:
             _store([record], _row(scores, i))
 
 
+def _hyperbolic_pairs(state: dict[sp.Expr, float]) -> dict[sp.Expr, float]:
+    """``state`` with each pair c1·exp(a·z) + c2·exp(−a·z) (one scale, opposite signs)
+    rewritten by sympy as (c1 − c2)·sinh(a·z) + (c1 + c2)·cosh(a·z), a part whose
+    coefficient cancels to within 1e-12 of the pair's dropped: a tree's sinh stays one
+    term with one inner constant (:mod:`gpjax._features`)."""
+    for first in [f for f in state if isinstance(f, sp.exp)]:
+        second = sp.exp(-first.args[0])
+        if first not in state or second not in state:
+            continue
+        pair = state.pop(first) * first + state.pop(second) * second
+        rewritten = sp.expand(pair.rewrite(sp.cos))  # sympy's exp -> sinh + cosh rewrite
+        size = max(abs(float(c)) for c in rewritten.as_coefficients_dict().values())
+        for term, c in rewritten.as_coefficients_dict().items():
+            if abs(float(c)) > 1e-12 * size:
+                state[term] = state.get(term, 0.0) + float(c)
+    return state
+
+
 def _expression_tree(expression: sp.Expr, symbols: Symbols) -> tuple:
     leaves = {symbols.x: ("x",), symbols.x_dot: ("x_dot",), symbols.t: ("t",)}
     leaves.update({u: ("u", k) for k, u in enumerate(symbols.u)})
@@ -350,6 +371,8 @@ def _expression_tree(expression: sp.Expr, symbols: Symbols) -> tuple:
                  sp.sign: "sign"}
     if expression.func in functions:
         return (functions[expression.func], _expression_tree(expression.args[0], symbols))
+    if expression.func in (sp.sinh, sp.cosh):  # no tree function: an exp pair
+        return _expression_tree(expression.rewrite(sp.exp), symbols)
     if expression.is_Mul or expression.is_Add:
         head = "mul" if expression.is_Mul else "add"
         parts = [_expression_tree(a, symbols) for a in expression.args]

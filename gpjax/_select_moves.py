@@ -11,8 +11,15 @@ A neighbour is the model with one of these changes, refitted afterwards:
   own; :mod:`gpjax._features`). exp's scale carries the units of z and has no simple value;
 * **function → powers**: a bank feature replaced by two powers z^j, z^k of its variable
   (a Taylor pair: x and x³ in place of sin(a·x + b) or of x·|x|);
-* **powers → function**: one or two powers of z replaced by one bank feature of z with no
-  fitted inner constant (z^k·|z|, or sin/cos(z) with a = 1 and b = 0 held).
+* **powers → function**: one or two powers of z replaced by one bank feature of z (z^k·|z|;
+  sin/cos(z) with a = 1 and b = 0 held; tanh, exp, sinh, cosh from their default scale,
+  which the least-squares start's grid and refinement then set);
+* **Taylor pair dropped**: where a bank feature of z is in the model, two powers of z
+  removed at once (the reverse of function → powers: k·tanh(x/a) beside x and x³ sheds the
+  pair in one move, which two single removals, each through a worse model, may not);
+* **exp pair tied**: exp(a₁·z) and exp(a₂·z) with scales of opposite sign replaced by
+  sinh(ā·z), or by cosh(ā·z), ā = (|a₁| + |a₂|)/2 — the symmetric law with two constants
+  fewer (:mod:`gpjax._features`).
 
 A single power replacing a function is a swap already.
 """
@@ -21,6 +28,8 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+
+import sympy as sp
 
 from ._canonical import CanonicalForm
 from ._features import SIGN_WIDTH, match
@@ -96,6 +105,8 @@ def neighbours(fitness, record) -> list[Move]:
             moves.append(move({**rest, z ** j: rest.get(z ** j, value),
                                z ** k: rest.get(z ** k, value)}, forcing, [name]))
     moves += _powers_to_function(fitness, state, forcing, move)
+    moves += _drop_taylor_pairs(fitness, state, forcing, move)
+    moves += _tie_exp_pairs(fitness, state, forcing, move)
     unique = {}
     for m in moves:
         unique.setdefault((tuple(map(str, m.state)), tuple(map(str, m.forcing)), m.held), m)
@@ -103,22 +114,18 @@ def neighbours(fitness, record) -> list[Move]:
 
 
 def _powers_to_function(fitness, state: dict, forcing: dict, move) -> list[Move]:
-    """One or two powers of x (or of x') replaced by a bank feature of that variable with
-    no fitted inner constant (module docstring)."""
+    """One or two powers of x (or of x') replaced by a bank feature of that variable
+    (module docstring)."""
     ev, symbols = fitness.evaluator, fitness.symbols
     moves = []
     used = {ev.state_index(f) for f in state}
     for family in ev.families:
-        z = family.variable(symbols)
-        powers = [f for f in state if f == z or (f.is_Pow and f.base == z)]
-        if family.function in ("sin", "cos"):
-            feature = family.feature(symbols, (1.0, 0.0))
-            slots = ev.inner_of(feature)[0]
-            added = list(range(slots.start, slots.stop))
-        elif family.n_inner == 0:
-            feature, added = family.feature(symbols), []
-        else:
-            continue
+        if family.slot:
+            continue  # a second slot's default (exp(−z/s)) is reached by a swap
+        powers = _powers_of(family.variable(symbols), state)
+        feature = fitness.default_feature(family)
+        slots = ev.inner_of(feature)[0]
+        added = list(range(slots.start, slots.stop)) if family.function in ("sin", "cos") else []
         if ev.state_index(feature) in used:
             continue
         for count in (1, 2):
@@ -137,3 +144,36 @@ def move_key(move: Move, mass: float, tree_mode: bool) -> str:
         key += " | held " + ",".join(map(str, move.held))
     return "pruned " + key if tree_mode else key
 
+
+
+def _powers_of(z, state: dict) -> list:
+    return [f for f in state if f == z or (f.is_Pow and f.base == z)]
+
+
+def _drop_taylor_pairs(fitness, state: dict, forcing: dict, move) -> list[Move]:
+    """Two powers of z removed at once where a bank feature of z is in ``state`` (module
+    docstring)."""
+    moves = []
+    for z in {found[0].variable(fitness.symbols) for found in map(
+            lambda f: match(f, fitness.symbols), state) if found is not None}:
+        for pair in itertools.combinations(_powers_of(z, state), 2):
+            moves.append(move({t: v for t, v in state.items() if t not in pair}, forcing, pair))
+    return moves
+
+
+def _tie_exp_pairs(fitness, state: dict, forcing: dict, move) -> list[Move]:
+    """exp(a₁·z), exp(a₂·z) with a₁·a₂ < 0 replaced by sinh(ā·z) or cosh(ā·z) (module
+    docstring)."""
+    symbols, moves = fitness.symbols, []
+    exps = [(f, match(f, symbols)) for f in state if isinstance(f, sp.exp)]
+    for (f1, (family, (a1,))), (f2, (_, (a2,))) in itertools.combinations(
+            [(f, found) for f, found in exps if found is not None], 2):
+        if family.role != match(f2, symbols)[0].role or a1 * a2 >= 0:
+            continue
+        rest = {t: v for t, v in state.items() if t not in (f1, f2)}
+        scale = 0.5 * (abs(a1) + abs(a2))
+        z = family.variable(symbols)
+        for function in (sp.sinh, sp.cosh):
+            moves.append(move({**rest, function(sp.Float(scale) * z): state[f1]}, forcing,
+                              [f1, f2]))
+    return moves

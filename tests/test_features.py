@@ -259,10 +259,12 @@ def test_inner_constants_start_from_the_grid_when_the_tree_scale_is_wrong(pendul
         least_squares_residual(fitness.weak_form, (V, sp.sin(X)), forcing)
 
 
-def test_exp_has_two_slots_so_sinh_is_a_candidate_and_a_third_member_is_refused(pendulum):
-    """exp(x) beside exp(−x) (k·sinh x) takes exp's two columns, each with its own inner
-    constant, and is scored; a third exp member, or a second sine, is refused with the
-    reason; a model holding sinh's pair simulates it as any accurate solver does."""
+def test_exp_has_two_slots_a_pair_with_one_scale_is_sinh_and_a_third_member_is_refused(
+        pendulum):
+    """exp(x) beside exp(−2x) takes exp's two columns, each with its own inner constant,
+    and is scored; exp(x) − exp(−x) is canonicalised by sympy to 2·sinh(x), one term with
+    one inner constant; a third exp member, or a second sine, is refused with the reason;
+    a model holding sinh's exp pair simulates it as any accurate solver does."""
     from gpjax import Model
     from gpjax._config import GPConfig
     from gpjax._fitness import Fitness
@@ -270,20 +272,27 @@ def test_exp_has_two_slots_so_sinh_is_a_candidate_and_a_third_member_is_refused(
     data, _ = pendulum
     fitness = Fitness(data, GPConfig(population=8,
                                      functions=("add", "sub", "mul", "exp", "sin")))
-    pair = ("sub", ("exp", ("x",)), ("exp", ("mul", ("n", -1.0), ("x",))))
-    sinh = ("sub", ("add", ("x_ddot",), pair), ("u", 0))
-    _, form, reason = fitness.classify(sinh)
+
+    def equation(state):
+        return ("sub", ("add", ("x_ddot",), state), ("u", 0))
+
+    def exp_of(scale):
+        return ("exp", ("mul", ("n", scale), ("x",)))
+
+    pair = ("sub", exp_of(1.0), exp_of(-2.0))
+    _, form, reason = fitness.classify(equation(pair))
     assert form is not None, reason
     placed = fitness.evaluator.state_columns([f for f, _ in form.state])
     assert len({column for column, _, _ in placed}) == 2
     assert len({slots.start for _, slots, _ in placed}) == 2
-    assert sorted(theta for _, _, theta in placed) == [(-1.0,), (1.0,)]
-    record, = fitness.records_for([sinh])
+    assert sorted(theta for _, _, theta in placed) == [(-2.0,), (1.0,)]
+    record, = fitness.records_for([equation(pair)])
     assert record.valid and np.isfinite(record.objective)
-    three = ("sub", ("add", ("x_ddot",), ("add", pair, ("exp", ("mul", ("n", 2.0), ("x",))))),
-             ("u", 0))
-    two_sines = ("sub", ("add", ("x_ddot",), ("add", ("sin", ("x",)),
-                                              ("sin", ("mul", ("n", 2.0), ("x",))))), ("u", 0))
+    _, form, _ = fitness.classify(equation(("sub", exp_of(1.0), exp_of(-1.0))))
+    assert [(str(f), v) for f, v in form.state] == [("sinh(1.0*x)", 2.0)]
+    assert fitness.records_for([equation(("sub", exp_of(1.0), exp_of(-1.0)))])[0].valid
+    three = equation(("add", pair, exp_of(3.0)))
+    two_sines = equation(("add", ("sin", ("x",)), ("sin", ("mul", ("n", 2.0), ("x",)))))
     for tree in (three, two_sines):
         _, form, reason = fitness.classify(tree)
         assert form is None and "more members of one feature-bank family" in reason
