@@ -338,8 +338,9 @@ class PopulationEvaluator(SystemTerms):
         would make the forcing of *every* model in a call NaN (0·inf), so such a feature
         must not enter the basis."""
         if feature not in self._finite:
-            self._finite[feature] = bool(np.all(np.isfinite(self.forcing_values(
-                feature, self.stage_times, self._stage_inputs))))
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # the check
+                self._finite[feature] = bool(np.all(np.isfinite(self.forcing_values(
+                    feature, self.stage_times, self._stage_inputs))))
         return self._finite[feature]
 
     def forcing_index(self, feature: sp.Expr) -> int:
