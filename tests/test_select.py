@@ -90,29 +90,23 @@ def test_selection_alpha_is_validated(alpha):
 
 
 @pytest.mark.slow  # the CI slow step keeps it; the fast tier stays within 5 min
-def test_exponential_stiffening_ties_an_exp_pair_into_sinh():
-    """k·sinh(x/a): from two free exp members with nearly opposite scales (6 fitted
-    constants) the walk ties them into one sinh (4) with k and 1/a within 2 %."""
-    fitness = _fitness("exponential_stiffening")
-    stand_in = _record(fitness, {sp.exp(4.2 * X): 5.0, sp.exp(-3.8 * X): -5.0, V: 2.0})
-    chosen, path = simplify(fitness, stand_in, 0.05)
+@pytest.mark.parametrize("system, start, function, scale, k", [
+    # two free exp members with nearly opposite scales (6 fitted constants) tie into one
+    # sinh (4)
+    ("exponential_stiffening", {sp.exp(4.2 * X): 5.0, sp.exp(-3.8 * X): -5.0, V: 2.0},
+     sp.sinh, 4.0, 10.0),
+    # a tanh of the wrong scale cancelling a Taylor pair (the kind of stand-in the suite's
+    # seeds 3–4 gave) sheds the pair
+    ("saturating_spring", {sp.tanh(1.0 * X): -30.0, X: 70.0, X ** 3: -20.0, V: 2.0},
+     sp.tanh, 2.0, 20.0),
+])
+def test_the_walk_reaches_the_law_from_its_stand_in(system, start, function, scale, k):
+    """k·sinh(x/a) and k·tanh(x/a): the walk ends at the law and the damping alone, k and
+    1/a within 2 %."""
+    fitness = _fitness(system)
+    chosen, path = simplify(fitness, _record(fitness, start), 0.05)
     state = chosen.coefficients.state
-    sinh, = [f for f in state if f.func == sp.sinh]
-    assert set(state) == {sinh, V}, [r.key for r in path]
-    assert float(sinh.args[0] / X) == pytest.approx(4.0, rel=0.02)
-    assert state[sinh] / chosen.coefficients.mass == pytest.approx(10.0, rel=0.02)
-
-
-@pytest.mark.slow
-def test_saturating_spring_sheds_its_taylor_pair():
-    """k·tanh(x/a) beside x and x³ (the kind of stand-in the suite's seeds 3–4 gave, here
-    with a tanh of the wrong scale cancelling the pair): the walk ends at k·tanh(x/a)
-    alone, k and 1/a within 2 %."""
-    fitness = _fitness("saturating_spring")
-    start = _record(fitness, {sp.tanh(1.0 * X): -30.0, X: 70.0, X ** 3: -20.0, V: 2.0})
-    chosen, path = simplify(fitness, start, 0.05)
-    state = chosen.coefficients.state
-    tanh, = [f for f in state if f.func == sp.tanh]
-    assert set(state) == {tanh, V}, [r.key for r in path]
-    assert float(tanh.args[0] / X) == pytest.approx(2.0, rel=0.02)
-    assert state[tanh] / chosen.coefficients.mass == pytest.approx(20.0, rel=0.02)
+    law, = [f for f in state if f.func == function]
+    assert set(state) == {law, V}, [r.key for r in path]
+    assert float(law.args[0] / X) == pytest.approx(scale, rel=0.02)
+    assert state[law] / chosen.coefficients.mass == pytest.approx(k, rel=0.02)
