@@ -18,7 +18,8 @@ The ``truth`` rows score the true equations: the scorer's floor.
         --peers pysindy,pyoperon --json benchmarks/physics_suite.json
     python benchmarks/physics_suite.py --rescore part1.json part2.json --json all.json
 
-``--rescore`` merges the rows of earlier runs (one per system, say) and decides structure
+``--rescore`` merges the rows of earlier runs (one per system, say; a later file's row
+replaces an earlier file's row of the same system, method and seed) and decides structure
 and constants again from their equations with the current rule.
 
 A failed fit or simulation is a row with its error text, not a crash of the suite.
@@ -91,11 +92,12 @@ def _rescore(args) -> int:
     from gpjax._errors import ModelFileError
     from gpjax._expressions import parse_expression
 
-    rows, commands = [], []
-    for path in args.rescore:
+    latest, commands = {}, []
+    for path in args.rescore:  # a later file's row replaces one of the same system, method, seed
         payload = json.loads(Path(path).read_text(encoding="utf-8"))
         commands += payload["settings"].get("runs", [payload["command"]])
-        rows += payload["rows"]
+        latest.update({(r["system"], r["method"], r["seed"]): r for r in payload["rows"]})
+    rows = list(latest.values())
     seeds = 1 + max(r["seed"] for r in rows)
     for i, row in enumerate(rows):
         if args.refit_failed and row["error"] and row["method"].startswith("gpjax"):
