@@ -173,7 +173,8 @@ def _unary(name: str, a: sp.Expr) -> sp.Expr:
     becomes ``e^b·exp(a)``); sqrt and log act on |a| and log 0 is 0 (protected)."""
     if name == "log":
         return sp.Integer(0) if a == 0 else sp.expand(sp.log(sp.Abs(a)))
-    function = {"sin": sp.sin, "cos": sp.cos, "tanh": sp.tanh, "exp": sp.exp, "abs": sp.Abs,
+    function = {"sin": sp.sin, "cos": sp.cos, "tanh": sp.tanh, "exp": sp.exp, "sinh": sp.sinh,
+                "cosh": sp.cosh, "abs": sp.Abs,
                 "sign": sp.sign, "sqrt": lambda z: sp.sqrt(sp.Abs(z))}[name]
     return sp.expand(function(a))
 

@@ -20,7 +20,7 @@ from ._errors import ConfigError, read_user_file
 #: act on |a| (log 0 is 0). The unary functions go beyond the paper's eq. 10; a state term
 #: they make must be a member of the feature bank (:mod:`gpjax._features`).
 FUNCTIONS = {"add": 2, "sub": 2, "mul": 2, "div": 2, "sin": 1, "cos": 1, "tanh": 1, "exp": 1,
-             "abs": 1, "sign": 1, "sqrt": 1, "log": 1}
+             "sinh": 1, "cosh": 1, "abs": 1, "sign": 1, "sqrt": 1, "log": 1}
 #: Variable roles a tree may use: the response x, its derivatives, every input u, time t.
 VARIABLES = ("x", "x_dot", "x_ddot", "u", "t")
 COEFFICIENT_MODES = ("least_squares", "tree")
@@ -38,7 +38,8 @@ class GPConfig:
         p_crossover, p_mutation, p_perturbation, p_reproduction: operator probabilities
             (paper: 0.63 / 0.27 / 0.09 / 0.01); they must sum to 1.
         functions: function set, eq. 1/10; names from ``add, sub, mul, div`` (div is
-            protected) and, beyond the paper, ``sin, cos, tanh, exp, abs, sign, sqrt, log``
+            protected) and, beyond the paper, ``sin, cos, tanh, exp, sinh, cosh, abs, sign,
+            sqrt, log``
             (their state terms must be feature-bank members, :mod:`gpjax._features`).
         variables: variable roles a tree may use, eq. 2/11: ``x`` (response), ``x_dot``,
             ``x_ddot``, ``u`` (every input column), ``t`` (time).

@@ -13,8 +13,8 @@ family     feature               θ   made by the tree functions
 ``sin``    sin(θ0·z + θ1)        2   sin
 ``cos``    cos(θ0·z + θ1)        2   cos
 ``exp``    exp(θ0·z)             1   exp (a factor e^b of exp(a·z + b) is a coefficient)
-``sinh``   sinh(θ0·z)            1   exp (an exp pair with one scale, below)
-``cosh``   cosh(θ0·z)            1   exp (likewise)
+``sinh``   sinh(θ0·z)            1   sinh; exp (an exp pair with one scale, below)
+``cosh``   cosh(θ0·z)            1   cosh; exp (likewise)
 =========  ====================  ==  =========================================
 
 **exp pairs, sinh and cosh.** The symmetric exponential laws of stiffening springs are
@@ -22,8 +22,10 @@ exp pairs: k·sinh(z/a) = k/2·(exp(z/a) − exp(−z/a)). A model holds one mem
 family except ``exp``, which has two slots (:data:`SLOTS`; the k-th member of a model takes
 the k-th slot, :meth:`gpjax._evaluator.PopulationEvaluator.state_columns`), each with its
 own scale. A pair with one scale is sinh or cosh: the same law with one fitted constant
-fewer, which the final selection's tie move proposes (:mod:`gpjax._select_moves`). No tree
-function makes them directly; the ``exp`` function brings them into the bank.
+fewer, which the final selection's tie move proposes (:mod:`gpjax._select_moves`). The
+``exp`` function brings them into the bank (and into local search's extensions, written
+with sinh and cosh tree nodes, as compact as tanh's); ``sinh`` and ``cosh`` may also be
+given as tree functions.
 
 **sign, smoothed.** A GP candidate's sign(z) (dry friction) enters the search as
 tanh(z/ε) with ε = :data:`SIGN_WIDTH` × RMS(z) on the data: a discontinuous right-hand side
@@ -45,7 +47,8 @@ from ._canonical import Symbols
 
 #: Tree functions that make state-feature families, by family.
 FAMILY_FUNCTIONS = {"abs": ("abs",), "tanh": ("tanh", "sign"), "sin": ("sin",),
-                    "cos": ("cos",), "exp": ("exp",), "sinh": ("exp",), "cosh": ("exp",)}
+                    "cos": ("cos",), "exp": ("exp",), "sinh": ("exp", "sinh"),
+                    "cosh": ("exp", "cosh")}
 #: Width of the smoothed sign, as a fraction of the RMS of its argument in the data.
 SIGN_WIDTH = 0.01
 #: Largest |exponent argument| evaluated (beyond it exp overflows float64 at 709.8).

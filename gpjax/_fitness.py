@@ -367,12 +367,10 @@ def _expression_tree(expression: sp.Expr, symbols: Symbols) -> tuple:
         for _ in range(int(expression.exp) - 1):
             tree = ("mul", base, tree)
         return tree
-    functions = {sp.sin: "sin", sp.cos: "cos", sp.tanh: "tanh", sp.exp: "exp", sp.Abs: "abs",
-                 sp.sign: "sign"}
+    functions = {sp.sin: "sin", sp.cos: "cos", sp.tanh: "tanh", sp.exp: "exp", sp.sinh: "sinh",
+                 sp.cosh: "cosh", sp.Abs: "abs", sp.sign: "sign"}
     if expression.func in functions:
         return (functions[expression.func], _expression_tree(expression.args[0], symbols))
-    if expression.func in (sp.sinh, sp.cosh):  # no tree function: an exp pair
-        return _expression_tree(expression.rewrite(sp.exp), symbols)
     if expression.is_Mul or expression.is_Add:
         head = "mul" if expression.is_Mul else "add"
         parts = [_expression_tree(a, symbols) for a in expression.args]

@@ -2,7 +2,8 @@
 
 Node forms:
     ("add" | "sub" | "mul" | "div", left, right)   binary functions (div is protected)
-    ("sin" | "cos" | "tanh" | "exp" | "abs" | "sign" | "sqrt" | "log", argument)
+    ("sin" | "cos" | "tanh" | "exp" | "sinh" | "cosh" | "abs" | "sign" | "sqrt" | "log",
+     argument)
                                                     unary functions (sqrt, log protected)
     ("x",) ("x_dot",) ("x_ddot",) ("t",)            response, its derivatives, time
     ("u", k)                                        k-th input column
@@ -18,7 +19,7 @@ from typing import Iterator
 Tree = tuple
 
 BINARY_NODES = ("add", "sub", "mul", "div")
-UNARY_NODES = ("sin", "cos", "tanh", "exp", "abs", "sign", "sqrt", "log")
+UNARY_NODES = ("sin", "cos", "tanh", "exp", "sinh", "cosh", "abs", "sign", "sqrt", "log")
 FUNCTION_NODES = BINARY_NODES + UNARY_NODES
 VARIABLE_NODES = ("x", "x_dot", "x_ddot", "t")
 
