@@ -63,3 +63,12 @@ def test_tree_to_sympy_uses_constant_values_and_protected_division():
             ("sub", ("div", ("x",), ("sub", ("t",), ("t",))), ("u", 0)))
     expression = tree_to_sympy(tree, S, {"J": 2.0})
     assert sp.simplify(expression - (2.0 * phi_ddot + 1 - T)) == 0
+
+
+def test_abs_of_exp_stays_real():
+    """|exp(u)| is exp(u) for a real signal (sympy alone writes exp(re(u)), which no tree,
+    model file or evaluator can hold); a fit once crashed on it."""
+    tree = ("sub", ("x_ddot",), ("abs", ("exp", ("mul", ("n", 2.0), ("u", 0)))))
+    expression = tree_to_sympy(tree, S, {})
+    assert not expression.has(sp.re)
+    assert sp.simplify(expression - (phi_ddot - sp.exp(2.0 * T))) == 0
