@@ -38,7 +38,8 @@ DFT_MATRIX_LIMIT = 4_000_000
 
 
 def _amplitude(dft, signal, n_bins: int):
-    """(m, P) amplitudes of the first m bins.
+    """(m, …) amplitudes of the first m bins of ``signal`` (N, …): samples first, any
+    trailing axes (models; coordinates and models).
 
     With a DFT matrix: one (2m, N) @ (N, P) product, weighted cos rows over weighted sin
     rows (4mN flops per model; faster than an FFT on CPU for m = 58, N = 1,334). With
@@ -46,7 +47,8 @@ def _amplitude(dft, signal, n_bins: int):
     cost and memory do not grow with m.
     """
     if dft.shape[0] == 1:
-        return dft[0, :n_bins, None] * jnp.abs(jnp.fft.rfft(signal, axis=0)[:n_bins])
+        weight = dft[0, :n_bins].reshape((-1,) + (1,) * (signal.ndim - 1))
+        return weight * jnp.abs(jnp.fft.rfft(signal, axis=0)[:n_bins])
     parts = jnp.tensordot(dft, signal, axes=1)
     return jnp.hypot(parts[:n_bins], parts[n_bins:])
 

@@ -160,11 +160,13 @@ def test_initial_condition_fit_recovers_a_models_own_start():
     assert scores.f_time[0] < 1e-8
 
 
-def test_dft_matrix_and_fft_amplitudes_agree():
-    signal = np.random.default_rng(4).standard_normal((4000, 3))
+@pytest.mark.parametrize("shape", [(4000, 3), (4000, 2, 3)])  # models; coordinates, models
+def test_dft_matrix_and_fft_amplitudes_agree(shape):
+    signal = np.random.default_rng(4).standard_normal(shape)
     by_matrix = _amplitude(jnp.asarray(_dft_matrix(4000, 400)), signal, 400)
     by_fft = _amplitude(jnp.asarray(_dft_matrix(4000, 600)), signal, 400)
     assert _dft_matrix(4000, 600).shape == (1, 600)  # over the size limit: weights only
+    assert by_matrix.shape == by_fft.shape == (400,) + shape[1:]
     np.testing.assert_allclose(by_fft, by_matrix, rtol=1e-10, atol=1e-14)
 
 
