@@ -9,6 +9,7 @@ from gpjax import Measurement, Symbols
 from gpjax.engine import PopulationEvaluator, objective_parts
 from gpjax._coefficients import Population
 from gpjax._evaluator import DIVERGED, NONPOSITIVE_MASS, OK, PENALTY
+from gpjax._integrate import enable_float64
 from gpjax._objective import _amplitude, _dft_matrix
 
 S = Symbols("x", "t", ("u",))
@@ -162,6 +163,7 @@ def test_initial_condition_fit_recovers_a_models_own_start():
 
 @pytest.mark.parametrize("shape", [(4000, 3), (4000, 2, 3)])  # models; coordinates, models
 def test_dft_matrix_and_fft_amplitudes_agree(shape):
+    enable_float64()  # as every evaluator does; the test may run first
     signal = np.random.default_rng(4).standard_normal(shape)
     by_matrix = _amplitude(jnp.asarray(_dft_matrix(4000, 400)), signal, 400)
     by_fft = _amplitude(jnp.asarray(_dft_matrix(4000, 600)), signal, 400)
