@@ -502,19 +502,16 @@ class PopulationEvaluator(SystemTerms):
         The one right-hand side both integrators use (:meth:`_restoring_fn`).
         """
         inverse_mass = 1.0 / mass
+        rows = self._restoring_fn(state, inner, stacked=False)
         if self.n_coordinates > 1:  # (D, P) arrays in and out
-            restoring = self._restoring_fn(state, inner, stacked=False)
-
             def clipped(z, which):  # row by row: faster than one broadcast clip in scan_jvp
                 return [jnp.clip(z[e], -b[which], b[which]) for e, b in enumerate(self._bounds)]
 
             def system_acceleration(xs, vs, forces, t):
-                rows = restoring(clipped(xs, 0), clipped(vs, 1), t)
-                return jnp.stack([(forces[e] - r) * inverse_mass[e] for e, r in enumerate(rows)])
+                r = rows(clipped(xs, 0), clipped(vs, 1), t)
+                return jnp.stack([(forces[e] - r_e) * inverse_mass[e] for e, r_e in enumerate(r)])
 
             return system_acceleration
-        rows = self._restoring_fn(state, inner, stacked=False)
-
         (bx, bv), = self._bounds
 
         def acceleration(xs, vs, forces, t):
