@@ -3,6 +3,7 @@ controls.
 
 Usage: python benchmarks/diagnose_sweep.py [--json FILE] [--seeds S ...] [--noise K ...]
        [--effects NAME ...] [--no-controls] [--rescore] [--merge FILE ...]
+       python benchmarks/diagnose_sweep.py --nearest [--seeds S ...] [--json FILE]
 
 Rows are written to ``--json`` as each case ends, so a run cut short is still evidence;
 ``--merge`` joins the files of runs made in parts.
@@ -20,6 +21,10 @@ diagnosis simulates with) and seconds. A case passes: a control adds nothing; a 
 effect is named first and the final RMS ≤ 1.5 × the true model's; an outside effect adds
 only nearest effects, and either reaches 1.5 × the true model's RMS or the report says that
 the residual stays unexplained (and describes it).
+
+``--nearest`` checks the ``NEAREST`` table itself, without any diagnosis: per effect outside
+the library and seed, the share of the undeclared force each library effect removes
+(:meth:`gpjax.gear.UndeclaredEffectCase.missing_force_shares`), best first.
 """
 
 from __future__ import annotations
@@ -90,7 +95,8 @@ def totals(rows: list[dict]) -> dict:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--json", default=str(Path(__file__).with_name("diagnose_sweep.json")))
+    parser.add_argument("--json", help="output (default: diagnose_sweep.json, with --nearest "
+                                       "diagnose_nearest.json, beside this script)")
     parser.add_argument("--seeds", nargs="+", type=int, default=list(REPORTING_SEEDS))
     parser.add_argument("--noise", nargs="+", type=float, default=list(NOISE_LEVELS))
     parser.add_argument("--effects", nargs="*", default=list(EFFECTS + OUTSIDE))
@@ -99,7 +105,14 @@ def main() -> None:
                         help="re-score the rows of --json with this version's criteria")
     parser.add_argument("--merge", nargs="+", metavar="FILE",
                         help="write the rows of these sweep files, re-scored, into --json")
+    parser.add_argument("--nearest", action="store_true",
+                        help="the share of each outside effect's force each library effect "
+                             "removes (no diagnosis)")
     args = parser.parse_args()
+    if args.nearest:
+        _nearest(args.seeds, args.json or str(Path(__file__).with_name("diagnose_nearest.json")))
+        return
+    args.json = args.json or str(Path(__file__).with_name("diagnose_sweep.json"))
     if args.rescore or args.merge:
         files = args.merge or [args.json]
         rows = [score(r) for f in files for r in json.loads(Path(f).read_text())["rows"]]
@@ -122,6 +135,23 @@ def main() -> None:
         _print(rows[-1])
         _write(args.json, rows)
     print(json.dumps(totals(rows), indent=1))
+
+
+def _nearest(seeds: list[int], path: str) -> None:
+    """Print and write, per outside effect and seed, the library effects' shares of the
+    undeclared force, best first, and whether the best is in ``NEAREST``."""
+    rows = []
+    print("| effect | seed | best (share) | second | third | best in NEAREST |")
+    for name in OUTSIDE:
+        for seed in seeds:
+            shares = undeclared_effect_case(name, seed=seed).missing_force_shares()
+            ranked = sorted(shares.items(), key=lambda item: -item[1])
+            rows.append({"effect": name, "seed": seed, "shares": dict(ranked),
+                         "best_in_nearest": ranked[0][0] in NEAREST[name]})
+            print(f"| {name} | {seed} | " + " | ".join(f"{k} ({v:.3f})" for k, v in ranked[:3])
+                  + f" | {'yes' if rows[-1]['best_in_nearest'] else 'no'} |", flush=True)
+    Path(path).write_text(json.dumps({"nearest": NEAREST, "rows": rows}, indent=2) + "\n",
+                          encoding="utf-8")
 
 
 def _write(path: str, rows: list[dict]) -> None:

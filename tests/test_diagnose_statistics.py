@@ -199,3 +199,25 @@ def test_held_out_sweep_subset(name, torque_noise):
             assert result.effects_added[:1] == [name], (seed, result.rankings[0][:3])
             truth = case.truth_rms(result.measurement, settings=result.settings)
             assert result.after.metrics["rms"] <= 1.5 * truth, (seed, truth)
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("name", ["stribeck_friction", "quadratic_damping", "saturating_spring"])
+def test_nearest_table_holds_the_effect_that_removes_most_of_the_missing_force(name):
+    """NEAREST is a claim about forces, not about the diagnosis: on each tuning seed the
+    library effect that takes most of the undeclared force (clean trajectory, the starting
+    model's constants refitted) is one of the entry's."""
+    from gpjax.gear import NEAREST, TUNING_SEEDS, undeclared_effect_case
+
+    for seed in TUNING_SEEDS[:2]:
+        shares = undeclared_effect_case(name, seed=seed).missing_force_shares()
+        assert max(shares, key=shares.get) in NEAREST[name], shares
+
+
+def test_missing_force_shares_of_a_library_effect_and_a_control():
+    from gpjax.gear import undeclared_effect_case
+
+    shares = undeclared_effect_case("cubic_stiffness", seed=0).missing_force_shares()
+    assert shares["cubic_stiffness"] == pytest.approx(1.0, abs=1e-9)
+    assert max(v for k, v in shares.items() if k != "cubic_stiffness") < 0.9
+    assert undeclared_effect_case("control", seed=0).missing_force_shares() == {}
