@@ -1,0 +1,170 @@
+"""Parts of :class:`gpjax._evaluator.PopulationEvaluator`: its columns — which state
+column (and which inner-constant slots) a feature takes, the forcing basis evaluated at the
+RK4 stage rows and grown in bucketed capacities (so a new forcing feature compiles only
+when the capacity doubles), and the flat constant layouts of a model."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import sympy as sp
+
+from ._coefficients import FlatLayout, Population
+from ._features import SLOTS, match
+
+
+class Columns:
+    """Mixin of :class:`gpjax._evaluator.PopulationEvaluator` (uses its ``symbols``,
+    ``families``, ``state_features``, ``n_inner``, ``n_coordinates``, ``stage_times`` and
+    the column maps its constructor builds)."""
+
+    def state_columns(self, features) -> list[tuple[int | None, slice, tuple[float, ...]]]:
+        """Per state feature of one model: its column in the basis (``None``: not
+        supported), the slots of its inner constants in :attr:`Population.inner` and their
+        values in the feature. The k-th member of a family takes the family's k-th slot
+        (:data:`gpjax._features.SLOTS`); members beyond them share the last slot's column,
+        which :func:`gpjax._coefficients.to_population` refuses."""
+        out, taken = [], set()
+        for feature in features:
+            column = self._state_index.get(feature)
+            found = None if column is not None or not self.families else match(
+                feature, self.symbols)
+            if found is None:
+                out.append((column, slice(0, 0), ()))
+                continue
+            slots = [dataclasses.replace(found[0], slot=k)
+                     for k in range(SLOTS.get(found[0].function, 1))]
+            slots = [f for f in slots if f in self._family_column]
+            if not slots:
+                out.append((None, slice(0, 0), ()))
+                continue
+            family = next((f for f in slots if self._family_column[f] not in taken), slots[-1])
+            taken.add(self._family_column[family])
+            out.append((self._family_column[family],
+                        self._inner_slots[self.families.index(family)], found[1]))
+        return out
+
+    def state_index(self, feature: sp.Expr) -> int | None:
+        """Column of a state feature in the basis (a power, an extra feature, or a member
+        of one of the families, its first slot), or ``None`` if it is not supported."""
+        return self.state_columns([feature])[0][0]
+
+    def equation_index(self, feature: sp.Expr, equation: int) -> int | None:
+        """Column of a state feature in ``equation``'s basis (:attr:`equation_features`),
+        or ``None``; for D = 1 :meth:`state_index`."""
+        if self.n_coordinates == 1:
+            return self.state_index(feature)
+        return self._equation_index[equation].get(feature)
+
+    def inner_of(self, feature: sp.Expr) -> tuple[slice, tuple[float, ...]]:
+        """The slots of a state feature's inner constants in :attr:`Population.inner` (its
+        family's first slot) and their values in ``feature`` (none for powers and extra
+        features)."""
+        return self.state_columns([feature])[0][1:]
+
+    def inner_columns(self) -> list[tuple[int, slice]]:
+        """(state column, slots in :attr:`Population.inner`) of every family."""
+        return [(self._family_column[f], slots)
+                for f, slots in zip(self.families, self._inner_slots)]
+
+    def feature_at(self, column: int, theta) -> sp.Expr:
+        """The state feature of ``column`` with inner constants ``theta`` (a family's)."""
+        first = len(self.state_features) - len(self.families)
+        if column < first:
+            return self.state_features[column]
+        return self.families[column - first].feature(self.symbols, tuple(map(float, theta)))
+
+    def forcing_finite(self, feature: sp.Expr) -> bool:
+        """Whether a forcing feature is finite at every stage time: a column that is not
+        would make the forcing of *every* model in a call NaN (0·inf), so such a feature
+        must not enter the basis."""
+        if feature not in self._finite:
+            with np.errstate(over="ignore", invalid="ignore", divide="ignore"):  # the check
+                self._finite[feature] = bool(np.all(np.isfinite(self.forcing_values(
+                    feature, self.stage_times, self._stage_inputs))))
+        return self._finite[feature]
+
+    def forcing_index(self, feature: sp.Expr) -> int:
+        """Column of a forcing feature, evaluating it on the stage grid the first time.
+
+        Raises:
+            ValueError: the feature is not finite at every stage time
+                (:meth:`forcing_finite`).
+        """
+        if feature not in self._forcing_index:
+            values = self.forcing_values(feature, self.stage_times, self._stage_inputs)
+            if not np.all(np.isfinite(values)):
+                raise ValueError(f"forcing feature {feature} is not finite on the data")
+            self._forcing_index[feature] = len(self._forcing_features)
+            self._forcing_features.append(feature)
+            self._forcing_columns.append(values)
+            capacity = _capacity(len(self._forcing_features))
+            basis = np.zeros((self.stage_times.size, capacity))
+            basis[:, :len(self._forcing_columns)] = np.stack(self._forcing_columns, axis=1)
+            self._forcing_basis = basis
+        return self._forcing_index[feature]
+
+    @property
+    def compile_count(self) -> int:
+        """Shapes compiled so far (one per forcing capacity used; :attr:`compile_seconds`)."""
+        return len(self._compiled)
+
+    @property
+    def forcing_capacity(self) -> int:
+        return self._forcing_basis.shape[1]
+
+    @property
+    def forcing_features(self) -> tuple[sp.Expr, ...]:
+        """The forcing features in column order."""
+        return tuple(self._forcing_features)
+
+    @property
+    def forcing_basis(self) -> np.ndarray:
+        """(n_stage, forcing capacity) forcing features at every RK4 stage row (read-only)."""
+        view = self._forcing_basis.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def layout(self) -> FlatLayout:
+        """The flat constant vector of one model on this evaluator's columns."""
+        return FlatLayout(len(self.state_features), self.forcing_capacity, self.n_inner,
+                          self.n_coordinates)
+
+    @property
+    def plain_layout(self) -> FlatLayout:
+        """:attr:`layout` without the families' columns and inner constants (models that
+        use no family; see :meth:`plain_rows`)."""
+        return FlatLayout(len(self.state_features) - len(self.families),
+                          self.forcing_capacity, 0, self.n_coordinates)
+
+    def plain_rows(self, population: Population) -> np.ndarray:
+        """(P,) whether each model uses no family: such models are simulated and refined
+        without the bank's columns (the same compiled code traced for narrower arrays), so
+        polynomial candidates never pay for the families' transcendental functions."""
+        used = population.state[..., self.plain_layout.n_state:] != 0
+        return ~np.any(used.reshape(len(population), -1), axis=1)
+
+    def narrowed(self, population: Population) -> Population:
+        """``population`` on :attr:`plain_layout` (its family columns dropped)."""
+        return Population(population.mass, population.state[..., :self.plain_layout.n_state],
+                          population.forcing, population.y0, population.inner[:, :0])
+
+    def _layout_of(self, width: int) -> FlatLayout:
+        return self.layout if width == self.layout.width else self.plain_layout
+
+    def forcing_values(self, feature: sp.Expr, times: np.ndarray,
+                       inputs: dict[str, np.ndarray]) -> np.ndarray:
+        """A forcing feature ψ(t, u) evaluated (numpy) at ``times`` with ``inputs``."""
+        args = (self.symbols.t, *self.symbols.u)
+        fn = sp.lambdify(args, feature, modules="numpy")
+        values = fn(times, *(inputs[name] for name in self.symbols.inputs))
+        return np.broadcast_to(np.asarray(values, dtype=np.float64), times.shape).copy()
+
+
+def _capacity(count: int) -> int:
+    capacity = 16
+    while capacity < count:
+        capacity *= 2
+    return capacity

@@ -1,0 +1,327 @@
+"""Parts of :class:`gpjax._evaluator.PopulationEvaluator`: the compiled right-hand side of
+every model (Horner sums over the powers, the extra features and the feature bank), the two
+integrators and the variational equations.
+
+Two integrators run the same RK4 tableau on the same stage grid: ``"scan"`` (default), a
+hand-written step in ``lax.scan`` over (x, x') arrays of shape (P,) with Horner-form
+polynomials, and ``"diffrax"`` (:class:`RK4`, one ``diffeqsolve`` of the (P, 2) state).
+They agree to rounding; the scan step has none of diffrax's per-step bookkeeping and is
+~1.4× faster on CPU (``benchmarks/bench_population.py`` measures both;
+:mod:`gpjax._integrate`). Arrays inside carry a coordinate axis of length D (inserted for
+one coordinate, :meth:`Dynamics._internal`).
+"""
+
+from __future__ import annotations
+
+import diffrax
+import jax
+import jax.numpy as jnp
+
+from ._integrate import RK4, rk4_scan
+
+HOLD_WITH_DIFFRAX = ('the "diffrax" integrator cannot simulate "hold" inputs (it looks the '
+                     'forcing up by time alone); use integrator="scan"')
+
+
+class Dynamics:
+    """Mixin of :class:`gpjax._evaluator.PopulationEvaluator` (uses its ``n_coordinates``,
+    ``max_degree``, ``families``, ``_inner_slots``, ``_extra_fns``, ``_bounds``, ``_bound``,
+    ``h``, ``substeps``, ``n_steps``, ``stage_times``, ``split_stages``, ``integrator``,
+    ``measurement``, :meth:`_layout_of` and the systems' :class:`SystemTerms`)."""
+
+    def _coordinates(self, array, axis: int):
+        """``array`` with the coordinate axis at ``axis`` (inserted when D = 1)."""
+        return jnp.expand_dims(array, axis) if self.n_coordinates == 1 else array
+
+    def _public(self, array, axis: int):
+        """``array`` without the coordinate axis at ``axis`` when D = 1."""
+        return jnp.squeeze(array, axis) if self.n_coordinates == 1 else array
+
+    def _internal(self, mass, state, forcing_matrix, y0):
+        """Caller arrays with the coordinate axis: mass (D, P), state (P, D, F), forcing
+        rows (n_stage, D, P), y0 (P, D, 2)."""
+        return (jnp.swapaxes(self._coordinates(mass, -1), -1, -2), self._coordinates(state, -2),
+                self._coordinates(forcing_matrix, -2), self._coordinates(y0, -2))
+
+    def _acceleration_fn(self, mass, state, inner):
+        """x''(x, v, force, t) for all models, states clipped; ``mass`` (D, P), ``state``
+        (P, D, F). One coordinate: x, x' and the force as one-element sequences of (P,)
+        arrays, the acceleration returned likewise (the scan carries no stacked state: faster
+        for D = 1). D > 1: (D, P) arrays in and out (one stacked Horner sum).
+
+        The one right-hand side both integrators use (:meth:`_restoring_fn`).
+        """
+        inverse_mass = 1.0 / mass
+        rows = self._restoring_fn(state, inner, stacked=False)
+        if self.n_coordinates > 1:  # (D, P) arrays in and out
+            def clipped(z, which):  # row by row: faster than one broadcast clip in scan_jvp
+                return [jnp.clip(z[e], -b[which], b[which]) for e, b in enumerate(self._bounds)]
+
+            def system_acceleration(xs, vs, forces, t):
+                r = rows(clipped(xs, 0), clipped(vs, 1), t)
+                return jnp.stack([(forces[e] - r_e) * inverse_mass[e] for e, r_e in enumerate(r)])
+
+            return system_acceleration
+        (bx, bv), = self._bounds
+
+        def acceleration(xs, vs, forces, t):
+            (r,) = rows([jnp.clip(xs[0], -bx, bx)], [jnp.clip(vs[0], -bv, bv)], t)
+            return [(forces[0] - r) * inverse_mass[0]]
+
+        return acceleration
+
+    def _restoring_fn(self, state, inner, *, stacked: bool = True):
+        """Σ c·φ per equation for coefficients ``state`` of shape (..., P, D, F) and the
+        families' inner constants ``inner`` (P, F_inner): Horner sums over the powers of each
+        equation's variables (:func:`system_state_features`), plus, for D = 1, the compiled
+        extra features and families. The function takes the positions and velocities as
+        (D, P) arrays or sequences of D (P,) arrays and returns (..., D, P) (``stacked``
+        False: a list of D (..., P) arrays). A family no model of the call uses is skipped
+        (``lax.cond`` on a loop-invariant flag)."""
+        if self.n_coordinates > 1:
+            return self._system_restoring(state, stacked=stacked)
+        d = self.max_degree
+        position, velocity = (jnp.moveaxis(state[..., 0, k * d:(k + 1) * d], -1, 0)
+                              for k in (0, 1))
+        n_poly, n_extra = 2 * d, len(self._extra_fns)
+        extra = jnp.moveaxis(state[..., 0, n_poly:n_poly + n_extra], -1, 0)
+        bank = jnp.moveaxis(state[..., 0, n_poly + n_extra:], -1, 0)
+        used = [jnp.any(c != 0) for c in bank]
+
+        def horner(c, z):
+            total = c[d - 1]
+            for k in range(d - 2, -1, -1):
+                total = total * z + c[k]
+            return total * z
+
+        def restoring(xs, vs, t):
+            x, v = xs[0], vs[0]
+            total = horner(position, x) + horner(velocity, v)
+            for c, fn in zip(extra, self._extra_fns):
+                total = total + c * fn(x, v, t)
+            for c, flag, family, slots in zip(bank, used, self.families, self._inner_slots):
+                z = x if family.role == "x" else v
+                term = jax.lax.cond(flag, lambda z=z, c=c, family=family, slots=slots:
+                                    c * family(z, inner[..., slots]),
+                                    lambda c=c: jnp.zeros(jnp.broadcast_shapes(c.shape, x.shape)))
+                total = total + term
+            return [total]
+
+        if stacked:
+            return lambda xs, vs, t: jnp.stack(restoring(xs, vs, t), axis=-2)
+        return restoring
+
+    def integrate(self, mass, state, forcing_matrix, y0, inner=None):
+        """x at the sample times, shape (N, P) ((N, D, P) for D > 1), by the configured
+        integrator.
+
+        Differentiable in forward and reverse mode (the diffrax path in forward mode).
+        """
+        if self.integrator == "diffrax":
+            return self.solve(mass, state, forcing_matrix, y0, inner,
+                              adjoint=diffrax.ForwardMode())
+        return self.scan_solve(mass, state, forcing_matrix, y0, inner)
+
+    def scan_solve(self, mass, state, forcing_matrix, y0, inner=None):
+        """Integrate all models with RK4 in ``lax.scan``; x at the sample times, (N, P)
+        ((N, D, P) for D > 1).
+
+        Args:
+            mass: (P,); state: (P, F_state) coefficients; y0: (P, 2) — for D > 1 with a
+                coordinate axis after P: (P, D), (P, D, F_state), (P, D, 2).
+            forcing_matrix: (n_stage, P) ((n_stage, D, P)) forcing of every model (and
+                equation) at every RK4 stage time.
+            inner: (P, F_inner) the families' inner constants (``None``: no families).
+        """
+        inner = _no_inner(inner, mass)
+        rows = forcing_matrix  # (n_stage, P) or (n_stage, D, P): scanned as given
+        mass, state, forcing_matrix, y0 = self._internal(mass, state, forcing_matrix, y0)
+        acceleration = self._acceleration_fn(mass, state, inner)
+        if self.n_coordinates > 1:  # one carried (2, D, P) array
+            def stacked_rates(y, force, t):
+                (y,) = y
+                return (jnp.stack([y[1], acceleration(y[0], y[1], force, t)]),)
+
+            (path,) = self._rk4_scan(stacked_rates, (jnp.transpose(y0, (2, 1, 0)),), rows,
+                                     lambda y: (y[0][0],))
+            return path
+
+        def rates(y, force, t):  # x and x' carried as two (P,) arrays
+            (x, v) = y
+            return (v, *acceleration([x], [v], [force], t))
+
+        (path,) = self._rk4_scan(rates, (y0[:, 0, 0], y0[:, 0, 1]), rows, lambda y: y[:1])
+        return path
+
+    def scan_jvp(self, mass, state, forcing_matrix, y0, d_y0, *, inner=None, d_mass=None,
+                 d_state=None, d_forcing=None, d_inner=None, fold=None):
+        """x at the sample times (N, P) and its derivatives (N, Q, P) along Q directions
+        (D > 1: (N, D, P) and (N, D, Q, P)).
+
+        The variational equations s' = w, w' = ∂a/∂x·s + ∂a/∂x'·w + ∂a/∂θ·dθ run in the same
+        RK4 scan as the model (∂a/∂x a D × D matrix per model, one forward derivative per
+        coordinate). RK4 commutes with linearisation, so this is the exact derivative of the
+        discrete solution — what forward-mode autodiff of :meth:`scan_solve` gives
+        (tested) — without differentiating through the scan.
+
+        Args:
+            mass, state, forcing_matrix, y0: as :meth:`scan_solve`.
+            d_y0: (Q, P, 2) ((Q, P, D, 2)) directions of the initial state.
+            inner: (P, F_inner) the families' inner constants (``None``: no families).
+            d_mass: (Q, P), d_state: (Q, P, F_state), d_forcing: (n_stage, Q, P),
+                d_inner: (Q, P, F_inner) directions of the constants (``None``: zero); for
+                D > 1 with a coordinate axis before F (after P for d_mass, before P for
+                d_forcing). Directions come first so the population axis stays the minor
+                one that XLA vectorises.
+            fold: ``(fn, acc)``: return only ``acc`` folded over the samples by
+                ``fn(acc, y, k)`` at step k, y the carried (2, 1 + Q, D, P) array
+                [[x, s], [x', w]], from ``fn(acc, start, 0)``; nothing is saved.
+        """
+        inner = _no_inner(inner, mass)
+        mass, state, forcing_matrix, y0 = self._internal(mass, state, forcing_matrix, y0)
+        d_y0 = self._coordinates(d_y0, -2)
+        if d_mass is not None:
+            d_mass = jnp.swapaxes(self._coordinates(d_mass, -1), -1, -2)
+        if d_state is not None:
+            d_state = self._coordinates(d_state, -2)
+        d_forcing = (jnp.zeros((forcing_matrix.shape[0], 1, 1, 1)) if d_forcing is None
+                     else self._coordinates(d_forcing, -2))
+        acceleration = self._acceleration_fn(mass, state, inner)
+        restoring = self._restoring_fn(state, inner)
+        d_restoring = self._restoring_fn(d_state, inner) if d_state is not None else None
+        inverse_mass = 1.0 / mass
+        count = self.n_coordinates
+        system_partials = self._system_partials(state) if count > 1 else None
+
+        def partials(xs, vs, t, which):
+            """∂r/∂x_j (which 0) or ∂r/∂x_j' (1), (D, P) each, for every coordinate j."""
+            ones = jnp.ones_like(xs[0])
+            out = []
+            for j in range(count):
+                def moved(z, j=j):
+                    states = [list(xs), list(vs)]
+                    states[which][j] = z
+                    return restoring(*states, t)
+                out.append(jax.jvp(moved, ((xs, vs)[which][j],), (ones,))[1])
+            return out
+
+        def rates(y, force, t):
+            (y,) = y
+            x, v, s, w = y[0, 0], y[1, 0], y[0, 1:], y[1, 1:]
+            f, df = force
+            a = acceleration(x, v, f, t) if count > 1 else jnp.stack(acceleration(x, v, f, t))
+            xs, vs = [x[e] for e in range(count)], [v[e] for e in range(count)]
+            r_x, r_v = (system_partials(xs, vs) if count > 1 else
+                        (partials(xs, vs, t, 0), partials(xs, vs, t, 1)))
+            explicit = df
+            if d_restoring is not None:
+                explicit = explicit - d_restoring(x, v, t)
+            if d_inner is not None and self.families:
+                explicit = explicit - jax.vmap(lambda d: jax.jvp(
+                    lambda th: restoring_at(th, x, v, t), (inner,), (d,))[1])(d_inner)
+            if d_mass is not None:
+                explicit = explicit - a * d_mass
+            for j, r in enumerate(r_x):
+                explicit = explicit - r * s[:, j:j + 1]
+            for j, r in enumerate(r_v):
+                explicit = explicit - r * w[:, j:j + 1]
+            dw = explicit * inverse_mass
+            return (jnp.stack([jnp.concatenate([v[None], w]),
+                               jnp.concatenate([a[None], jnp.broadcast_to(dw, s.shape)])]),)
+
+        def restoring_at(theta, x, v, t):
+            return self._restoring_fn(state, theta)(x, v, t)
+
+        # One carried array [[x, s], [x', w]], (2, 1 + Q, D, P): fewer loops and copies per
+        # step than four separate states (the initial-condition step runs ~2× faster).
+        start = jnp.concatenate([jnp.transpose(y0, (2, 1, 0))[:, None],
+                                 jnp.swapaxes(jnp.moveaxis(d_y0, -1, 0), -1, -2)], axis=1)
+        if fold is not None:
+            _, acc = self._rk4_scan(rates, (start,), (forcing_matrix, d_forcing), lambda y: (),
+                                    fold=(lambda a, y, k: fold[0](a, y[0], k),
+                                          fold[0](fold[1], start, 0)))
+            return acc
+        (path,) = self._rk4_scan(rates, (start,), (forcing_matrix, d_forcing),
+                                 lambda y: (y[0][0],))
+        if count == 1:
+            return path[:, 0, 0], path[:, 1:, 0]
+        return path[:, 0], jnp.swapaxes(path[:, 1:], 1, 2)
+
+    def unpack(self, constants, forcing_basis):
+        """Flat constant vectors (:attr:`layout`), one model's (W,) or a population's
+        (P, W), as :meth:`scan_solve` arguments (a population of one for one vector):
+        mass (P,), state (P, F_state), forcing (n_stage, P) from the rows of
+        ``forcing_basis`` (which set n_stage), y0 (P, 2), inner (P, F_inner) (for D > 1
+        with the coordinate axis, :meth:`scan_solve`)."""
+        mass, state, forcing, inner, y0 = self._layout_of(constants.shape[-1]).split(
+            jnp.atleast_2d(constants))
+        return mass, state, _forcing_rows(forcing_basis, forcing), y0, inner
+
+    def constant_jacobian(self, constants, directions, forcing_basis):
+        """x at the sample times and its derivatives along ``directions`` of the flat
+        constant vector, by :meth:`scan_jvp`: one model's constants (W,) and directions
+        (Q, W) give (N,) and (N, Q); a population's (P, W) and (P, Q, W) give (N, P) and
+        (N, Q, P) (:meth:`unpack`); for D > 1 a coordinate axis follows N."""
+        single = constants.ndim == 1
+        directions = jnp.swapaxes(directions[None] if single else directions, 0, 1)
+        d_mass, d_state, d_forcing, d_inner, d_y0 = self._layout_of(
+            constants.shape[-1]).split(directions)
+        mass, state, forcing_matrix, y0, inner = self.unpack(constants, forcing_basis)
+        rows = ("qpk,sk->sqp" if self.n_coordinates == 1 else "qpdk,sk->sqdp")
+        x, dx = self.scan_jvp(mass, state, forcing_matrix, y0, d_y0, inner=inner,
+                              d_mass=d_mass, d_state=d_state, d_inner=d_inner,
+                              d_forcing=jnp.einsum(rows, d_forcing, forcing_basis))
+        return (x[..., 0], dx[..., 0]) if single else (x, dx)
+
+    def _rk4_scan(self, rates, y0, forces, saved, fold=None):
+        """:func:`gpjax._integrate.rk4_scan` on this evaluator's stage grid."""
+        return rk4_scan(rates, y0, forces, saved, h=self.h, t0=float(self.stage_times[0]),
+                        substeps=self.substeps, split_stages=self.split_stages, fold=fold)
+
+    def solve(self, mass, state, forcing_matrix, y0, inner=None, *, adjoint=None):
+        """Integrate all models with diffrax; returns x at the sample times, shape (N, P)
+        ((N, D, P) for D > 1).
+
+        ``adjoint=diffrax.ForwardMode()`` makes the solve forward-differentiable (for
+        Levenberg–Marquardt); the default suits plain evaluation.
+
+        Raises:
+            ValueError: for ``"hold"`` inputs: the vector field looks the forcing up by time
+                alone, which cannot tell a step's end (the input's left limit) from the next
+                step's start; use the ``"scan"`` integrator.
+        """
+        if self.split_stages:
+            raise ValueError(HOLD_WITH_DIFFRAX)
+        t0 = float(self.stage_times[0])
+        half = 0.5 * self.h
+        inner = _no_inner(inner, mass)
+        mass, state, forcing_matrix, y0 = self._internal(mass, state, forcing_matrix, y0)
+        acceleration = self._acceleration_fn(mass, state, inner)
+
+        def field(t, y, args):  # y: (2, D, P)
+            index = jnp.clip(jnp.round((t - t0) / half).astype(jnp.int32), 0,
+                             forcing_matrix.shape[0] - 1)
+            velocity = jnp.clip(y[1], -self._bound[1], self._bound[1])
+            return jnp.stack([velocity, jnp.stack(acceleration(y[0], y[1],
+                                                               forcing_matrix[index], t))])
+
+        solution = diffrax.diffeqsolve(
+            diffrax.ODETerm(field), RK4(), t0=t0, t1=float(self.stage_times[-1]), dt0=self.h,
+            y0=jnp.transpose(y0, (2, 1, 0)), saveat=diffrax.SaveAt(t0=True, steps=True),
+            stepsize_controller=diffrax.ConstantStepSize(), max_steps=self.n_steps,
+            throw=False, adjoint=adjoint or diffrax.RecursiveCheckpointAdjoint())
+        states = solution.ys[:: self.substeps, 0]
+        return self._public(states[: self.measurement.n_samples], 1)
+
+
+def _forcing_rows(forcing_basis, forcing):
+    """Forcing of every model at every stage row: (n_stage, P) from coefficients (P, K),
+    (n_stage, D, P) from a system's (P, D, K)."""
+    if forcing.ndim == 2:
+        return forcing_basis @ forcing.T
+    return jnp.einsum("sk,pdk->sdp", forcing_basis, forcing)
+
+
+def _no_inner(inner, mass):
+    """``inner``, or an empty (P, 0) array for an evaluator call without families."""
+    return jnp.zeros((mass.shape[0], 0)) if inner is None else inner
