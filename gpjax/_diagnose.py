@@ -87,8 +87,6 @@ from __future__ import annotations
 import dataclasses
 import math
 
-import numpy as np
-from scipy.optimize import minimize
 
 from ._canonical import Symbols
 from ._convergence import (MAX_SUBSTEPS, Convergence, check_model, initial_substeps,
@@ -98,12 +96,13 @@ from ._diagnose_acceptance import accepted
 from ._diagnose_evidence import (Candidate, charge, input_lines, rank_by_output_error,
                                  rank_effects, score_statistics)
 from ._diagnose_fits import Fit, FitProblem, Structure, drifts, fit_structures
+from ._diagnose_pairs import (Pair, fit_and_test_pairs, joint_parameters, pair_criterion,
+                              rank_pairs)
 from ._diagnose_noise import input_lines_only, noise_floor
 from ._diagnose_residual import FAR_ABOVE, describe_residual
 from ._effects import Effect, effects
 from ._errors import ModelFileError, UserInputError
 from ._model import Model
-from ._weak_form import least_squares_residual
 
 
 @dataclasses.dataclass
@@ -308,7 +307,9 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
     steps, rankings, fits = [], [], []
     for round_number in range(max_steps + 1):
         context = problem.context(structure, lines)
-        ranked = rank_effects(problem.weak, structure, context, library,
+        taken = {c.effect.name for c in chosen}  # an effect enters once
+        ranked = rank_effects(problem.weak, structure, context,
+                              {k: e for k, e in library.items() if k not in taken},
                               polish=round_number == 0)
         if round_number == 0:  # parameters found on the starting residual are kept
             library = {c.effect.name: _frozen(c) for c in ranked}
@@ -317,6 +318,8 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             problem.pool_forcing = tuple(dict.fromkeys(f for c in ranked for f in c.terms.forcing))
         shortlisted = ranked[:shortlist] if round_number < max_steps else []
         candidates = [structure.plus(c.terms) for c in shortlisted]
+        pairs = (rank_pairs(problem.weak, context, structure, ranked, shortlist)
+                 if chosen_mode == "equation_error" and shortlisted else [])
         while chosen_mode == "simulation" and automatic:  # integrate the current model
             probe = current or problem.fit_equation_error([structure])[0]  # converged
             check = _integration(probe, problem, convergence_tolerance)
@@ -343,19 +346,35 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         scores = None
         if chosen_mode == "simulation" and results and math.isfinite(current.criterion):
             scores = score_statistics(problem, current, shortlisted, results)
+        # one Bonferroni family: the singles and the pairs of the round (_diagnose_pairs)
+        family = len(results) + len(pairs)
         tests = accepted(current.holdout, [r.holdout for r in results], alpha=alpha,
-                         scores=scores)
+                         scores=scores, family=family)
+        fit_and_test_pairs(problem, structure, current, pairs, family, alpha)
         rankings.append([{"effect": c.effect.name, "explained": c.explained,
                           "parameters": c.parameters, "evidence": c.evidence,
                           **({"predicted": c.predicted} if c.predicted else {}),
                           **({"test": tests[i]} if i < len(tests) else {})}
-                         for i, c in enumerate(ranked)])
+                         for i, c in enumerate(ranked)]
+                        + [{"effect": f"{p.first.effect.name} + {p.second.effect.name}",
+                            "explained": p.explained,
+                            "parameters": {p.first.effect.name: p.first.parameters,
+                                           p.second.effect.name: p.second.parameters},
+                            "evidence": f"together explain {100 * p.explained:.1f} % of the "
+                                        "equation-error residual energy", "test": p.test}
+                           for p in pairs])
         passing = [i for i, test in enumerate(tests) if test["passed"]]
+        # simulation: the best-ranked passing candidate; equation error: the passing single
+        # or pair with the lowest charged held-out error
+        penalised = [r.criterion * charge(c, min_gain) for r, c in zip(results, shortlisted)]
+        paired = [p for p in pairs if p.test["passed"]]
+        pair = min(paired, key=lambda p: pair_criterion(p, min_gain), default=None)
+        if pair is not None and (not passing or pair_criterion(pair, min_gain) <
+                                 min(penalised[i] for i in passing)):
+            structure, current = _add_pair(pair, ranked, current, steps, chosen, fits)
+            continue
         if not passing:
             break
-        # simulation: the best-ranked passing candidate; equation error: the passing one
-        # with the lowest charged held-out error
-        penalised = [r.criterion * charge(c, min_gain) for r, c in zip(results, shortlisted)]
         best = passing[0] if chosen_mode == "simulation" else min(passing,
                                                                    key=penalised.__getitem__)
         steps.append(_step(shortlisted[best], ranked, current, results[best], chosen_mode)
@@ -430,45 +449,32 @@ def _unexplained(d: Diagnosis, problem: FitProblem, alpha: float) -> dict | None
 def _repolished(problem: FitProblem, start: Structure, chosen: list[Candidate],
                 steps: list[dict], lines: tuple[float, ...]) -> Fit:
     """Equation-error mode: the fit of the final structure with the chosen effects'
-    numeric nonlinear parameters searched again, jointly (Nelder–Mead on the weak-form
-    least-squares residual of the whole record, within bounds): each was set in the round
-    that found it, before the later effects were in the model (a friction smoothing chosen
-    while an offset is missing absorbs part of it). ``steps`` get the new parameters."""
-    context = problem.context(start, lines)
-    slots = [(k, p.name) for k, c in enumerate(chosen) for p in c.effect.parameters
-             if isinstance(c.parameters.get(p.name), float)]
+    numeric nonlinear parameters searched again, jointly, on the whole record
+    (:func:`gpjax._diagnose_pairs.joint_parameters`): each was set in the round that found
+    it, before the later effects were in the model (a friction smoothing chosen while an
+    offset is missing absorbs part of it). ``steps`` get the new parameters."""
+    structure, polished = joint_parameters(problem.weak_full, problem.context(start, lines),
+                                           start, chosen)
+    for step, candidate in zip(steps, polished):
+        step["parameters"] = step["parameters"] | candidate.parameters
+    return fit_structures(problem, "equation_error", [structure])[0]
 
-    def structure_at(values) -> Structure | None:
-        parameters = [dict(c.parameters) for c in chosen]
-        for (k, name), value in zip(slots, values):
-            low, high = chosen[k].effect.bounds(context)[name]
-            parameters[k][name] = float(np.clip(value, low, high))
-        structure = start
-        for c, p in zip(chosen, parameters):
-            terms = c.effect.build(context, p)
-            if terms is None:
-                return None
-            structure = structure.plus(terms)
-        return structure, parameters
 
-    def residual(values) -> float:
-        built = structure_at(values)
-        if built is None:
-            return math.inf
-        return least_squares_residual(problem.weak_full, built[0].lhs, built[0].forcing)
-
-    start_values = np.array([chosen[k].parameters[name] for k, name in slots])
-    if slots:
-        simplex = np.vstack([start_values] + [start_values * (1 + 0.5 * np.eye(len(slots))[i])
-                                              for i in range(len(slots))])
-        found = minimize(residual, start_values, method="Nelder-Mead",
-                         options={"initial_simplex": simplex, "maxfev": 60 * len(slots)})
-        if found.fun < residual(start_values):
-            structure, parameters = structure_at(found.x)
-            for step, p in zip(steps, parameters):
-                step["parameters"] = step["parameters"] | p
-            return fit_structures(problem, "equation_error", [structure])[0]
-    return fit_structures(problem, "equation_error", [structure_at(start_values)[0]])[0]
+def _add_pair(pair: Pair, ranked: list[Candidate], current: Fit, steps: list[dict],
+              chosen: list[Candidate], fits: list[Fit]) -> tuple[Structure, Fit]:
+    """Add an accepted pair (:mod:`gpjax._diagnose_pairs`) as two steps, the member better
+    alone first (its fit alone), then the pair, each with the pair's test; returns the new
+    (structure, fit)."""
+    for candidate, other, before, after in ((pair.first, pair.second, current, pair.alone[0]),
+                                            (pair.second, pair.first, pair.alone[0], pair.fit)):
+        step = _step(candidate, ranked, before, after, "equation_error")
+        step["evidence"] += (f"; accepted with {other.effect.name}: together "
+                             f"{100 * pair.explained:.1f} %")
+        steps.append(step | {"test": pair.test, "pair": [pair.first.effect.name,
+                                                         pair.second.effect.name]})
+        chosen.append(candidate)
+        fits.append(after)
+    return pair.fit.structure, pair.fit
 
 
 def _frozen(candidate: Candidate) -> Effect:

@@ -147,13 +147,13 @@ def score_test(residual: np.ndarray, base: np.ndarray, extra: np.ndarray,
 
 
 def accepted(current: np.ndarray, candidates: list[np.ndarray], *, alpha: float,
-             scores: list[dict] | None = None) -> list[dict]:
+             scores: list[dict] | None = None, family: int | None = None) -> list[dict]:
     """Per candidate, :func:`predictive_test` with its Bonferroni-adjusted p-value
-    (min(1, m·p), m = the candidates tested) and ``passed``; with ``scores`` (the
+    (min(1, m·p), m = ``family``, by default the candidates tested) and ``passed``; with ``scores`` (the
     candidates' :func:`score_test`, module docstring) both must pass: ``p_adjusted`` is then
     the larger of the two adjusted p-values (the intersection–union test's), ``p_holdout``
     and ``score`` keep each."""
-    m = max(len(candidates), 1)
+    m = max(family or len(candidates), 1)
     results = []
     for k, residual in enumerate(candidates):
         test = predictive_test(current, residual)

@@ -117,7 +117,7 @@ def _noise_lines(d: Diagnosis) -> list[str]:
 def _stop_lines(d: Diagnosis) -> list[str]:
     """Why the loop stopped: the last round's best p-value."""
     tested = [e for e in d.rankings[-1] if "test" in e] if d.rankings else []
-    if not tested or len(d.steps) == len(d.rankings):
+    if not tested or any(e["test"]["passed"] for e in tested):
         return []
     best = min(tested, key=lambda e: e["test"]["p_adjusted"])
     test = best["test"]
