@@ -45,7 +45,9 @@ Each round:
    (prewhitened HAC); both must pass (an intersection–union test), each Bonferroni over
    the candidates of the round: a correct model gains a spurious term with probability at
    most ``alpha``. The best-ranked passing candidate is added (equation-error mode: the
-   passing one with the lowest charged held-out error). Rounds stop when none passes, so
+   passing one with the lowest charged held-out error; there the round also tests the
+   pairs of effects that together explain most of the residual, in the same Bonferroni
+   family, each also against its members alone: :mod:`gpjax._diagnose_pairs`). Rounds stop when none passes, so
    the first round whose model is already right is the only one that can add a spurious
    term: over a whole run that chance stays ≤ ``alpha`` (no spending across rounds).
    ``min_gain`` only orders the candidates (a parsimony charge), it decides nothing.
@@ -77,7 +79,8 @@ generalised-force residual (force units, not response units).
 
 Modules: this one holds the loop and its result (:class:`Diagnosis`); the refits are
 :mod:`gpjax._diagnose_fits`, the evidence and rankings :mod:`gpjax._diagnose_evidence`,
-the acceptance test :mod:`gpjax._diagnose_acceptance`, the noise
+the acceptance test :mod:`gpjax._diagnose_acceptance`, the equation-error mode's pairs
+of effects :mod:`gpjax._diagnose_pairs`, the noise
 :mod:`gpjax._diagnose_noise`, the unexplained residual :mod:`gpjax._diagnose_residual`, the
 written report :mod:`gpjax._diagnose_report`.
 """
