@@ -26,11 +26,12 @@ from gpjax import Measurement, Model, Symbols, diagnose
 from gpjax.systems import generate, get_system
 
 SYMBOLS = Symbols("x", "t", ("u",))
-#: Seeds whose stages were examined while the equation-error mode's pair search was built
-#: (201, 203, 205 failed before it; the slow test uses 203): never reported.
-DEVELOPMENT_SEEDS = tuple(range(201, 211))
+#: Seeds whose stages were examined while the equation-error mode was improved: 201–210
+#: for the pair search (201, 203, 205 failed before it; the slow test uses 203), 301–310
+#: for the consensus refit (306 and 310 missed the mass before it). Never reported.
+DEVELOPMENT_SEEDS = tuple(range(201, 211)) + tuple(range(301, 311))
 #: Seeds of the reported run.
-REPORTING_SEEDS = tuple(range(301, 311))
+REPORTING_SEEDS = tuple(range(401, 411))
 
 
 def draw_stage(seed: int):

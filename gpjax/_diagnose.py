@@ -98,7 +98,8 @@ from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._diagnose_acceptance import accepted
 from ._diagnose_evidence import (Candidate, charge, input_lines, rank_by_output_error,
                                  rank_effects, score_statistics)
-from ._diagnose_fits import Fit, FitProblem, Structure, drifts, fit_structures
+from ._diagnose_fits import (Fit, FitProblem, Structure, consensus_refits, drifts,
+                             fit_structures)
 from ._diagnose_pairs import (Pair, fit_and_test_pairs, joint_parameters, pair_criterion,
                               rank_pairs)
 from ._diagnose_noise import input_lines_only, noise_floor
@@ -396,7 +397,10 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
                          input_interpolation=input_interpolation,
                          rate_band=drifting)
         whole.pool_lhs, whole.pool_forcing = problem.pool_lhs, problem.pool_forcing
-        refits = fit_structures(whole, chosen_mode, [fit.structure for fit in fits])
+        structures = [fit.structure for fit in fits]
+        refits = (consensus_refits(whole, structures)
+                  if chosen_mode == "equation_error" and drifting
+                  else fit_structures(whole, chosen_mode, structures))
         result = Diagnosis(mode=chosen_mode, steps=steps, rankings=rankings, fits=fits,
                            refits=refits, frequencies=lines, n_train=problem.n_train,
                            measurement=measurement, symbols=symbols,
