@@ -189,6 +189,7 @@ def test_drifting_system_is_diagnosed_on_the_equation_error():
     assert "Caution" not in report_markdown(result)
 
 
+@pytest.mark.slow  # ~14 s: the fast tier stays within 5 minutes on 2 cores
 def test_friction_of_the_wrong_sign_is_flagged_not_passed_off_as_friction():
     """x'' + 2.5·x' + (4π)²·x + F·tanh(x'/0.05) = u with F = −1: a force along the velocity."""
     rng = np.random.default_rng(0)

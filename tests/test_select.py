@@ -40,6 +40,7 @@ def _sin(a: float, b: float) -> sp.Expr:
     return sp.sin(sp.Float(a) * X + sp.Float(b))
 
 
+@pytest.mark.slow  # ~14 s: the fast tier stays within 5 minutes on 2 cores
 def test_duffing_cubic_over_a_cancelling_sine():
     """Duffing (k·x + k3·x³): from the physics suite's stand-in k·x + K·sin(a·x + b) with
     cancelling k ≈ −K ≈ 2500 (7 fitted constants), the walk reaches k·x + k3·x³ (5)."""
