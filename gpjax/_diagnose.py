@@ -47,9 +47,10 @@ Each round:
    most ``alpha``. The best-ranked passing candidate is added (equation-error mode: the
    passing one with the lowest charged held-out error; there the round also tests the
    pairs of effects that together explain most of the residual, in the same Bonferroni
-   family, each also against its members alone: :mod:`gpjax._diagnose_pairs`). Rounds stop when none passes, so
-   the first round whose model is already right is the only one that can add a spurious
-   term: over a whole run that chance stays ≤ ``alpha`` (no spending across rounds).
+   family, each also against its members alone: :mod:`gpjax._diagnose_pairs`). Rounds
+   stop when none passes, so the first round whose model is already right is the only
+   one that can add a spurious term: over a whole run that chance stays ≤ ``alpha`` (no
+   spending across rounds).
    ``min_gain`` only orders the candidates (a parsimony charge), it decides nothing.
 
 Before each round's test the current model's integration is converged (``substeps``
@@ -89,7 +90,6 @@ from __future__ import annotations
 
 import dataclasses
 import math
-
 
 from ._canonical import Symbols
 from ._convergence import (MAX_SUBSTEPS, Convergence, check_model, initial_substeps,

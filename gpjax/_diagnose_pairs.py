@@ -97,18 +97,20 @@ def rank_pairs(weak: WeakForm, context: Context, structure: Structure,
     shares = []
     for i, a in enumerate(ranked):
         for b in ranked[i + 1:]:
-            terms = Terms(a.terms.state + b.terms.state, a.terms.parametric + b.terms.parametric,
-                          a.terms.forcing + b.terms.forcing)
-            shares.append((explained_fraction(weak, structure, terms), a, b))
+            shares.append((explained_fraction(weak, structure, _together(a, b)), a, b))
     shares.sort(key=lambda item: -item[0])
     pairs = []
     for _, a, b in shares[:count]:
         first, second = joint_parameters(weak, context, structure, [a, b])[1]
-        terms = Terms(first.terms.state + second.terms.state,
-                      first.terms.parametric + second.terms.parametric,
-                      first.terms.forcing + second.terms.forcing)
-        pairs.append(Pair(first, second, explained_fraction(weak, structure, terms)))
+        pairs.append(Pair(first, second,
+                          explained_fraction(weak, structure, _together(first, second))))
     return pairs
+
+
+def _together(a: Candidate, b: Candidate) -> Terms:
+    """The terms of two candidates as one."""
+    return Terms(a.terms.state + b.terms.state, a.terms.parametric + b.terms.parametric,
+                 a.terms.forcing + b.terms.forcing)
 
 
 def fit_and_test_pairs(problem: FitProblem, structure: Structure, current: Fit, pairs: list[Pair],
