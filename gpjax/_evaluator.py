@@ -187,7 +187,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms):
             start = self._inner_slots[-1].stop if self._inner_slots else 0
             self._inner_slots.append(slice(start, start + family.n_inner))
         self.n_inner = self._inner_slots[-1].stop if self._inner_slots else 0
-        self.state_features = fixed + [family.feature(symbols, (1.0, 0.0)[:family.n_inner])
+        self.state_features = fixed + [family.feature(symbols, family.unit)
                                        for family in self.families]
         self._state_index = {f: i for i, f in enumerate(fixed)}
         #: Per equation, its state features in column order (D = 1: :attr:`state_features`).

@@ -232,8 +232,7 @@ class Fitness:
             coefficients = Coefficients.from_canonical(form, self.y0)
             if self.config.coefficients == "least_squares":
                 state, forcing = form.structure
-                if not held.get(key):
-                    state = self._inner_start(state, forcing)
+                state = self._inner_start(state, forcing, held.get(key, ()))
                 mass, c, g, _ = least_squares(self.weak_form, state, forcing)
                 coefficients = coefficients.replace(
                     mass=float(mass), state=dict(zip(state, map(float, c))),
@@ -244,15 +243,17 @@ class Fitness:
         for record in rows:
             self.records[record.key] = record
 
-    def _inner_start(self, state: tuple[sp.Expr, ...], forcing: tuple[sp.Expr, ...]
-                     ) -> tuple[sp.Expr, ...]:
-        """``state`` with each family member's scale a taken from the tree or from
+    def _inner_start(self, state: tuple[sp.Expr, ...], forcing: tuple[sp.Expr, ...],
+                     held: tuple[int, ...] = ()) -> tuple[sp.Expr, ...]:
+        """``state`` with each family member's scale θ0 taken from the tree or from
         :data:`gpjax._features.INNER_GRID`, whichever leaves the smaller weak-form
-        least-squares residual (one feature at a time, in order)."""
+        least-squares residual (one feature at a time, in order); a scale among the
+        ``held`` slots stays."""
         chosen = list(state)
         for i, feature in enumerate(state):
             found = match(feature, self.symbols)
-            if found is None or found[0].n_inner == 0:
+            if (found is None or found[0].n_inner == 0
+                    or self.evaluator.inner_of(feature)[0].start in held):
                 continue
             family, theta = found
             scale = self.scales[family.role]
@@ -278,10 +279,13 @@ class Fitness:
 
     def default_feature(self, family: Family) -> sp.Expr:
         """``family``'s member with default inner constants: sin(z), cos(z), tanh(z/ε) =
-        smoothed sign(z), exp(±z/RMS z) (exp's two slots), sinh and cosh of z/RMS z."""
+        smoothed sign(z), exp(±z/RMS z) (exp's two slots), sinh and cosh of z/RMS z,
+        exp(−(z/vs)²)·tanh(z/ε) with vs = RMS(z)/10 (stribeck)."""
         scale = self.scales[family.role]
-        theta = {"abs": (), "tanh": (1.0 / (SIGN_WIDTH * scale),), "sin": (1.0, 0.0),
-                 "cos": (1.0, 0.0)}.get(family.function, ((-1) ** family.slot / scale,))
+        sign = 1.0 / (SIGN_WIDTH * scale)
+        theta = {"abs": (), "tanh": (sign,), "sin": (1.0, 0.0), "cos": (1.0, 0.0),
+                 "stribeck": (10.0 / scale, sign)}.get(family.function,
+                                                      ((-1) ** family.slot / scale,))
         return family.feature(self.symbols, theta)
 
     def feature_tree(self, feature: sp.Expr) -> tuple:

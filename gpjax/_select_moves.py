@@ -8,7 +8,10 @@ A neighbour is the model with one of these changes, refitted afterwards:
   not counted as fitted): in sin/cos(a·z + b) the phase b to 0 (an odd law), the scale a
   to 1 (the variable is itself the angle, in radians), or both; in tanh(a·z) the scale to
   the smoothed sign's, 1/(SIGN_WIDTH·RMS z) (dry friction's sign law has no scale of its
-  own; :mod:`gpjax._features`). exp's scale carries the units of z and has no simple value;
+  own; :mod:`gpjax._features`), and so the sign's scale θ1 in the stribeck family's
+  exp(−(θ0·z)²)·tanh(θ1·z), which a move that adds a stribeck member (a swap, powers →
+  function) holds from the start. exp's scale carries the units of z and has no
+  simple value;
 * **function → powers**: a bank feature replaced by two powers z^j, z^k of its variable
   (a Taylor pair: x and x³ in place of sin(a·x + b) or of x·|x|);
 * **powers → function**: one or two powers of z replaced by one bank feature of z (z^k·|z|;
@@ -64,6 +67,7 @@ def neighbours(fitness, record) -> list[Move]:
 
     def move(state, forcing, dropped=(), added=()) -> Move:
         kept = held - set().union(*map(slots, dropped)) if dropped else set(held)
+        kept |= {i for f in state if f not in now.state for i in _sign_slot(fitness, f)}
         return Move(dict(state), dict(forcing), tuple(sorted(kept | set(added))))
 
     basis = fitness.basis_features()
@@ -96,10 +100,11 @@ def neighbours(fitness, record) -> list[Move]:
                 snapped = tuple(snap.get(k, v) for k, v in enumerate(theta))
                 moves.append(move({**rest, family.feature(symbols, snapped): value}, forcing,
                                   added=[first + k for k in snap]))
-        if family.function == "tanh" and first not in held:
-            sign = (1.0 / (SIGN_WIDTH * fitness.scales[family.role]),)
-            moves.append(move({**rest, family.feature(symbols, sign): value}, forcing,
-                              added=[first]))
+        sign_slot = first + family.n_inner - 1
+        if family.function in ("tanh", "stribeck") and sign_slot not in held:
+            sign = 1.0 / (SIGN_WIDTH * fitness.scales[family.role])
+            moves.append(move({**rest, family.feature(symbols, (*theta[:-1], sign)): value},
+                              forcing, added=[sign_slot]))
         z = family.variable(symbols)
         for j, k in itertools.combinations(range(1, fitness.config.max_degree + 1), 2):
             moves.append(move({**rest, z ** j: rest.get(z ** j, value),
@@ -134,6 +139,15 @@ def _powers_to_function(fitness, state: dict, forcing: dict, move) -> list[Move]
                 moves.append(move({**rest, feature: state[replaced[0]]}, forcing,
                                   added=added))
     return moves
+
+
+def _sign_slot(fitness, feature) -> tuple[int, ...]:
+    """The slot of a stribeck member's sign scale θ1, held where local search adds one
+    (:mod:`gpjax._features`); none for other features."""
+    found = match(feature, fitness.symbols)
+    if found is None or found[0].function != "stribeck":
+        return ()
+    return (fitness.evaluator.inner_of(feature)[0].start + 1,)
 
 
 def move_key(move: Move, mass: float, tree_mode: bool) -> str:

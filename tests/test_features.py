@@ -11,7 +11,7 @@ from gpjax._canonical import Symbols
 from gpjax._coefficients import Coefficients, from_population, to_population
 from gpjax._data import Measurement
 from gpjax._evaluator import OK, PopulationEvaluator
-from gpjax._features import Family, families_for, match, smoothed_sign
+from gpjax._features import Family, families_for, inner_constants, match, smoothed_sign
 from gpjax._refine import Refiner
 
 S = Symbols("x", "t", ("u",))
@@ -66,6 +66,28 @@ def test_match_recognises_family_members_and_refuses_the_rest():
         assert match(outside, S) is None, outside
 
 
+def test_the_stribeck_family_is_a_product_of_velocity_functions_built_from_both_makers():
+    """exp(−(θ0·x')²)·tanh(θ1·x'): in the bank only with exp and tanh or sign, for x' only;
+    matched from any way of writing it (a sign smoothed first), its JAX values the sympy's."""
+    assert Family("stribeck", "x_dot") in families_for(("add", "exp", "sign"), ("x", "x_dot"), 3)
+    for functions in (("add", "exp"), ("add", "tanh", "sign")):
+        assert all(f.function != "stribeck" for f in families_for(functions, ("x", "x_dot"), 3))
+    assert all(f.role == "x_dot" for f in FAMILIES if f.function == "stribeck")
+    family, theta = match(sp.exp(-400 * V ** 2) * sp.tanh(45 * V), S)
+    assert family == Family("stribeck", "x_dot") and np.allclose(theta, (20.0, 45.0))
+    assert family.feature(S, theta) == sp.exp(-400.0 * V ** 2) * sp.tanh(45.0 * V)
+    smoothed = smoothed_sign(sp.exp(-0.25 * V ** 2) * sp.sign(V), S, {"x": 1.0, "x_dot": 0.1})
+    assert match(smoothed, S) == (family, (0.5, 10.0))
+    assert inner_constants(STRIBECK) == 2
+    for outside in (sp.exp(400 * V ** 2) * sp.tanh(V), sp.exp(-V ** 2 + V) * sp.tanh(V),
+                    sp.exp(-X ** 2) * sp.tanh(X), sp.exp(-V ** 2) * sp.tanh(V + 1),
+                    sp.exp(-V ** 2) * sp.sin(V), V * sp.tanh(V)):
+        assert match(outside, S) is None, outside
+    z = np.linspace(-1.0, 1.0, 41)
+    np.testing.assert_allclose(family(jnp.asarray(z), jnp.array([4.0, 30.0])),
+                               sp.lambdify(V, STRIBECK)(z), rtol=1e-6, atol=1e-12)
+
+
 def test_smoothed_sign_is_a_tanh_of_the_given_width():
     assert smoothed_sign(2 * sp.sign(V), S, {"x": 1.0, "x_dot": 0.25}) == 2 * sp.tanh(4.0 * V)
     assert smoothed_sign(X ** 2, S, {"x": 1.0, "x_dot": 1.0}) == X ** 2
@@ -103,11 +125,18 @@ def test_inner_constants_are_data_and_come_back_refined(pendulum):
     assert back.state[sp.sin(1.2 * X - 0.3)] == TRUTH["k"]
 
 
-def test_variational_sensitivities_to_inner_constants_match_autodiff(pendulum):
+STRIBECK = sp.exp(-(4.0 * V) ** 2) * sp.tanh(30.0 * V)
+
+
+@pytest.mark.parametrize("feature", [sp.sin(X), STRIBECK], ids=["sin", "stribeck"])
+def test_variational_sensitivities_to_inner_constants_match_autodiff(pendulum, feature):
     _, evaluator = pendulum
-    constants = jnp.asarray(evaluator.layout.pack(to_population([_truth()], evaluator))[0])
+    evaluator.forcing_index(U)
+    model = _truth()
+    model = model.replace(state={**model.state, STRIBECK: 0.5})
+    constants = jnp.asarray(evaluator.layout.pack(to_population([model], evaluator))[0])
     basis = jnp.asarray(evaluator.forcing_basis)
-    slots, _ = evaluator.inner_of(sp.sin(X))
+    slots, _ = evaluator.inner_of(feature)
     columns = [evaluator.layout.inner_column(k) for k in range(slots.start, slots.stop)]
     directions = jnp.eye(constants.size)[jnp.array(columns)]
     _, jacobian = evaluator.constant_jacobian(constants, directions, basis)
