@@ -11,7 +11,10 @@ true input samples joined by a cubic spline (the same for every method), from th
 initial state — and compared with the true response: NRMS = RMS(error) / RMS(true).
 Structure and constants by :func:`gpjax.systems.compare_structure` (constants within 2 %
 after normalising by the input's coefficient; see :mod:`gpjax._scoring` for the rule).
-The ``truth`` rows score the true equations: the scorer's floor.
+The ``truth`` rows score the true equations: the scorer's floor. They also carry the
+Cramér–Rao floor of the truth's constants on the fit record
+(:func:`gpjax.systems.cramer_rao`), tabled as the least identifiable constant and the
+best chance any unbiased method has of getting it within 2 %.
 
     python benchmarks/physics_suite.py --quick --json out.json
     python benchmarks/physics_suite.py --seeds 5 --population 500 --generations 10 \\
@@ -42,8 +45,9 @@ import sympy as sp
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import gpjax  # noqa: E402
-from gpjax.systems import (PHYSICS_SUITE, compare_structure, generate,  # noqa: E402
-                           simulate_equations, nrms)
+from gpjax._scoring import TOLERANCE  # noqa: E402
+from gpjax.systems import (PHYSICS_SUITE, compare_structure, cramer_rao,  # noqa: E402
+                           generate, simulate_equations, nrms)
 from _peers import PEERS, fit_peer, versions  # noqa: E402
 
 QUICK = {"systems": "duffing,coulomb_viscous", "seeds": 1, "population": 100,
@@ -121,6 +125,8 @@ def _rescore(args) -> int:
         verdict = compare_structure(equation, data.system.truth()[0], scales=_scales(data))
         worst = verdict["worst_constant_error"]
         row.update(verdict, worst_constant_error=worst if math.isfinite(worst) else None)
+        if row["method"] == "truth" and "cramer_rao" not in row:
+            row["cramer_rao"] = cramer_rao(data)
     systems = list(dict.fromkeys(r["system"] for r in rows))
     _write(args, rows, systems, seeds, {"runs": commands})
     return 0
@@ -201,6 +207,8 @@ def _row(data, method: str, fit) -> dict:
                                        record.input_true, state0=record.initial_state,
                                        bound=bound)
         row["nrms"] = nrms(simulated, record.response_true)
+        if method == "truth":
+            row["cramer_rao"] = cramer_rao(data)
     except Exception as err:  # a crashed fit or simulation is a row, not a crash
         row["seconds"] = row["seconds"] or time.perf_counter() - began
         row["error"] = f"{type(err).__name__}: {err}"
@@ -225,6 +233,23 @@ def _table(rows: list[dict], systems: list[str], seeds: int) -> str:
                 f"{'diverged/failed' if math.isinf(median) else f'{median:.2%}'} | "
                 f"{statistics.median(r['seconds'] for r in chosen):.1f} | "
                 f"{sum(r['error'] is not None for r in chosen)} |")
+    return "\n".join(lines) + "\n\n" + _floor_table(rows, systems)
+
+
+def _floor_table(rows: list[dict], systems: list[str]) -> str:
+    """Per system, the constant with the largest Cramér–Rao relative σ on the fit record
+    (median over seeds) and the chance that an efficient unbiased estimator has it within
+    the 2 % tolerance, P(|e| ≤ 2 %) = erf(0.02 / (σ·√2)): an upper bound for any method."""
+    lines = ["| system | least identifiable constant | Cramér–Rao σ (median) | "
+             "P(within 2 %) at best |", "| --- | --- | --- | --- |"]
+    for name in systems:
+        floors = [r["cramer_rao"] for r in rows if r["system"] == name and "cramer_rao" in r]
+        if not floors:
+            continue
+        sigma = {k: statistics.median(f[k] for f in floors) for k in floors[0]}
+        worst = max(sigma, key=sigma.get)
+        chance = math.erf(TOLERANCE / (sigma[worst] * math.sqrt(2.0)))
+        lines.append(f"| {name} | {worst} | {sigma[worst]:.2%} | {chance:.2f} |")
     return "\n".join(lines)
 
 

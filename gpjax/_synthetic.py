@@ -199,3 +199,31 @@ def truth_error(synthetic: SyntheticRecord, *, record: str = "fit") -> np.ndarra
         positions, _ = integrate(system, data.time, force, state0=data.initial_state)
     sigma = synthetic.noise * data.response_true.std(axis=1)
     return np.sqrt(np.mean((positions - data.response_measured) ** 2, axis=1)) / sigma
+
+
+def cramer_rao(synthetic: SyntheticRecord, *, step: float = 1e-3) -> dict[str, float]:
+    """The Cramér–Rao floor of the fit record: per truth constant, the smallest relative
+    standard deviation any unbiased estimator reaches from the response alone, with white
+    noise σ = ``noise`` × std(x) and the true input known — a lower bound, since the
+    measured input is noisy too. Fisher information JᵀJ/σ², J the response's sensitivity
+    to each constant's logarithm by central differences (relative ``step``) of
+    :func:`integrate`. A constant above a benchmark's tolerance is not identifiable to it
+    on this record by any method.
+
+    Raises:
+        ValueError: the stage (closed loop) or zero noise; a singular Fisher matrix.
+    """
+    system, data = synthetic.system, synthetic.fit
+    if system.loop is not None or synthetic.noise == 0:
+        raise ValueError("the Cramér–Rao floor needs an open-loop system and nonzero noise")
+    force = CubicSpline(data.time, data.input_true)
+    columns = []
+    for name, value in system.constants.items():
+        ends = [integrate(dataclasses.replace(system, constants={
+            **system.constants, name: value * (1 + side * step)}), data.time, force,
+            state0=data.initial_state)[0] for side in (1, -1)]
+        columns.append(((ends[0] - ends[1]) / (2 * step)).ravel())
+    sigma = np.repeat(synthetic.noise * data.response_true.std(axis=1), data.time.size)
+    sensitivity = np.column_stack(columns) / sigma[:, None]
+    covariance = np.linalg.inv(sensitivity.T @ sensitivity)
+    return {name: float(math.sqrt(covariance[i, i])) for i, name in enumerate(system.constants)}

@@ -237,7 +237,9 @@ def test_a_hand_written_model_with_functions_loads_simulates_and_prints(pendulum
                           "terms": [{"feature": "x_dot", "coefficient": p["c"]},
                                     {"feature": f"sin({p['a']}*x + {p['b']})",
                                      "coefficient": p["k"]},
-                                    {"feature": "x_dot*abs(x_dot)", "coefficient": p["d"]}]},
+                                    {"feature": "x_dot*abs(x_dot)", "coefficient": p["d"]},
+                                    {"feature": "exp(-(x_dot/0.3)**2)*tanh(30*x_dot)",
+                                     "coefficient": 0.2}]},
             "simulation": {"integrator": {"method": "rk4", "substeps": 4}}}
     (tmp_path / "model.json").write_text(json.dumps(text))
     model = Model.load(tmp_path / "model.json")
@@ -246,6 +248,7 @@ def test_a_hand_written_model_with_functions_loads_simulates_and_prints(pendulum
     assert np.max(np.abs(rk4 - reference)) < 1e-6 * np.ptp(reference)
     latex = model.latex()
     assert r"\ddot{x}" in latex and r"\sin" in latex and r"\left|{\dot{x}}\right|" in latex
+    assert r"\tanh{\left(30 \dot{x} \right)}" in latex and r"e^{- 11.1" in latex, latex
 
 
 @pytest.mark.slow

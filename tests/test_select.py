@@ -111,3 +111,27 @@ def test_the_walk_reaches_the_law_from_its_stand_in(system, start, function, sca
     assert set(state) == {law, V}, [r.key for r in path]
     assert float(law.args[0] / X) == pytest.approx(scale, rel=0.02)
     assert state[law] / chosen.coefficients.mass == pytest.approx(k, rel=0.02)
+
+
+def test_a_move_that_adds_the_stribeck_member_holds_its_sign_scale():
+    """Local search adds exp(−(x'/v_s)²)·tanh(x'/ε) with ε the smoothed sign's, held (one
+    fitted inner constant, v_s); a member the GP wrote with another ε may snap it."""
+    from gpjax._features import Family, match
+    from gpjax._select_moves import neighbours
+
+    fitness = _fitness("stribeck")
+    sign = 1.0 / (0.01 * fitness.scales["x_dot"])
+    default = fitness.default_feature(Family("stribeck", "x_dot"))
+    slot = fitness.evaluator.inner_of(default)[0].start + 1
+    assert match(default, fitness.symbols)[1][1] == pytest.approx(sign)
+    coulomb = types.SimpleNamespace(coefficients=types.SimpleNamespace(
+        state={X: 40.0, V: 0.6, sp.tanh(sign * V): 1.0}, forcing={U: 1.0}), held=())
+    adding = [m for m in neighbours(fitness, coulomb) if default in m.state]
+    assert adding and all(slot in m.held for m in adding)
+    wide = sp.exp(-(4.0 * V) ** 2) * sp.tanh(3.0 * V)
+    stribeck = types.SimpleNamespace(coefficients=types.SimpleNamespace(
+        state={X: 40.0, V: 0.6, wide: 1.0}, forcing={U: 1.0}), held=())
+    snapped = [m for m in neighbours(fitness, stribeck) if slot in m.held and wide not in m.state
+               and any(match(f, fitness.symbols) == (Family("stribeck", "x_dot"),
+                                                     (4.0, pytest.approx(sign))) for f in m.state)]
+    assert snapped

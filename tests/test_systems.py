@@ -11,7 +11,7 @@ import pytest
 import sympy as sp
 
 import gpjax
-from gpjax.systems import (PHYSICS_SUITE, SYSTEMS, SimulationError, compare_structure,
+from gpjax.systems import (PHYSICS_SUITE, SYSTEMS, SimulationError, compare_structure, cramer_rao,
                            generate, get_system, integrate, nrms, simulate_equations,
                            truth_error, write_csv)
 from gpjax._stage import hold_step
@@ -203,3 +203,16 @@ def test_physics_suite_runs_end_to_end(tmp_path):
     rows = json.loads(out.read_text())["rows"]
     assert [r["method"] for r in rows] == ["truth", "gpjax", "gpjax-no-local-search"]
     assert all(r["error"] is None for r in rows)
+
+
+@pytest.mark.slow
+def test_cramer_rao_floor_tells_an_identifiable_constant_from_one_that_is_not():
+    """On the suite's records the Duffing constants are pinned far below 2 %; the
+    Stribeck velocity vs = 2 % of RMS(x') acts on a few per cent of the samples and is
+    not; the floor scales with the noise."""
+    duffing = cramer_rao(generate("duffing", seed=0))
+    assert max(duffing.values()) < 0.005, duffing
+    stribeck = cramer_rao(generate("stribeck", seed=0))
+    assert stribeck["vs"] > 0.1 and stribeck["k"] < 0.005, stribeck
+    louder = cramer_rao(generate("duffing", seed=0, noise=0.04))
+    assert all(math.isclose(louder[k], 4 * duffing[k], rel_tol=1e-6) for k in duffing)
