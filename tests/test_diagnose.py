@@ -125,6 +125,7 @@ def test_mesh_stiffness_variation_is_found_and_closes_the_residual():
     assert first["predicted"]["holdout_rms_alone"] == pytest.approx(step["rms_holdout_after"])
 
 
+@pytest.mark.slow  # ~17 s: the fast tier stays within 5 minutes on 2 cores
 def test_control_with_no_missing_effect_adds_nothing(tmp_path):
     case = undeclared_effect_case("control", seed=5)
     result = diagnose(case.measurement, case.start, frequencies=(285.0,))
