@@ -100,7 +100,7 @@ def neighbours(fitness, record) -> list[Move]:
                 snapped = tuple(snap.get(k, v) for k, v in enumerate(theta))
                 moves.append(move({**rest, family.feature(symbols, snapped): value}, forcing,
                                   added=[first + k for k in snap]))
-        sign_slot = first + family.n_inner - 1
+        sign_slot = _last_slot(fitness, name, family)
         if family.function in ("tanh", "stribeck") and sign_slot not in held:
             sign = 1.0 / (SIGN_WIDTH * fitness.scales[family.role])
             moves.append(move({**rest, family.feature(symbols, (*theta[:-1], sign)): value},
@@ -147,7 +147,12 @@ def _sign_slot(fitness, feature) -> tuple[int, ...]:
     found = match(feature, fitness.symbols)
     if found is None or found[0].function != "stribeck":
         return ()
-    return (fitness.evaluator.inner_of(feature)[0].start + 1,)
+    return (_last_slot(fitness, feature, found[0]),)
+
+
+def _last_slot(fitness, feature, family) -> int:
+    """The slot of ``feature``'s last inner constant: the sign's scale of tanh and stribeck."""
+    return fitness.evaluator.inner_of(feature)[0].start + family.n_inner - 1
 
 
 def move_key(move: Move, mass: float, tree_mode: bool) -> str:
