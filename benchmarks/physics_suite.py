@@ -154,7 +154,7 @@ def _write(args, rows: list[dict], systems: list[str], seeds: int, settings: dic
 def _parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--systems", default=",".join(PHYSICS_SUITE),
-                        help="comma-separated names (default: the eight of the suite)")
+                        help="comma-separated names (default: the nine of the suite)")
     parser.add_argument("--seeds", type=int, default=5, help="seeds 0 … N−1 (default 5)")
     parser.add_argument("--population", type=int, default=500)
     parser.add_argument("--generations", type=int, default=10)

@@ -2,7 +2,7 @@
 
 Each :class:`System` holds its true equations (sympy, one per coordinate, in the symbols
 ``x, x_dot, x_ddot, u, t`` or ``x1, x2, …`` for chains), its true constants and how it is
-excited; :data:`SYSTEMS` is the catalogue (the eight single-coordinate systems of the
+excited; :data:`SYSTEMS` is the catalogue (the nine single-coordinate systems of the
 physics benchmark, :data:`PHYSICS_SUITE`, two and three masses in a chain with cubic
 coupling springs, and a drifting positioning stage in a PD loop). Records are made by
 :mod:`gpjax._synthetic`.
@@ -203,6 +203,11 @@ def _catalogue() -> dict[str, System]:
                 _c * X_DOT + (Fc + (Fs - Fc) * sp.exp(-(X_DOT / vs) ** 2)) * sign + _k * X,
                 {"c": 0.6, "Fc": 1.0, "Fs": 2.0, "vs": 0.05, "k": 40.0}, 8.0,
                 max_step=SIGN_MAX_STEP),
+        _single("stribeck_resolved", "Stribeck friction whose curve the record resolves: "
+                "vs ≈ RMS x'/4, Fs − Fc = 1.5·Fc (Cramér–Rao σ ≤ 0.5 % on every constant)",
+                _c * X_DOT + (Fc + (Fs - Fc) * sp.exp(-(X_DOT / vs) ** 2)) * sign + _k * X,
+                {"c": 0.6, "Fc": 2.0, "Fs": 5.0, "vs": 0.5, "k": 40.0}, 8.0,
+                max_step=SIGN_MAX_STEP),
         _single("saturating_spring", "m·x'' + c·x' + k·tanh(x/a) = u, reaches x/a ≈ 2",
                 _c * X_DOT + _k * sp.tanh(X / a), {"c": 2.0, "k": 20.0, "a": 0.5}, 9.0),
         _single("exponential_stiffening", "m·x'' + c·x' + k·sinh(x/a) = u",
@@ -227,7 +232,7 @@ def _catalogue() -> dict[str, System]:
 SYSTEMS: dict[str, System] = _catalogue()
 #: The physics benchmark's single-coordinate systems.
 PHYSICS_SUITE = ("pendulum", "quadratic_drag", "coulomb_viscous", "stribeck",
-                 "saturating_spring", "exponential_stiffening", "duffing", "softening_spring")
+                 "stribeck_resolved", "saturating_spring", "exponential_stiffening", "duffing", "softening_spring")
 
 
 def get_system(name: str) -> System:

@@ -1,6 +1,6 @@
 """Synthetic systems with a known truth, for benchmarks and tests.
 
-:data:`SYSTEMS` (by name; :data:`PHYSICS_SUITE` the eight of the physics benchmark),
+:data:`SYSTEMS` (by name; :data:`PHYSICS_SUITE` the nine of the physics benchmark),
 :class:`System` (equations, constants, excitation), :func:`generate` (fit and
 extrapolation records with noise, :class:`SyntheticRecord`), :func:`write_csv`,
 :func:`truth_error` (the truth against its own noisy data: the no-chaos check),

@@ -159,8 +159,8 @@ def test_scorer_reproduces_the_truth_on_the_extrapolation_record(name):
                            state0=record.initial_state, bound=100.0)
 
 
-def test_physics_suite_names_the_eight_systems():
-    assert len(PHYSICS_SUITE) == 8 and set(PHYSICS_SUITE) <= set(SYSTEMS)
+def test_physics_suite_names_the_nine_systems():
+    assert len(PHYSICS_SUITE) == 9 and set(PHYSICS_SUITE) <= set(SYSTEMS)
     assert all(len(SYSTEMS[n].coordinates) == 1 for n in PHYSICS_SUITE)
 
 
