@@ -203,10 +203,10 @@ def _catalogue() -> dict[str, System]:
                 _c * X_DOT + (Fc + (Fs - Fc) * sp.exp(-(X_DOT / vs) ** 2)) * sign + _k * X,
                 {"c": 0.6, "Fc": 1.0, "Fs": 2.0, "vs": 0.05, "k": 40.0}, 8.0,
                 max_step=SIGN_MAX_STEP),
-        _single("stribeck_resolved", "Stribeck friction whose curve the record resolves: "
-                "vs ≈ RMS x'/4, Fs − Fc = 1.5·Fc (Cramér–Rao σ ≤ 0.5 % on every constant)",
+        _single("stribeck_resolved", "Stribeck friction whose curve the record resolves "
+                "(vs ≈ RMS x'/4) and whose slip is damped (c > the Stribeck drop's slope)",
                 _c * X_DOT + (Fc + (Fs - Fc) * sp.exp(-(X_DOT / vs) ** 2)) * sign + _k * X,
-                {"c": 0.6, "Fc": 2.0, "Fs": 5.0, "vs": 0.5, "k": 40.0}, 8.0,
+                {"c": 2.0, "Fc": 1.0, "Fs": 2.0, "vs": 0.5, "k": 40.0}, 8.0,
                 max_step=SIGN_MAX_STEP),
         _single("saturating_spring", "m·x'' + c·x' + k·tanh(x/a) = u, reaches x/a ≈ 2",
                 _c * X_DOT + _k * sp.tanh(X / a), {"c": 2.0, "k": 20.0, "a": 0.5}, 9.0),
