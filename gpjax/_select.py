@@ -35,14 +35,7 @@ more inner constants, so the test errs towards keeping the current model.
 
 The null hypothesis is the simpler model, so an adequate simpler model is kept with
 probability ≥ 1 − α at each move: the constants a model keeps are the ones the held-out
-data demonstrably need, not those under a tolerance on the objective. A simpler model is
-tested against every model on the path so far, not only the current one: tested step by
-step only, losses that are each too small to reject add up along a walk of removals
-(backward elimination's drift) — on a Stribeck system whose curve the record resolves the
-walk went from near the truth (objective 0.27) through four such steps to the Coulomb law
-alone (1.43, 5 × worse; the truth predicts the held-out windows better than it at
-p = 2e-5). Against the path's start, the final model is not significantly worse than the
-best structure the run found. No correction over
+data demonstrably need, not those under a tolerance on the objective. No correction over
 neighbours: each test is of its own simpler model, and a correction would only make the
 current model harder to keep. When no simpler neighbour qualifies, a neighbour as complex
 or more must earn its place as the diagnosis's candidates do: it replaces the current
@@ -108,30 +101,28 @@ def simplify(fitness: Fitness, best: Record, alpha: float) -> tuple[Record, list
     """Walk from ``best`` to the simplest model the held-out test at level ``alpha`` cannot
     reject (module docstring). Returns the final record and the path taken."""
     current, path, seen = best, [best], {best.key}
-    visited = [held_out_residual(fitness, best)]  # of the path's models, current last
     while True:
         options = sorted((r for r in _neighbour_records(fitness, current)
                           if r.valid and r.status == OK and r.key not in seen),
                          key=lambda r: (r.complexity, r.objective))
+        base = held_out_residual(fitness, current)
         peers = sum(r.complexity >= current.complexity for r in options)
         chosen = next((r for r in options if _replaces(
-            r, held_out_residual(fitness, r), current, visited, alpha, peers)), None)
+            r, held_out_residual(fitness, r), current, base, alpha, peers)), None)
         if chosen is None:
             return current, path
         seen.add(chosen.key)
         current = chosen
         path.append(current)
-        visited.append(held_out_residual(fitness, current))
 
 
-def _replaces(record: Record, residual: np.ndarray, current: Record,
-              visited: list[np.ndarray], alpha: float, peers: int) -> bool:
-    """Whether a neighbour replaces the current model (module docstring). ``visited``: the
-    held-out residuals of the path's models, the current model's last; ``peers``: the
+def _replaces(record: Record, residual: np.ndarray, current: Record, base: np.ndarray,
+              alpha: float, peers: int) -> bool:
+    """Whether a neighbour replaces the current model (module docstring); ``peers``: the
     neighbours at least as complex as the current model (the Bonferroni count)."""
     if record.complexity < current.complexity:
-        return all(predictive_test(residual, base)["p_value"] >= alpha for base in visited)
-    return predictive_test(visited[-1], residual)["p_value"] * peers < alpha
+        return predictive_test(residual, base)["p_value"] >= alpha
+    return predictive_test(base, residual)["p_value"] * peers < alpha
 
 
 def pareto_front(records: list[Record]) -> list[Record]:
