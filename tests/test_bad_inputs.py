@@ -463,7 +463,11 @@ def test_corpus_is_large_enough():
     assert len(ids) == len(set(ids))
 
 
-@pytest.mark.parametrize("cli", CLI_CASES)
+# Each case is a fresh ``python -m gpjax`` (~1 s of imports): every other case runs in the
+# fast tier, the whole corpus in the slow step, so the fast tier stays within 5 minutes.
+@pytest.mark.parametrize("cli", [
+    pytest.param(*p.values, id=p.id, marks=(*p.marks, pytest.mark.slow) if i % 2 else p.marks)
+    for i, p in enumerate(CLI_CASES)])
 def test_cli_user_error(cli: CliCase, cli_batch: _CliBatch, request):
     run = cli_batch.get(request.node.callspec.id, cli)
     report = (f"gpjax {' '.join(cli.args)}\nexit {run.returncode}\n"
