@@ -99,7 +99,20 @@ def _neighbour_records(fitness: Fitness, current: Record) -> list[Record]:
 
 def simplify(fitness: Fitness, best: Record, alpha: float) -> tuple[Record, list[Record]]:
     """Walk from ``best`` to the simplest model the held-out test at level ``alpha`` cannot
-    reject (module docstring). Returns the final record and the path taken."""
+    reject (module docstring); where the walk's neighbours hold a model with a lower
+    objective than ``best``, walk again from that one. Returns the final record and the
+    last walk's path."""
+    while True:
+        chosen, path = _walk(fitness, best, alpha)
+        found = min((r for r in fitness.records.values() if r.valid and r.status == OK),
+                    key=lambda r: (r.objective, r.complexity))
+        if found.objective >= best.objective:
+            return chosen, path
+        best = found
+
+
+def _walk(fitness: Fitness, best: Record, alpha: float) -> tuple[Record, list[Record]]:
+    """One walk from ``best`` (module docstring): the final record and the path taken."""
     current, path, seen = best, [best], {best.key}
     while True:
         options = sorted((r for r in _neighbour_records(fitness, current)
