@@ -71,13 +71,6 @@ EXP_LIMIT = 700.0
 INNER_GRID = {"tanh": (1.0, 3.0, 10.0, 100.0), "sin": (0.5, 1.0, 2.0), "cos": (0.5, 1.0, 2.0),
               "exp": (-2.0, -1.0, -0.5, 0.5, 1.0, 2.0), "sinh": (0.5, 1.0, 2.0, 4.0),
               "cosh": (0.5, 1.0, 2.0, 4.0), "stribeck": (3.0, 10.0, 30.0, 100.0)}
-#: Families whose scale start the simulation chooses among all its options (tree's value and
-#: grid), not the weak form alone: the Stribeck curve acts around velocity reversals, where
-#: the mass sticks and no function of the smoothed velocity reproduces the friction force,
-#: so every weak-form window holds a force it cannot fit and its ranking of bump widths
-#: leans to narrow ones (``stribeck_resolved`` seed 0: the weak form's start v_s = RMS x'/10
-#: refines to 0.13 at objective 0.107; from v_s = 0.5, the truth, 0.104).
-SIMULATED_START = frozenset({"stribeck"})
 _INNER = {"abs": 0, "tanh": 1, "sin": 2, "cos": 2, "exp": 1, "sinh": 1, "cosh": 1,
           "stribeck": 2}
 #: The one-scale families, by their sympy and JAX functions.

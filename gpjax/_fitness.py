@@ -21,8 +21,7 @@ from ._config import GPConfig
 from ._convergence import initial_substeps
 from ._data import Measurement
 from ._evaluator import INVALID_STRUCTURE, OK, PENALTY, PopulationEvaluator, Scores
-from ._features import (INNER_GRID, SIGN_WIDTH, SIMULATED_START, Family, families_for, match,
-                        smoothed_sign)
+from ._features import INNER_GRID, SIGN_WIDTH, Family, families_for, match, smoothed_sign
 from ._memory import check_fit_memory
 from ._refine import Refiner
 from ._trees import Tree
@@ -231,33 +230,26 @@ class Fitness:
                 self.records[key] = Record(key=key, valid=False, reason=reason)
                 continue
             coefficients = Coefficients.from_canonical(form, self.y0)
-            if self.config.coefficients != "least_squares":
-                rows.append(Record(key=key, valid=True, coefficients=coefficients,
-                                   held=held.get(key, ())))
-                continue
-            state, forcing = form.structure
-            for start in self._inner_starts(state, forcing, held.get(key, ())):
-                mass, c, g, _ = least_squares(self.weak_form, start, forcing)
-                rows.append(Record(key=key, valid=True, held=held.get(key, ()),
-                                   coefficients=coefficients.replace(
-                                       mass=float(mass), state=dict(zip(start, map(float, c))),
-                                       forcing=dict(zip(forcing, map(float, g))))))
+            if self.config.coefficients == "least_squares":
+                state, forcing = form.structure
+                state = self._inner_start(state, forcing, held.get(key, ()))
+                mass, c, g, _ = least_squares(self.weak_form, state, forcing)
+                coefficients = coefficients.replace(
+                    mass=float(mass), state=dict(zip(state, map(float, c))),
+                    forcing=dict(zip(forcing, map(float, g))))
+            rows.append(Record(key=key, valid=True, coefficients=coefficients,
+                               held=held.get(key, ())))
         self._score_records(rows)
-        best: dict[str, Record] = {}
-        for record in rows:  # a key's starts: the one that simulates best
-            if record.key not in best or record.objective < best[record.key].objective:
-                best[record.key] = record
-        self.records.update(best)
+        for record in rows:
+            self.records[record.key] = record
 
-    def _inner_starts(self, state: tuple[sp.Expr, ...], forcing: tuple[sp.Expr, ...],
-                      held: tuple[int, ...] = ()) -> list[tuple[sp.Expr, ...]]:
-        """Starts for ``state``'s inner constants. First: each family member's scale θ0
-        taken from the tree or from :data:`gpjax._features.INNER_GRID`, whichever leaves
-        the smaller weak-form least-squares residual (one feature at a time, in order); a
-        scale among the ``held`` slots stays. Then, for a member of a family in
-        :data:`gpjax._features.SIMULATED_START`, that start with each of its other
-        options, for the simulation to choose (:meth:`score_forms`)."""
-        chosen, others = list(state), []
+    def _inner_start(self, state: tuple[sp.Expr, ...], forcing: tuple[sp.Expr, ...],
+                     held: tuple[int, ...] = ()) -> tuple[sp.Expr, ...]:
+        """``state`` with each family member's scale θ0 taken from the tree or from
+        :data:`gpjax._features.INNER_GRID`, whichever leaves the smaller weak-form
+        least-squares residual (one feature at a time, in order); a scale among the
+        ``held`` slots stays."""
+        chosen = list(state)
         for i, feature in enumerate(state):
             found = match(feature, self.symbols)
             if (found is None or found[0].n_inner == 0
@@ -270,9 +262,7 @@ class Fitness:
                        if f == feature or f not in chosen]  # two members stay distinct
             chosen[i] = min(options, key=lambda f: least_squares_residual(
                 self.weak_form, tuple(chosen[:i] + [f] + chosen[i + 1:]), forcing))
-            if family.function in SIMULATED_START:
-                others += [(i, f) for f in options if f != chosen[i]]
-        return [tuple(chosen)] + [tuple(chosen[:i] + [f] + chosen[i + 1:]) for i, f in others]
+        return tuple(chosen)
 
     # --- records to arrays and back -------------------------------------------------------
     def basis_features(self) -> dict[str, list[sp.Expr]]:

@@ -47,6 +47,17 @@ the one it reached, not a coin flip on the noise). Neighbours are tried in the o
 walk goes to the simplest model the test cannot reject. A forward move passes a test that
 the way back fails (p·m < α implies p < α) and no model is visited twice, so it ends.
 
+**The start.** The walk starts from the record with the lowest objective, the GP's best.
+Its neighbours are new models, scored and refined, so the walk searches too: where, at its
+end, the records hold one with a lower objective than the walk's start, the selection walks
+again from that one, as it would have had the GP found it. The upward move does not do
+this: the better model may be no neighbour of the walk's end, and its Bonferroni count
+grows with the neighbours (``stribeck_resolved`` seed 0: the walk from the GP's best,
+objective 0.136, scored the Stribeck law at 0.104 on its way and ended at a stand-in,
+0.151, which the Stribeck law beats on the held-out windows at p = 0.003 — too little
+against the dozens of neighbours as complex or more). Each walk starts from a record with a
+strictly lower objective than the one before, so the walks end.
+
 A difference from the paper, which reports the best tree as found.
 """
 

@@ -284,7 +284,7 @@ def test_inner_constants_start_from_the_grid_when_the_tree_scale_is_wrong(pendul
                           inputs=data.inputs, time_name="t", response_name="x")
     fitness = Fitness(degrees, GPConfig(population=8, functions=("add", "sub", "mul", "sin")))
     forcing = (U,)
-    start, = [f for f in fitness._inner_starts((V, sp.sin(X)), forcing)[0] if f.has(sp.sin)]
+    start, = [f for f in fitness._inner_start((V, sp.sin(X)), forcing) if f.has(sp.sin)]
     _, (a, _) = match(start, S)
     assert 0.25 < a / (np.pi / 180) < 4
     assert least_squares_residual(fitness.weak_form, (V, start), forcing) < 0.5 * \

@@ -161,30 +161,3 @@ def test_the_walk_starts_again_from_a_better_model_its_neighbours_found(monkeypa
     monkeypatch.setattr(select, "_walk", walk)
     chosen, path = simplify(fitness, start, 0.05)
     assert chosen is found and path == [found] and walks == ["start", "found"]
-
-
-@pytest.mark.slow  # ~40 s: a Stribeck record's evaluator and one refinement
-def test_the_stribeck_curve_starts_where_the_simulation_fits_best():
-    """``stribeck_resolved`` (v_s = 0.5, ≈ RMS x'/2.6): the weak form alone starts the
-    bump narrow; among the grid's starts the simulated response picks one that refines
-    to v_s within 10 % (the smoothed sign's creep biases it low, README), and the record
-    beats the weak form's own start."""
-    from gpjax._features import Family, match
-
-    fitness = _fitness("stribeck_resolved")
-    default = fitness.default_feature(Family("stribeck", "x_dot"))
-    sign = fitness.default_feature(Family("tanh", "x_dot"))
-    state = (X, V, sign, default)
-    weak_form_start = fitness._inner_starts(state, (U,))[0]
-    forms = {name: CanonicalForm(mass=1.0, state=tuple((f, 1.0) for f in s),
-                                 forcing=((U, 1.0),))
-             for name, s in (("chosen", state), ("weak form", weak_form_start))}
-    fitness.score_forms({"chosen": forms["chosen"]})
-    held = fitness.evaluator.inner_of(default)[0].start
-    fitness.score_forms({"weak form": forms["weak form"]}, {"weak form": (held,)})
-    chosen, weak = fitness.records["chosen"], fitness.records["weak form"]
-    assert chosen.objective < weak.objective
-    fitness.refine([chosen])
-    bump, = [f for f in chosen.coefficients.state if f.has(sp.exp)]
-    _, (a, _) = match(bump, fitness.symbols)
-    assert 1.0 / a == pytest.approx(0.5, rel=0.1)
