@@ -109,17 +109,17 @@ def _neighbour_records(fitness: Fitness, current: Record) -> list[Record]:
 
 
 def simplify(fitness: Fitness, best: Record, alpha: float) -> tuple[Record, list[Record]]:
-    """Walk from ``best`` to the simplest model the held-out test at level ``alpha`` cannot
-    reject (module docstring); where the walk's neighbours hold a model with a lower
-    objective than ``best``, walk again from that one. Returns the final record and the
-    last walk's path."""
-    while True:
-        chosen, path = _walk(fitness, best, alpha)
-        found = min((r for r in fitness.records.values() if r.valid and r.status == OK),
-                    key=lambda r: (r.objective, r.complexity))
-        if found.objective >= best.objective:
-            return chosen, path
-        best = found
+    """Walk from ``best`` (module docstring), then report the simplest refined model that
+    the best-fitting one does not predict significantly better at level ``alpha``.
+    Returns the reported record and the walk's path."""
+    _, path = _walk(fitness, best, alpha)
+    candidates = [r for r in fitness.records.values()
+                  if r.valid and r.status == OK and r.refined]
+    reference = min(candidates, key=lambda r: (r.objective, r.complexity))
+    base = held_out_residual(fitness, reference)
+    return next(r for r in sorted(candidates, key=lambda r: (r.complexity, r.objective))
+                if r is reference or predictive_test(held_out_residual(fitness, r),
+                                                     base)["p_value"] >= alpha), path
 
 
 def _walk(fitness: Fitness, best: Record, alpha: float) -> tuple[Record, list[Record]]:
