@@ -137,27 +137,30 @@ def test_a_move_that_adds_the_stribeck_member_holds_its_sign_scale():
     assert snapped
 
 
-def test_the_walk_starts_again_from_a_better_model_its_neighbours_found(monkeypatch):
-    """The walk's neighbour scoring is search too: where it reaches a model with a lower
-    objective than the walk's start, the selection walks again from that model (the
-    module docstring, "The start"), and stops once no walk finds a better one."""
+def test_the_report_is_the_simplest_model_the_best_fitting_one_does_not_beat(monkeypatch):
+    """The walk's steps each pass the test, but the report does not follow its drift: it
+    is the simplest refined model whose held-out residual the best-fitting model's does
+    not beat significantly (module docstring, "The report"). Unrefined records are not
+    candidates."""
     import gpjax._select as select
 
-    def record(name, objective):
+    noise, other = np.random.default_rng(5).normal(size=(2, 600))
+
+    def record(name, complexity, objective, residual, refined=True):
         return types.SimpleNamespace(key=name, valid=True, status=0, objective=objective,
-                                     complexity=(len(name), 0, 0))
+                                     complexity=(complexity, 0, 0), refined=refined,
+                                     residual=residual)
 
-    start, found, simple = record("start", 1.0), record("found", 0.5), record("s", 0.9)
-    fitness = types.SimpleNamespace(records={"start": start, "s": simple})
-    walks = []
-
-    def walk(fitness, best, alpha):
-        walks.append(best.key)
-        if best is start:  # its neighbours reach a better model; the walk ends simpler
-            fitness.records["found"] = found
-            return simple, [start, simple]
-        return best, [best]
-
-    monkeypatch.setattr(select, "_walk", walk)
-    chosen, path = simplify(fitness, start, 0.05)
-    assert chosen is found and path == [found] and walks == ["start", "found"]
+    best = record("best", 8, 0.10, noise)
+    law = record("law", 6, 0.11, noise + 0.05 * other)  # as good, up to its own noise
+    drifted = record("drifted", 5, 0.20, noise * 1.3)
+    bare = record("bare", 2, 5.0, noise * 9.0)
+    unrefined = record("unrefined", 1, 0.10, noise, refined=False)
+    fitness = types.SimpleNamespace(records={r.key: r for r in (best, law, drifted, bare,
+                                                                unrefined)})
+    monkeypatch.setattr(select, "_walk", lambda f, b, a: (drifted, [best, law, drifted]))
+    monkeypatch.setattr(select, "held_out_residual", lambda f, r: r.residual)
+    chosen, path = simplify(fitness, best, 0.05)
+    assert chosen is law and path == [best, law, drifted]
+    law.residual = noise * 1.3  # the law now fits worse too: only the best one is left
+    assert simplify(fitness, best, 0.05)[0] is best
