@@ -51,13 +51,17 @@ the way back fails (p·m < α implies p < α) and no model is visited twice, so 
 too small to reject can add up (backward elimination's drift): on stick–slip friction the
 walk left a Stribeck law the GP found for the Coulomb law, which the Stribeck law predicts
 better on the held-out windows at p ≤ 0.005 on three of five seeds (physics suite,
-``stribeck_resolved``). So the walk only proposes: its models and their neighbours, once
-refined, join the GP's refined front as candidates, and the report is the simplest
-candidate (complexity, then objective) that the best-fitting candidate (lowest objective)
-does not predict significantly better at level ``alpha``. One yardstick for every
-candidate: no drift, and no route — a law the walk reaches only through worse models on
-the way (the saturating spring's k·tanh(x/a), suite seed 2) is judged on its own, which a
-guard against every model on the walk's path did not allow.
+``stribeck_resolved``). So the walk's end must pass one more test, against a fixed
+yardstick: the best-fitting refined model (lowest objective; the walk's models and their
+refined neighbours join the GP's refined front as candidates). Where that model predicts
+the held-out windows significantly better at level ``alpha``, the walk drifted, and the
+report is the simplest candidate (complexity, then objective) it does not beat. Where it
+does not, the walk's end stands: reporting the simplest candidate outright lost power —
+against a reference that carries needless terms the difference is noisier, and on the
+Coulomb system's seed 1 a single smooth tanh(0.53·x') passed, 8 % NRMS on the
+extrapolation record, where the walk ends at the law. A guard against every model on the
+walk's path instead lost the saturating spring's seed 2, whose walk reaches k·tanh(x/a)
+only through worse models; here the law is judged on its own.
 
 A difference from the paper, which reports the best tree as found.
 """
@@ -110,17 +114,24 @@ def _neighbour_records(fitness: Fitness, current: Record) -> list[Record]:
 
 
 def simplify(fitness: Fitness, best: Record, alpha: float) -> tuple[Record, list[Record]]:
-    """Walk from ``best`` (module docstring), then report the simplest refined model that
-    the best-fitting one does not predict significantly better at level ``alpha``.
+    """Walk from ``best`` (module docstring); report the walk's end unless the best-fitting
+    refined model predicts held-out data significantly better than it at level ``alpha``,
+    then the simplest refined model it does not (module docstring, "The report").
     Returns the reported record and the walk's path."""
-    _, path = _walk(fitness, best, alpha)
+    end, path = _walk(fitness, best, alpha)
     candidates = [r for r in fitness.records.values()
                   if r.valid and r.status == OK and r.refined]
     reference = min(candidates, key=lambda r: (r.objective, r.complexity))
     base = held_out_residual(fitness, reference)
+
+    def adequate(record: Record) -> bool:
+        return record is reference or predictive_test(held_out_residual(fitness, record),
+                                                      base)["p_value"] >= alpha
+
+    if adequate(end):
+        return end, path
     return next(r for r in sorted(candidates, key=lambda r: (r.complexity, r.objective))
-                if r is reference or predictive_test(held_out_residual(fitness, r),
-                                                     base)["p_value"] >= alpha), path
+                if adequate(r)), path
 
 
 def _walk(fitness: Fitness, best: Record, alpha: float) -> tuple[Record, list[Record]]:
