@@ -47,22 +47,6 @@ the one it reached, not a coin flip on the noise). Neighbours are tried in the o
 walk goes to the simplest model the test cannot reject. A forward move passes a test that
 the way back fails (p·m < α implies p < α) and no model is visited twice, so it ends.
 
-**The report.** Each step of the walk is tested against the model it leaves, so losses each
-too small to reject can add up (backward elimination's drift): on stick–slip friction the
-walk left a Stribeck law the GP found for the Coulomb law, which the Stribeck law predicts
-better on the held-out windows at p ≤ 0.005 on three of five seeds (physics suite,
-``stribeck_resolved``). So the walk's end must pass one more test, against a fixed
-yardstick: the best-fitting refined model (lowest objective; the walk's models and their
-refined neighbours join the GP's refined front as candidates). Where that model predicts
-the held-out windows significantly better at level ``alpha``, the walk drifted, and the
-report is the simplest candidate (complexity, then objective) it does not beat. Where it
-does not, the walk's end stands: reporting the simplest candidate outright lost power —
-against a reference that carries needless terms the difference is noisier, and on the
-Coulomb system's seed 1 a single smooth tanh(0.53·x') passed, 8 % NRMS on the
-extrapolation record, where the walk ends at the law. A guard against every model on the
-walk's path instead lost the saturating spring's seed 2, whose walk reaches k·tanh(x/a)
-only through worse models; here the law is judged on its own.
-
 A difference from the paper, which reports the best tree as found.
 """
 
@@ -114,28 +98,8 @@ def _neighbour_records(fitness: Fitness, current: Record) -> list[Record]:
 
 
 def simplify(fitness: Fitness, best: Record, alpha: float) -> tuple[Record, list[Record]]:
-    """Walk from ``best`` (module docstring); report the walk's end unless the best-fitting
-    refined model predicts held-out data significantly better than it at level ``alpha``,
-    then the simplest refined model it does not (module docstring, "The report").
-    Returns the reported record and the walk's path."""
-    end, path = _walk(fitness, best, alpha)
-    candidates = [r for r in fitness.records.values()
-                  if r.valid and r.status == OK and r.refined]
-    reference = min(candidates, key=lambda r: (r.objective, r.complexity))
-    base = held_out_residual(fitness, reference)
-
-    def adequate(record: Record) -> bool:
-        return record is reference or predictive_test(held_out_residual(fitness, record),
-                                                      base)["p_value"] >= alpha
-
-    if adequate(end):
-        return end, path
-    return next(r for r in sorted(candidates, key=lambda r: (r.complexity, r.objective))
-                if adequate(r)), path
-
-
-def _walk(fitness: Fitness, best: Record, alpha: float) -> tuple[Record, list[Record]]:
-    """One walk from ``best`` (module docstring): the final record and the path taken."""
+    """Walk from ``best`` to the simplest model the held-out test at level ``alpha`` cannot
+    reject (module docstring). Returns the final record and the path taken."""
     current, path, seen = best, [best], {best.key}
     while True:
         options = sorted((r for r in _neighbour_records(fitness, current)
