@@ -95,11 +95,15 @@ class Evolution:
         self.grammar = Grammar.from_config(config, len(fitness.measurement.inputs))
 
     def start(self, seed: int) -> RunState:
-        """Generation 0: a ramped half-and-half population, scored and refined."""
+        """Generation 0: a ramped half-and-half population with the linear model in place
+        of its last tree (:meth:`_linear_tree`), scored and refined."""
         rng = np.random.default_rng(seed)
         began = time.perf_counter()
         population = initial_population(self.grammar, rng, self.config.population,
                                         self.config.init_depth)
+        linear = self._linear_tree()
+        if linear is not None and linear not in population:
+            population[-1] = linear
         self._score(population)
         population = self._replace(population + self._extensions(population, rng))
         state = RunState(generation=0, population=population, rng_state=rng.bit_generator.state,
@@ -157,6 +161,27 @@ class Evolution:
         records = self.fitness.records_for(trees)
         if self.config.coefficients == "tree" and self.config.refine_top:
             self.fitness.refine(records)
+
+    def _linear_tree(self) -> tuple | None:
+        """The linear model in the run's variables, m·x'' + c·x' + k·x = Σ g·u (None if
+        it exceeds the tree limits).
+
+        Beyond the paper, whose first generation is all random: the linear model is the
+        first-order expansion of every smooth model about equilibrium, and the foothold of
+        a driven record. Without it a free oscillator x'' + k·x = 0 can be the best of
+        a run and stay so: its response stays near zero, while each one-term extension
+        scores worse — with the input but no damping it resonates, with damping and no
+        input it decays — so the memetic step never crosses to the forced, damped models
+        (physics suite, Coulomb + viscous seed 6, Duffing seed 4: the reported model had
+        lost the input). The search then only has to find the nonlinearity.
+        """
+        symbols, roles = self.fitness.symbols, self.config.variables
+        terms = [("state", self.fitness.feature_tree(z), 1.0)
+                 for role, z in (("x_dot", symbols.x_dot), ("x", symbols.x)) if role in roles]
+        if "u" in roles:
+            terms += [("forcing", self.fitness.feature_tree(u), 1.0) for u in symbols.u]
+        tree = _sum_tree(1.0, terms)
+        return tree if self.grammar.within_limits(tree) else None
 
     def _refine_best(self, records: list[Record]) -> None:
         if self.config.refine_top:
