@@ -164,7 +164,8 @@ class Evolution:
 
     def _linear_tree(self) -> tuple | None:
         """The linear model in the run's variables, m·x'' + c·x' + k·x = Σ g·u (None if
-        it exceeds the tree limits).
+        it exceeds the tree limits, and in tree mode, which keeps the paper's all-random
+        first generation: its tree's constants, all 1, would not be the model's).
 
         Beyond the paper, whose first generation is all random: the linear model is the
         first-order expansion of every smooth model about equilibrium, and the foothold of
@@ -175,6 +176,8 @@ class Evolution:
         (physics suite, Coulomb + viscous seed 6, Duffing seed 4: the reported model had
         lost the input). The search then only has to find the nonlinearity.
         """
+        if self.config.coefficients == "tree":
+            return None
         symbols, roles = self.fitness.symbols, self.config.variables
         terms = [("state", self.fitness.feature_tree(z), 1.0)
                  for role, z in (("x_dot", symbols.x_dot), ("x", symbols.x)) if role in roles]
