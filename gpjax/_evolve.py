@@ -96,7 +96,8 @@ class Evolution:
 
     def start(self, seed: int) -> RunState:
         """Generation 0: a ramped half-and-half population with the linear model in place
-        of its last tree (:meth:`_linear_tree`), scored and refined."""
+        of its last tree (least-squares coefficients; :meth:`_linear_tree`), scored and
+        refined."""
         rng = np.random.default_rng(seed)
         began = time.perf_counter()
         population = initial_population(self.grammar, rng, self.config.population,
