@@ -27,7 +27,7 @@ from ._evaluator import OK
 from ._fitness import Fitness, Record
 from ._model import Model
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
-from ._select import pareto_front, simplify
+from ._select import pareto_front, select
 
 CHECKPOINT = "checkpoint.json"
 #: Columns of history.csv and equations.csv that hold text, not numbers.
@@ -221,8 +221,7 @@ class Identifier:
                 "the response and input columns are right, or widen the function/terminal sets")
         front = pareto_front(valid)
         fitness.refine(front)
-        best = min(valid, key=lambda r: (r.objective, r.complexity))
-        chosen, _ = simplify(fitness, best, self.config.selection_alpha)
+        chosen, _ = select(fitness, pareto_front(front), self.config.selection_alpha)
         self._report(fitness, pareto_front([r for r in fitness.records.values()
                                             if r.valid and r.status == OK]), chosen, seed, state)
 

@@ -1,12 +1,12 @@
-"""Choosing the reported model: the best structure, simplified by a held-out test, and the
-Pareto table.
+"""Choosing the reported model: the Pareto front's models, simplified by a held-out test,
+and the Pareto table.
 
 Least-squares coefficients make every additive term free to help a little, and with
 functions that carry inner constants several structures fit a record to its noise floor:
 k·x + K·sin(a·x + b) with huge cancelling k and K mimics k·x + k₃·x³ (x − sin x ≈ x³/6),
 405·x³ + 39.6·sin(1.01·x) mimics x³ + x. Their objectives on the record tie, so the
 objective alone cannot choose; what separates them is what they spend. After the run a
-local search starts from the best structure found and walks to simpler neighbours
+local search starts from each model of the Pareto front and walks to simpler neighbours
 (:mod:`gpjax._select_moves`: removals, swaps, snapping an inner constant to its simple
 value, a function for powers and back).
 
@@ -47,6 +47,20 @@ the one it reached, not a coin flip on the noise). Neighbours are tried in the o
 walk goes to the simplest model the test cannot reject. A forward move passes a test that
 the way back fails (p·m < α implies p < α) and no model is visited twice, so it ends.
 
+**Where the walk starts.** A walk only removes, swaps and replaces terms, so it cannot
+reach a simpler law that is not a few moves from its start: from a stand-in such as
+k·x + K·sin(a·x) + k₃·x³ (saturating spring, suite seed 7) no sequence of adequate simpler
+neighbours leads to k·tanh(x/a), while from the linear model one move does (x → tanh).
+So a walk starts from every member of the refined Pareto front (the best model of each
+complexity), and the ends compete by the same rule, starting from the end of the
+best-fitting member's walk: a simpler end replaces it unless it predicts the held-out part
+significantly better, an end as complex or more replaces it if it predicts significantly
+better (Bonferroni over those ends). The walks share the scored and refined records; a
+member on an earlier walk's path starts none (its walk would retrace it), and the other
+walks refine only neighbours within :data:`REFINE_WITHIN` of the best member's objective
+(a neighbour of a free oscillator, say, that fits five times worse than the best model
+found competes with no end).
+
 A difference from the paper, which reports the best tree as found.
 """
 
@@ -77,8 +91,10 @@ def held_out_residual(fitness: Fitness, record: Record) -> np.ndarray:
     return blocked_cv_residual(matrix, target, fitness.weak_form)
 
 
-def _neighbour_records(fitness: Fitness, current: Record) -> list[Record]:
-    """The neighbours of ``current`` scored (new ones in one batch) and refined."""
+def _neighbour_records(fitness: Fitness, current: Record,
+                       refine_below: float = math.inf) -> list[Record]:
+    """The neighbours of ``current`` scored (new ones in one batch) and refined (those whose
+    objective is also below ``refine_below``)."""
     tree_mode = fitness.config.coefficients == "tree"
     mass = current.coefficients.mass
     keys, new, held = [], {}, {}
@@ -92,22 +108,43 @@ def _neighbour_records(fitness: Fitness, current: Record) -> list[Record]:
     records = [fitness.records[k] for k in dict.fromkeys(keys)]
     # Tree mode always refines: with no least-squares refit a dropped term's share of the
     # fit shifts the phase until Levenberg–Marquardt moves the other constants.
-    below = math.inf if tree_mode else REFINE_WITHIN * current.objective
+    below = min(refine_below, math.inf if tree_mode else REFINE_WITHIN * current.objective)
     fitness.refine([r for r in records if r.objective <= below])
     return records
 
 
-def simplify(fitness: Fitness, best: Record, alpha: float) -> tuple[Record, list[Record]]:
+def select(fitness: Fitness, front: list[Record], alpha: float) -> tuple[Record, list[Record]]:
+    """The reported model: a walk from every member of the (refined) Pareto ``front``, then
+    the same walk among the walks' ends, from the end of the best-fitting member's walk
+    (module docstring). Returns the final record and that last walk's path."""
+    best, *others = sorted(front, key=lambda r: (r.objective, r.complexity))
+    first, path = simplify(fitness, best, alpha)
+    ends, visited = {first.key: first}, {r.key for r in path}
+    for start in others:
+        if start.key in visited:
+            continue  # its walk would retrace an earlier one
+        end, path = simplify(fitness, start, alpha,
+                             refine_below=REFINE_WITHIN * best.objective)
+        ends.setdefault(end.key, end)
+        visited.update(r.key for r in path)
+    return simplify(fitness, first, alpha, options=lambda current: list(ends.values()))
+
+
+def simplify(fitness: Fitness, best: Record, alpha: float, *, options=None,
+             refine_below: float = math.inf) -> tuple[Record, list[Record]]:
     """Walk from ``best`` to the simplest model the held-out test at level ``alpha`` cannot
-    reject (module docstring). Returns the final record and the path taken."""
+    reject (module docstring); ``options(current)`` gives the models a step may take
+    (default: the current model's neighbours, scored, and refined where their objective is
+    below ``refine_below`` too). Returns the final record and the path taken."""
+    options = options or (lambda current: _neighbour_records(fitness, current, refine_below))
     current, path, seen = best, [best], {best.key}
     while True:
-        options = sorted((r for r in _neighbour_records(fitness, current)
-                          if r.valid and r.status == OK and r.key not in seen),
-                         key=lambda r: (r.complexity, r.objective))
+        candidates = sorted((r for r in options(current)
+                             if r.valid and r.status == OK and r.key not in seen),
+                            key=lambda r: (r.complexity, r.objective))
         base = held_out_residual(fitness, current)
-        peers = sum(r.complexity >= current.complexity for r in options)
-        chosen = next((r for r in options if _replaces(
+        peers = sum(r.complexity >= current.complexity for r in candidates)
+        chosen = next((r for r in candidates if _replaces(
             r, held_out_residual(fitness, r), current, base, alpha, peers)), None)
         if chosen is None:
             return current, path
