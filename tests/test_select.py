@@ -27,10 +27,11 @@ def _fitness(system: str, seed: int = 0) -> Fitness:
                                          max_degree=3))
 
 
-def _record(fitness: Fitness, state: dict):
+def _record(fitness: Fitness, state: dict, held: tuple[int, ...] = ()):
+    """``state`` (with u) scored, inner-constant slots ``held``, and refined."""
     form = CanonicalForm(mass=1.0, state=tuple(state.items()), forcing=((U, 1.0),))
-    key = "start " + str(state)
-    fitness.score_forms({key: form})
+    key = f"start {state} held {held}"
+    fitness.score_forms({key: form}, {key: held})
     record = fitness.records[key]
     fitness.refine([record])
     return record
@@ -158,3 +159,25 @@ def test_a_law_no_walk_from_the_stand_in_reaches_is_found_from_the_front():
     assert set(state) == {law, V}, [r.key for r in path]
     assert float(law.args[0] / X) == pytest.approx(2.0, rel=0.02)
     assert state[law] / chosen.coefficients.mass == pytest.approx(20.0, rel=0.02)
+
+
+@pytest.mark.slow  # the CI slow step keeps it; the fast tier stays within 5 min
+def test_a_simpler_end_that_simulates_worse_does_not_replace_the_law():
+    """Coulomb + viscous, suite seed 1: the linear model's walk ends at the smooth
+    k·x + K·tanh(a·x'), which the held-out equation error cannot tell from the truth (the
+    sticking phases); its simulated response is far worse, so :func:`select` keeps
+    c·x' + F·sign(x') + k·x, F within 2 %."""
+    fitness = _fitness("coulomb_viscous", seed=1)
+    sign = sp.tanh(46.79 * V)  # the smoothed sign's width, held as the walk holds it
+    law = _record(fitness, {X: 40.0, V: 0.6, sign: 1.5},
+                  held=(fitness.evaluator.inner_of(sign)[0].start,))
+    linear = _record(fitness, {X: 38.9, V: 1.15})
+    smooth = _record(fitness, {X: 39.8, sp.tanh(0.53 * V): 3.9})
+    assert smooth.objective > 2.0 * law.objective and smooth.complexity < law.complexity
+    assert _replaces(smooth, held_out_residual(fitness, smooth), law,
+                     held_out_residual(fitness, law), 0.05, 1)  # the equation error alone
+    chosen, path = select(fitness, [law, linear], 0.05)
+    state = chosen.coefficients.state
+    sign, = [f for f in state if f.func == sp.tanh]
+    assert set(state) == {X, V, sign}, [r.key for r in path]
+    assert state[sign] / chosen.coefficients.mass == pytest.approx(1.5, rel=0.02)
