@@ -48,10 +48,10 @@ walk goes to the simplest model the test cannot reject. A forward move passes a 
 the way back fails (p·m < α implies p < α) and no model is visited twice, so it ends.
 
 **Where the walk starts.** A walk only removes, swaps and replaces terms, so it cannot
-reach a simpler law that is not a few moves from its start: from a stand-in such as
-k·x + K·sin(a·x) + k₃·x³ (saturating spring, suite seed 7) no sequence of adequate simpler
-neighbours leads to k·tanh(x/a), while from the linear model one move does (x → tanh).
-So a walk starts from every member of the refined Pareto front (the best model of each
+reach a simpler law that is not a few moves from its start: from the stand-in
+k·x + k₃·x³ + k₂·x·|x| + K·tanh(9.55·x) (saturating spring, held-out seed 7, the best fit
+of its run) no sequence of adequate simpler neighbours leads to k·tanh(x/a), while from
+two other members of the same front the walks end there. So a walk starts from every member of the refined Pareto front (the best model of each
 complexity), and the ends compete by the same rule, starting from the end of the
 best-fitting member's walk: a simpler end replaces it unless it predicts the held-out part
 significantly better, an end as complex or more replaces it if it predicts significantly
@@ -63,8 +63,8 @@ ends at k·x + K·tanh(0.53·x'), objective 0.526, which the equation-error test
 tell from the truth at 0.173). The guard is one-sided by design: in-sample, and with
 the measured input's noise ringing through the simulation, it favours the more complex
 model, so it can only keep the best's end, never add a term; where both tests let a
-simpler end through, it replaces the best's end. The walks share the scored and refined records; a
-member on an earlier walk's path starts none (its walk would retrace it), and the other
+simpler end through, it replaces the best's end. The walks share the scored and refined
+records; a member on an earlier walk's path starts none (its walk would retrace it), and the other
 walks refine only neighbours within :data:`REFINE_WITHIN` of the best member's objective
 (a neighbour of a free oscillator, say, that fits five times worse than the best model
 found competes with no end).
