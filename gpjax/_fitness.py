@@ -29,11 +29,20 @@ from ._weak_form import (WeakForm, least_squares, least_squares_residual, smooth
                          smoothing_cutoff_hz)
 
 
+#: A refinement to convergence stops when a round of Levenberg–Marquardt steps lowers the
+#: objective by less than this fraction: far below any difference the selection's held-out
+#: test resolves (:mod:`gpjax._select`), so further rounds could not change a decision.
+CONVERGED = 1e-3
+#: Rounds of ``refine_iterations`` steps a refinement to convergence takes at most.
+MAX_ROUNDS = 10
+
+
 @dataclasses.dataclass
 class Record:
     """A scored model structure (one cache entry); ``coefficients`` is None when invalid;
     ``held``: slots of the evaluator's inner constants held at a snapped value (never
-    refined, not counted as fitted)."""
+    refined, not counted as fitted); ``converged``: refined until a round no longer lowered
+    the objective (:meth:`Fitness.refine` with ``to_convergence``)."""
 
     key: str
     valid: bool
@@ -46,6 +55,7 @@ class Record:
     status: int = INVALID_STRUCTURE
     refined: bool = False
     held: tuple[int, ...] = ()
+    converged: bool = False
 
     @property
     def n_terms(self) -> int:
@@ -315,16 +325,38 @@ class Fitness:
     def adopt(self, records: list[Record]) -> list[Record]:
         """Copies of ``records`` (from a run at another step count) scored, refined and
         cached here; returns the copies."""
-        copies = [dataclasses.replace(r, refined=False) for r in records if r.valid]
+        copies = [dataclasses.replace(r, refined=False, converged=False)
+                  for r in records if r.valid]
         self._score_records(copies)
         for record in copies:
             self.records[record.key] = record
         self.refine(copies)
         return copies
 
-    def refine(self, records: list[Record]) -> None:
-        """Refine the constants of ``records`` (in place) on the simulated response."""
-        records = [r for r in records if r.valid and not r.refined]
+    def refine(self, records: list[Record], *, to_convergence: bool = False) -> None:
+        """Refine the constants of ``records`` (in place) on the simulated response: one
+        round of ``refine_iterations`` Levenberg–Marquardt steps from the least-squares
+        start; with ``to_convergence`` further rounds, each from the last constants, until a
+        round lowers the objective by less than :data:`CONVERGED` (relative), at most
+        :data:`MAX_ROUNDS` rounds in all."""
+        self._refine_round([r for r in records if r.valid and not r.refined])
+        if not to_convergence:
+            return
+        pending = [r for r in records if r.valid and r.status == OK and not r.converged]
+        for _ in range(MAX_ROUNDS - 1):
+            if not pending:
+                break
+            before = [r.objective for r in pending]
+            self._refine_round(pending)
+            for record, objective in zip(pending, before):
+                record.converged = record.objective > (1 - CONVERGED) * objective
+            pending = [r for r in pending if not r.converged]
+        for record in pending:
+            record.converged = True  # MAX_ROUNDS reached: not refined again
+
+    def _refine_round(self, records: list[Record]) -> None:
+        """One refinement of ``records`` from their current constants; a record keeps them
+        where the refined ones do not score lower."""
         if not records:
             return
         population = self.population(records)

@@ -151,20 +151,37 @@ def simplify(fitness: Fitness, best: Record, alpha: float, *, options=None,
     options = options or (lambda current: _neighbour_records(fitness, current, refine_below))
     current, path, seen = best, [best], {best.key}
     while True:
-        candidates = sorted((r for r in options(current)
-                             if r.valid and r.status == OK and r.key not in seen),
-                            key=lambda r: (r.complexity, r.objective))
+        candidates = [r for r in options(current) if r.key not in seen]
         base = held_out_residual(fitness, current)
-        peers = sum(r.complexity >= current.complexity for r in candidates)
-        chosen = next((r for r in candidates if _replaces(
-            r, held_out_residual(fitness, r), current, base, alpha, peers) and not (
-                simulated and r.complexity < current.complexity
-                and _simulates_better(fitness, current, r, alpha))), None)
+        chosen = _first_replacing(fitness, candidates, current, base, alpha, simulated)
+        unconverged = [r for r in candidates if r.refined and not r.converged
+                       and r.complexity < current.complexity]
+        if chosen is None and unconverged:
+            # Before the walk ends here: the simpler neighbours' constants (and the current
+            # model's) refined to convergence, then the same test again — a swapped
+            # function's inner constant can stop short of its basin after one round.
+            fitness.refine(unconverged + [current], to_convergence=True)
+            base = held_out_residual(fitness, current)
+            chosen = _first_replacing(fitness, candidates, current, base, alpha, simulated)
         if chosen is None:
             return current, path
         seen.add(chosen.key)
         current = chosen
         path.append(current)
+
+
+def _first_replacing(fitness: Fitness, candidates: list[Record], current: Record,
+                     base: np.ndarray, alpha: float, simulated: bool) -> Record | None:
+    """The first of ``candidates`` (valid ones, in the order (complexity, objective)) that
+    replaces ``current`` (held-out residual ``base``) by :func:`_replaces`, and with
+    ``simulated`` by the ends' guard too; None if none does."""
+    candidates = sorted((r for r in candidates if r.valid and r.status == OK),
+                        key=lambda r: (r.complexity, r.objective))
+    peers = sum(r.complexity >= current.complexity for r in candidates)
+    return next((r for r in candidates if _replaces(
+        r, held_out_residual(fitness, r), current, base, alpha, peers) and not (
+            simulated and r.complexity < current.complexity
+            and _simulates_better(fitness, current, r, alpha))), None)
 
 
 def _simulates_better(fitness: Fitness, current: Record, simpler: Record, alpha: float) -> bool:
