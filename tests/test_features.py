@@ -146,6 +146,7 @@ def test_variational_sensitivities_to_inner_constants_match_autodiff(pendulum, f
         jnp.max(jnp.abs(reference))))
 
 
+@pytest.mark.slow  # CI's slow step runs it; the fast tier stays within 5 min on 2 cores
 def test_levenberg_marquardt_refines_inner_and_outer_constants_together(pendulum):
     _, evaluator = pendulum
     start = _truth(a=1.0, b=0.0).replace(state={V: 0.3, sp.sin(X): 8.0, V * sp.Abs(V): 0.4})

@@ -19,6 +19,7 @@ def _short_example(**kw):
     return generate_gear_example(revolutions=0.35, **kw)
 
 
+@pytest.mark.slow  # CI's slow step runs it; the fast tier stays within 5 min on 2 cores
 def test_same_seed_same_model_bit_for_bit(tmp_path):
     measurement = _short_example(seed=1).measurement
     config = GPConfig.paper(**SMALL)
