@@ -30,8 +30,8 @@ from ._weak_form import (WeakForm, least_squares, least_squares_residual, smooth
 
 
 #: A refinement to convergence stops when a round of Levenberg–Marquardt steps lowers the
-#: objective by less than this fraction: far below any difference the selection's held-out
-#: test resolves (:mod:`gpjax._select`), so further rounds could not change a decision.
+#: objective by less than this fraction (a convergence check on the objective itself: the
+#: selection's tests compare models whose objectives differ by percents, :mod:`gpjax._select`).
 CONVERGED = 1e-3
 #: Rounds of ``refine_iterations`` steps a refinement to convergence takes at most.
 MAX_ROUNDS = 10

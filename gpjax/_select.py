@@ -67,8 +67,8 @@ of its run) no sequence of adequate one-round-refined neighbours led to k·tanh(
 while from two other members of the same front the walks ended there (refined to
 convergence, the stand-in's own walk now gets there too; the test in
 ``tests/test_select.py`` keeps that case). So a walk starts from every member of the
-refined Pareto front (the best model of each complexity), and the ends compete by the same rule, starting from the end of the
-best-fitting member's walk: a simpler end replaces it unless it predicts the held-out part
+refined Pareto front (the best model of each complexity), and the ends compete by the
+same rule, starting from the end of the best-fitting member's walk: a simpler end replaces it unless it predicts the held-out part
 significantly better, an end as complex or more replaces it if it predicts significantly
 better (Bonferroni over those ends). A simpler end must also not simulate significantly
 worse: the same test on the two models' simulated residuals over the record. The equation
@@ -79,8 +79,8 @@ tell from the truth at 0.173). The guard is one-sided by design: in-sample, and 
 the measured input's noise ringing through the simulation, it favours the more complex
 model, so it can only keep the best's end, never add a term; where both tests let a
 simpler end through, it replaces the best's end. The walks share the scored and refined
-records; a member on an earlier walk's path starts none (its walk would retrace it), and the other
-walks refine only neighbours within :data:`REFINE_WITHIN` of the best member's objective
+records; a member on an earlier walk's path starts none (its walk would retrace it), and
+the other walks refine only neighbours within :data:`REFINE_WITHIN` of the best member's objective
 (a neighbour of a free oscillator, say, that fits five times worse than the best model
 found competes with no end).
 
@@ -169,17 +169,19 @@ def simplify(fitness: Fitness, best: Record, alpha: float, *, options=None,
         candidates = [r for r in options(current) if r.key not in seen]
         base = held_out_residual(fitness, current)
         chosen = _first_replacing(fitness, candidates, current, base, alpha, simulated)
-        unconverged = [r for r in candidates if r.refined and not r.converged
-                       and r.complexity < current.complexity]
-        if chosen is None and unconverged:
+        if chosen is None:
             # Before the walk ends here: the simpler neighbours' constants (and the current
             # model's) refined to convergence, then the same test again — a swapped
             # function's inner constant can stop short of its basin after one round.
+            unconverged = [r for r in candidates if r.refined and not r.converged
+                           and r.complexity < current.complexity]
+            if not unconverged:
+                return current, path
             fitness.refine(unconverged + [current], to_convergence=True)
             base = held_out_residual(fitness, current)
             chosen = _first_replacing(fitness, candidates, current, base, alpha, simulated)
-        if chosen is None:
-            return current, path
+            if chosen is None:
+                return current, path
         seen.add(chosen.key)
         current = chosen
         path.append(current)
