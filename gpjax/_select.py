@@ -114,10 +114,9 @@ def held_out_residual(fitness: Fitness, record: Record) -> np.ndarray:
     return blocked_cv_residual(matrix, target, fitness.weak_form)
 
 
-def _neighbour_records(fitness: Fitness, current: Record,
-                       refine_below: float = math.inf) -> list[Record]:
-    """The neighbours of ``current`` scored (new ones in one batch) and refined (those whose
-    objective is also below ``refine_below``)."""
+def _neighbour_records(fitness: Fitness, current: Record) -> list[Record]:
+    """The neighbours of ``current``, scored (new ones in one batch) at their least-squares
+    start; :func:`_first_replacing` refines them as its test reaches them."""
     tree_mode = fitness.config.coefficients == "tree"
     mass = current.coefficients.mass
     keys, new, held = [], {}, {}
@@ -128,12 +127,16 @@ def _neighbour_records(fitness: Fitness, current: Record,
             new[key], held[key] = m.form(mass), m.held
     if new:
         fitness.score_forms(new, held)
-    records = [fitness.records[k] for k in dict.fromkeys(keys)]
+    return [fitness.records[k] for k in dict.fromkeys(keys)]
+
+
+def _refine_below(fitness: Fitness, current: Record, refine_below: float) -> float:
+    """The objective below which ``current``'s neighbours are refined: ``refine_below``, and
+    within :data:`REFINE_WITHIN` of the current model's (tree mode: no second bound)."""
     # Tree mode always refines: with no least-squares refit a dropped term's share of the
     # fit shifts the phase until Levenberg–Marquardt moves the other constants.
-    below = min(refine_below, math.inf if tree_mode else REFINE_WITHIN * current.objective)
-    fitness.refine([r for r in records if r.objective <= below])
-    return records
+    tree_mode = fitness.config.coefficients == "tree"
+    return min(refine_below, math.inf if tree_mode else REFINE_WITHIN * current.objective)
 
 
 def select(fitness: Fitness, front: list[Record], alpha: float) -> tuple[Record, list[Record]]:
@@ -158,17 +161,21 @@ def simplify(fitness: Fitness, best: Record, alpha: float, *, options=None,
              refine_below: float = math.inf,
              simulated: bool = False) -> tuple[Record, list[Record]]:
     """Walk from ``best`` to the simplest model the held-out test at level ``alpha`` cannot
-    reject (module docstring); ``options(current)`` gives the models a step may take
-    (default: the current model's neighbours, scored, and refined where their objective is
-    below ``refine_below`` too); with ``simulated`` a simpler model must also not be
-    significantly worse on the simulated response (the ends' guard). Returns the final
-    record and the path taken."""
-    options = options or (lambda current: _neighbour_records(fitness, current, refine_below))
+    reject (module docstring); ``options(current)`` gives the models a step may take, as
+    they are (default: the current model's neighbours, scored, and refined where their
+    objective is below ``refine_below`` too); with ``simulated`` a simpler model must also
+    not be significantly worse on the simulated response (the ends' guard). Returns the
+    final record and the path taken."""
     current, path, seen = best, [best], {best.key}
     while True:
-        candidates = [r for r in options(current) if r.key not in seen]
+        if options is None:
+            candidates = _neighbour_records(fitness, current)
+            below = _refine_below(fitness, current, refine_below)
+        else:
+            candidates, below = options(current), -math.inf
+        candidates = [r for r in candidates if r.key not in seen]
         base = held_out_residual(fitness, current)
-        chosen = _first_replacing(fitness, candidates, current, base, alpha, simulated)
+        chosen = _first_replacing(fitness, candidates, current, base, alpha, simulated, below)
         if chosen is None:
             # Before the walk ends here: the simpler neighbours' constants (and the current
             # model's) refined to convergence, then the same test again — a swapped
@@ -179,7 +186,8 @@ def simplify(fitness: Fitness, best: Record, alpha: float, *, options=None,
                 return current, path
             fitness.refine(unconverged + [current], to_convergence=True)
             base = held_out_residual(fitness, current)
-            chosen = _first_replacing(fitness, candidates, current, base, alpha, simulated)
+            chosen = _first_replacing(fitness, candidates, current, base, alpha, simulated,
+                                      below)
             if chosen is None:
                 return current, path
         seen.add(chosen.key)
@@ -188,17 +196,30 @@ def simplify(fitness: Fitness, best: Record, alpha: float, *, options=None,
 
 
 def _first_replacing(fitness: Fitness, candidates: list[Record], current: Record,
-                     base: np.ndarray, alpha: float, simulated: bool) -> Record | None:
+                     base: np.ndarray, alpha: float, simulated: bool,
+                     refine_below: float) -> Record | None:
     """The first of ``candidates`` (valid ones, in the order (complexity, objective)) that
     replaces ``current`` (held-out residual ``base``) by :func:`_replaces`, and with
-    ``simulated`` by the ends' guard too; None if none does."""
-    candidates = sorted((r for r in candidates if r.valid and r.status == OK),
-                        key=lambda r: (r.complexity, r.objective))
-    peers = sum(r.complexity >= current.complexity for r in candidates)
-    return next((r for r in candidates if _replaces(
-        r, held_out_residual(fitness, r), current, base, alpha, peers) and not (
-            simulated and r.complexity < current.complexity
-            and _simulates_better(fitness, current, r, alpha))), None)
+    ``simulated`` by the ends' guard too; None if none does. Candidates whose objective is
+    below ``refine_below`` are refined as the test reaches them: one complexity at a time
+    while simpler than ``current``, then all the others together (the Bonferroni count
+    needs them all), so none more complex than the one taken is refined — the order and
+    the outcome are those of refining all first."""
+    simpler = sorted({r.complexity for r in candidates if r.complexity < current.complexity})
+    groups = [[r for r in candidates if r.complexity == c] for c in simpler]
+    groups.append([r for r in candidates if r.complexity >= current.complexity])
+    for group in groups:
+        fitness.refine([r for r in group if r.objective <= refine_below])
+        ready = sorted((r for r in group if r.valid and r.status == OK),
+                       key=lambda r: (r.complexity, r.objective))
+        peers = sum(r.complexity >= current.complexity for r in ready)
+        chosen = next((r for r in ready if _replaces(
+            r, held_out_residual(fitness, r), current, base, alpha, peers) and not (
+                simulated and r.complexity < current.complexity
+                and _simulates_better(fitness, current, r, alpha))), None)
+        if chosen is not None:
+            return chosen
+    return None
 
 
 def _simulates_better(fitness: Fitness, current: Record, simpler: Record, alpha: float) -> bool:
