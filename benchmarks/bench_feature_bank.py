@@ -25,11 +25,12 @@ import os
 import platform
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
 import numpy as np
+
+from _baseline import baseline_tree
 
 REPEATS = 7
 ROOT = Path(__file__).resolve().parent.parent
@@ -142,16 +143,9 @@ def main() -> None:
     result["rates"] = bank_rates(args.repeats)
     fast = result["rates"]["polynomial_fast_path"]["models_per_s"]
     if args.baseline:
-        with tempfile.TemporaryDirectory() as folder:
-            tree = Path(folder) / "baseline"
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree),
-                            args.baseline], check=True, capture_output=True)
-            try:
-                baseline = [child_rate(tree, args.repeats) for _ in range(2)]
-                current = [child_rate(ROOT, args.repeats) for _ in range(2)]
-            finally:
-                subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force",
-                                str(tree)], check=True, capture_output=True)
+        with baseline_tree(args.baseline) as tree:
+            baseline = [child_rate(tree, args.repeats) for _ in range(2)]
+            current = [child_rate(ROOT, args.repeats) for _ in range(2)]
         result["baseline"] = {"revision": args.baseline, "models_per_s": max(baseline),
                               "current_models_per_s": max(current),
                               "current_over_baseline": max(current) / max(baseline)}

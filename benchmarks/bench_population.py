@@ -21,7 +21,6 @@ import pstats
 import resource
 import subprocess
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -35,6 +34,7 @@ import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
+from _baseline import baseline_tree  # noqa: E402
 from gpjax import GPConfig, Identifier, Measurement, Symbols  # noqa: E402
 from gpjax.engine import PopulationEvaluator  # noqa: E402
 from gpjax._weak_form import WeakForm, least_squares, smoothed_derivatives  # noqa: E402
@@ -191,17 +191,10 @@ def refinement_rate(iterations, count):
 def baseline_refinement(revision, iterations, count, rounds=3):
     """Refinement models/s of the engine at git ``revision`` and of this tree, each in
     fresh processes, alternating ``rounds`` times (the machine is shared); best of each."""
-    with tempfile.TemporaryDirectory() as folder:
-        tree = Path(folder) / "baseline"
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "--detach", str(tree),
-                        revision], check=True, capture_output=True)
-        try:
-            rates = [(child("refinement_rate", iterations, count, path=tree),
-                      child("refinement_rate", iterations, count, path=ROOT))
-                     for _ in range(rounds)]
-        finally:
-            subprocess.run(["git", "-C", str(ROOT), "worktree", "remove", "--force", str(tree)],
-                           check=True, capture_output=True)
+    with baseline_tree(revision) as tree:
+        rates = [(child("refinement_rate", iterations, count, path=tree),
+                  child("refinement_rate", iterations, count, path=ROOT))
+                 for _ in range(rounds)]
     baseline, current = (max(r) for r in zip(*rates))
     return {"revision": revision, "models_per_s": baseline, "current_models_per_s": current,
             "current_over_baseline": current / baseline}

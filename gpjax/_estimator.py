@@ -44,7 +44,8 @@ class Identifier:
     table of complexity — fitted constants — vs objective, one dict per row; :meth:`sympy`
     and :meth:`latex` take a row index), ``history_`` (per generation),
     ``stopped_by`` (``"epsilon"``, ``"generations"`` or ``"interrupted"``), timings in
-    ``timings_``, and ``convergence_``: each check of the reported model's RK4 integration
+    ``timings_`` (seconds: ``total_s``, ``compile_s``, ``selection_s`` the final model
+    selection, ``convergence_s``; ``compiles``, ``generations``), and ``convergence_``: each check of the reported model's RK4 integration
     against the reference solve (:class:`~gpjax._convergence.Convergence`), the last one
     passed unless a fixed ``substeps`` was too coarse (then a warning says so).
     """
@@ -143,6 +144,7 @@ class Identifier:
         self.stopped_by = ("interrupted" if interrupted else
                            "epsilon" if last.best_objective <= self.config.epsilon
                            else "generations")
+        selecting = time.perf_counter()
         self._select(fitness, seed, state)
         converging = time.perf_counter()
         fits = [fitness]
@@ -153,6 +155,7 @@ class Identifier:
                                           for f in fits),
                          "compiles": sum(f.evaluator.compile_count + f.refiner.compile_count
                                          for f in fits),
+                         "selection_s": converging - selecting,
                          "convergence_s": time.perf_counter() - converging,
                          "generations": state.generation}
         if out is not None:

@@ -46,6 +46,10 @@ the one it reached, not a coin flip on the noise). Neighbours are tried in the o
 (complexity, objective on the whole record) and the first that qualifies is taken, so the
 walk goes to the simplest model the test cannot reject. A forward move passes a test that
 the way back fails (p·m < α implies p < α) and no model is visited twice, so it ends.
+Neighbours are refined as the test reaches them, one complexity at a time while simpler
+than the current model, then the rest together: a step that takes a simpler neighbour
+refines none more complex than it. Order and outcome are those of refining all first; the
+cost is not (saturating spring, suite seed 3: 155 models refined instead of 1,070).
 
 **Converged constants before a walk ends.** Neighbours are refined one round
 (``refine_iterations`` Levenberg–Marquardt steps from their least-squares start), enough

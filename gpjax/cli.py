@@ -202,7 +202,8 @@ def _timings(identifier, out) -> None:
     print(f"\nStopped by {identifier.stopped_by} after generation {t['generations']}; "
           f"{t['total_s']:.1f} s in all, {t['compile_s']:.1f} s of it compiling or loading "
           f"{t['compiles']} population evaluator/refiner programs; generation 0 "
-          f"{seconds[0]:.2f} s{later}. Results in {out}/")
+          f"{seconds[0]:.2f} s{later}; final model selection {t['selection_s']:.1f} s. "
+          f"Results in {out}/")
 
 
 def _fit(args) -> int:

@@ -80,6 +80,13 @@ def test_coefficients_json_round_trip_parses_with_the_whitelist():
     assert Coefficients.from_json(model.to_json(), S.names()) == model
 
 
+def test_timings_split_the_run_into_its_stages(demo_fit):
+    t = demo_fit[0].timings_
+    assert 0 < t["selection_s"] and 0 < t["convergence_s"] and 0 <= t["compile_s"]
+    assert t["selection_s"] + t["convergence_s"] < t["total_s"]
+    assert t["compiles"] >= 1 and t["generations"] >= 0
+
+
 def test_identifier_simulates_new_inputs_and_reloads_to_score_again(demo_fit):
     identifier, measurement, _ = demo_fit
     model = identifier.model_
