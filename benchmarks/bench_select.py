@@ -1,7 +1,8 @@
 """The final model selection's cost: gpjax fits of physics-suite cases with this tree and with
 git revision ``--baseline`` (a temporary worktree), each fit in a fresh child process, the
 two alternating case by case, at the suite's settings (1 % noise on response and input,
-population 200, 5 generations, its function set).
+population 200, 5 generations, its function set), with the compilation cache off (each
+fit compiles as a first run does).
 
     python benchmarks/bench_select.py --baseline 7480e1b --json benchmarks/select_cost.json
 
@@ -48,7 +49,8 @@ def fit(path: Path, case: str) -> dict:
     """One case fitted with the tree at ``path`` in a fresh process; raises
     ``subprocess.CalledProcessError`` when the fit fails."""
     system, seed = case.split(":")
-    env = dict(os.environ, PYTHONPATH=str(path), JAX_PLATFORMS="cpu")
+    env = dict(os.environ, PYTHONPATH=str(path), JAX_PLATFORMS="cpu",
+               GPJAX_COMPILATION_CACHE="off")  # both trees compile as a first run does
     out = subprocess.run([sys.executable, "-c", CHILD, system, seed], env=env, check=True,
                          capture_output=True, text=True, cwd=path)
     return json.loads(out.stdout.strip().splitlines()[-1])
