@@ -6,7 +6,8 @@ fit compiles as a first run does).
 
     python benchmarks/bench_select.py --baseline 7480e1b --json benchmarks/select_cost.json
 
-Per case: seconds of the whole fit with each tree (the fastest of ``--rounds`` fits, the
+Per case: models refined in the whole fit (one Levenberg–Marquardt round each; counted in
+the child by wrapping ``Fitness._refine_round``), seconds of the whole fit with each tree (the fastest of ``--rounds`` fits, the
 trees alternating: the machine's speed drifts between minutes) and their ratio, the final selection's
 seconds with this tree (``timings_["selection_s"]``; a baseline without that timing shows
 none), and whether both report the same model (the same equation text with every number
@@ -32,8 +33,14 @@ CHILD = """
 import json, sys, time
 sys.path.insert(0, "benchmarks")
 import gpjax
+from gpjax import _fitness
 from gpjax.systems import generate
 from physics_suite import FUNCTIONS
+refined, one_round = [0], _fitness.Fitness._refine_round
+def counted(self, records):  # models refined, the run's whole
+    refined[0] += len(records)
+    return one_round(self, records)
+_fitness.Fitness._refine_round = counted
 system, seed = sys.argv[1], int(sys.argv[2])
 data = generate(system, seed=seed, noise=0.01, input_noise=0.01, extrapolation_scale=1.2)
 config = gpjax.GPConfig(population=200, generations=5, functions=FUNCTIONS, max_degree=3)
@@ -41,6 +48,7 @@ began = time.perf_counter()
 identifier = gpjax.Identifier(config).fit(data.fit.measurement(), seed=seed, progress=False)
 print(json.dumps({"seconds": time.perf_counter() - began,
                   "selection_s": identifier.timings_.get("selection_s"),
+                  "refined": refined[0],
                   "equation": str(identifier.model_.sympy())}))
 """
 NUMBER = re.compile(r"-?\d+\.?\d*(?:e-?\d+)?")
@@ -75,7 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--json", help="write the results here")
     args = parser.parse_args(argv)
     rows = []
-    print(f"{'case':<22} {'base s':>8} {'now s':>8} {'ratio':>6} {'select s':>8} {'same':>5}")
+    print(f"{'case':<22} {'base s':>8} {'now s':>8} {'ratio':>6} {'select s':>8} "
+          f"{'refined':>11} {'same':>5}")
     with baseline_tree(args.baseline) as tree:
         for case in args.cases.split(","):
             fits = [(fit(tree, case), fit(ROOT, case)) for _ in range(args.rounds)]
@@ -86,12 +95,14 @@ def main(argv: list[str] | None = None) -> int:
                  "baseline_over_current": baseline["seconds"] / current["seconds"],
                  "baseline_selection_s": baseline["selection_s"],
                  "current_selection_s": current["selection_s"],
+                 "baseline_refined": baseline["refined"], "current_refined": current["refined"],
                  "same_model": all(same_model(b["equation"], c["equation"])
                                    for b, c in fits),
                  "baseline_equation": baseline["equation"], "equation": current["equation"]}
             rows.append(r)
             print(f"{case:<22} {r['baseline_s']:>8.1f} {r['current_s']:>8.1f} "
                   f"{r['baseline_over_current']:>6.2f} {r['current_selection_s']:>8.1f} "
+                  f"{r['baseline_refined']:>5}/{r['current_refined']:<5} "
                   f"{'yes' if r['same_model'] else 'NO':>5}", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(
