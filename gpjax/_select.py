@@ -49,7 +49,8 @@ the way back fails (p·m < α implies p < α) and no model is visited twice, so 
 Neighbours are refined as the test reaches them, one complexity at a time while simpler
 than the current model, then the rest together: a step that takes a simpler neighbour
 refines none more complex than it. Order and outcome are those of refining all first; the
-cost is not (saturating spring, suite seed 3: 155 models refined instead of 1,070).
+cost is not (saturating spring, suite seed 3: 173 models refined in the whole fit instead
+of 1,088; ``benchmarks/select_cost.json``).
 
 **Converged constants before a walk ends.** Neighbours are refined one round
 (``refine_iterations`` Levenberg–Marquardt steps from their least-squares start), enough
