@@ -45,9 +45,10 @@ class Identifier:
     and :meth:`latex` take a row index), ``history_`` (per generation),
     ``stopped_by`` (``"epsilon"``, ``"generations"`` or ``"interrupted"``), timings in
     ``timings_`` (seconds: ``total_s``, ``compile_s``, ``selection_s`` the final model
-    selection, ``convergence_s``; ``compiles``, ``generations``), and ``convergence_``: each check of the reported model's RK4 integration
-    against the reference solve (:class:`~gpjax._convergence.Convergence`), the last one
-    passed unless a fixed ``substeps`` was too coarse (then a warning says so).
+    selection, ``convergence_s``; ``compiles``, ``generations``), and ``convergence_``:
+    each check of the reported model's RK4 integration against the reference solve
+    (:class:`~gpjax._convergence.Convergence`), the last one passed unless a fixed
+    ``substeps`` was too coarse (then a warning says so).
     """
 
     def __init__(self, config: GPConfig | None = None, **overrides):
