@@ -11,7 +11,8 @@ the child by wrapping ``Fitness._refine_round``), seconds of the whole fit with 
 (the fastest of ``--rounds`` fits, the trees alternating: the machine's speed drifts
 between minutes) and their ratio, the final selection's seconds with this tree
 (``timings_["selection_s"]``; a baseline without that timing shows none), and whether
-both report the same model (the same equation text with every number equal to 1e-6 relative). Prints a table and writes JSON.
+both report the same model (the same equation text with every number equal to 1e-6
+relative). Prints a table and writes JSON.
 """
 
 from __future__ import annotations
