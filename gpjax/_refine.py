@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
+import weakref
 
 import jax
 import jax.numpy as jnp
@@ -246,13 +247,18 @@ class Refiner:
         ok, steps = jnp.array(True), jnp.array(0)
         for samples in self.horizon_samples:
             response = self._response(samples)
+            noise_scale = self._noise_scale
 
-            def residuals(d, _, samples=samples, response=response):
-                x = response(d, start, moves, forcing_basis)
-                return (x - measured[:samples]) / self._noise_scale
+            # JAX's tracing caches keep this function (optx's static argument) after the
+            # run: it holds the response, which holds the evaluator weakly, and the data
+            # come in ``args`` — so a finished fit's programs can be freed (_response).
+            def residuals(d, args, response=response, noise_scale=noise_scale):
+                x = response(d, *args[:3])
+                return (x - args[3]) / noise_scale
 
-            solution = optx.least_squares(residuals, solver, delta, max_steps=self.iterations,
-                                          throw=False)
+            solution = optx.least_squares(
+                residuals, solver, delta, args=(start, moves, forcing_basis, measured[:samples]),
+                max_steps=self.iterations, throw=False)
             finite = jnp.all(jnp.isfinite(solution.value))
             delta = jnp.where(finite, solution.value, delta)
             ok = ok & finite & ((solution.result == optx.RESULTS.successful) | (
@@ -269,7 +275,9 @@ class Refiner:
         J·t; so the linearisation Levenberg–Marquardt takes each step costs one augmented
         solve, and materialising J is a matrix product, not one tangent solve per constant.
         """
-        ev = self.evaluator
+        # Weakly: JAX's caches outlive the run and keep these closures (_refine_one); a
+        # strong reference would keep the evaluator and its compiled programs with them.
+        ev = weakref.proxy(self.evaluator)
         n_stage = ev.stage_rows(samples)
         if self.jacobian == "autodiff":
             def plain(delta, start, moves, forcing_basis):
