@@ -173,10 +173,13 @@ def test_a_dropped_refiner_frees_its_evaluator_and_compiled_programs(monkeypatch
     keep a dropped refiner's evaluator and compiled programs alive (a process fitting one
     record after another ran out of memory maps after ~30 fits)."""
     monkeypatch.setenv("GPJAX_COMPILATION_CACHE", "off")  # traced here, not loaded
-    evaluator = _setup()
-    refiner = Refiner(evaluator, iterations=2, batch=4)
-    start = _models(evaluator, np.full(2, 0.1), np.random.default_rng(1))
-    refiner.refine(start, np.full(2, evaluator.forcing_index(S.u[0])))
+    t = np.linspace(0.0, 1.0, 101)
+    data = Measurement(time=t, response=np.sin(t), inputs={"u": np.cos(t)}, response_name="x",
+                       time_name="t")
+    evaluator = PopulationEvaluator(data, S, max_degree=1, batch=1)
+    refiner = Refiner(evaluator, iterations=1, batch=1, horizons=(1.0,))
+    start = _models(evaluator, np.full(1, 0.1), np.random.default_rng(1))
+    refiner.refine(start, np.full(1, evaluator.forcing_index(S.u[0])))
     alive = [weakref.ref(evaluator), weakref.ref(refiner)]
     del evaluator, refiner, start
     gc.collect()
