@@ -18,13 +18,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import platform
-import subprocess
 import sys
 from pathlib import Path
 
-from _baseline import ROOT, baseline_tree
+from _baseline import ROOT, baseline_tree, run_child
 
 CHILD = """
 import gc, json, sys
@@ -50,11 +48,7 @@ print(json.dumps(rows))
 def run(path: Path, fits: int) -> list[dict]:
     """Per fit, maps and resident MB of one child process running the tree at ``path``;
     raises ``subprocess.CalledProcessError`` when it fails."""
-    env = dict(os.environ, PYTHONPATH=str(path), GPJAX_COMPILATION_CACHE="off",
-               JAX_PLATFORMS="cpu")
-    out = subprocess.run([sys.executable, "-c", CHILD, str(fits)], cwd=path, env=env,
-                         check=True, capture_output=True, text=True).stdout
-    return json.loads(out.strip().splitlines()[-1])
+    return run_child(path, CHILD, str(fits))
 
 
 def slope(rows: list[dict], key: str) -> float:

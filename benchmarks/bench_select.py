@@ -22,11 +22,10 @@ import json
 import os
 import platform
 import re
-import subprocess
 import sys
 from pathlib import Path
 
-from _baseline import ROOT, baseline_tree
+from _baseline import ROOT, baseline_tree, run_child
 
 CASES = ("saturating_spring:3", "softening_spring:0", "coulomb_viscous:1", "coulomb_viscous:2",
          "quadratic_drag:0", "stribeck_resolved:0")
@@ -58,12 +57,7 @@ NUMBER = re.compile(r"-?\d+\.?\d*(?:e-?\d+)?")
 def fit(path: Path, case: str) -> dict:
     """One case fitted with the tree at ``path`` in a fresh process; raises
     ``subprocess.CalledProcessError`` when the fit fails."""
-    system, seed = case.split(":")
-    env = dict(os.environ, PYTHONPATH=str(path), JAX_PLATFORMS="cpu",
-               GPJAX_COMPILATION_CACHE="off")  # both trees compile as a first run does
-    out = subprocess.run([sys.executable, "-c", CHILD, system, seed], env=env, check=True,
-                         capture_output=True, text=True, cwd=path)
-    return json.loads(out.stdout.strip().splitlines()[-1])
+    return run_child(path, CHILD, *case.split(":"))
 
 
 def same_model(a: str, b: str) -> bool:

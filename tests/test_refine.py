@@ -171,7 +171,7 @@ def test_refinement_split_over_two_host_devices_matches_one_device():
 def test_a_dropped_refiner_frees_its_evaluator_and_compiled_programs(monkeypatch):
     """JAX's tracing caches outlive a run and keep the functions traced in it; they must not
     keep a dropped refiner's evaluator and compiled programs alive (a process fitting one
-    record after another ran out of memory maps after ~30 fits)."""
+    record after another ran out of memory maps after ~70 fits)."""
     monkeypatch.setenv("GPJAX_COMPILATION_CACHE", "off")  # traced here, not loaded
     t = np.linspace(0.0, 1.0, 101)
     data = Measurement(time=t, response=np.sin(t), inputs={"u": np.cos(t)}, response_name="x",
