@@ -13,12 +13,14 @@ import hashlib
 import keyword
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.interpolate import CubicSpline
-from scipy.signal import firwin, resample_poly
 
 from ._errors import DataError
+
+if TYPE_CHECKING:
+    from scipy.interpolate import CubicSpline
 
 MIN_SAMPLES = 20
 #: Largest allowed deviation of any sample interval from the mean one, as a fraction of it.
@@ -227,6 +229,10 @@ def _bandlimited_grid(values: np.ndarray) -> np.ndarray:
     with a Kaiser-windowed sinc (β = 10) spanning ±32 samples, which reproduces a tone
     up to 0.9 × Nyquist within 1e-5 of its amplitude (scipy's default ±10-sample, β = 5
     filter: 3e-3, whose images a fine integrator would see), passing through the samples."""
+    # scipy is imported here, not at the top: the CLI imports this module to validate a
+    # user's files, and scipy.signal would triple the time it takes to refuse a bad one.
+    from scipy.signal import firwin, resample_poly
+
     n = (values.size - 1) * BANDLIMITED_FACTOR + 1
     taps = firwin(2 * BANDLIMITED_FACTOR * BANDLIMITED_REACH + 1, 1.0 / BANDLIMITED_FACTOR,
                   window=("kaiser", 10.0))
@@ -242,6 +248,8 @@ def bandlimited_spline(values: np.ndarray) -> CubicSpline:
     (:func:`between_samples`) and the reference solve (:mod:`gpjax._reference`) both
     evaluate it; the spline's own error is ~(π/16)⁴/384 ≈ 4e-6 of a component at the
     Nyquist frequency."""
+    from scipy.interpolate import CubicSpline  # see _bandlimited_grid
+
     fine = _bandlimited_grid(np.asarray(values, dtype=np.float64))
     return CubicSpline(np.arange(fine.size) / BANDLIMITED_FACTOR, fine)
 
