@@ -13,6 +13,8 @@ one coordinate, :meth:`Dynamics._internal`).
 
 from __future__ import annotations
 
+import weakref
+
 import diffrax
 import jax
 import jax.numpy as jnp
@@ -296,18 +298,24 @@ class Dynamics:
         half = 0.5 * self.h
         inner = _no_inner(inner, mass)
         mass, state, forcing_matrix, y0 = self._internal(mass, state, forcing_matrix, y0)
-        acceleration = self._acceleration_fn(mass, state, inner)
+        # The field is a static argument JAX's caches keep after the run: it holds this
+        # evaluator weakly (else its compiled programs would live on) and takes the arrays
+        # as diffrax's ``args``.
+        ev = weakref.proxy(self)
 
         def field(t, y, args):  # y: (2, D, P)
+            mass, state, inner, forcing_matrix = args
             index = jnp.clip(jnp.round((t - t0) / half).astype(jnp.int32), 0,
                              forcing_matrix.shape[0] - 1)
-            velocity = jnp.clip(y[1], -self._bound[1], self._bound[1])
+            velocity = jnp.clip(y[1], -ev._bound[1], ev._bound[1])
+            acceleration = ev._acceleration_fn(mass, state, inner)
             return jnp.stack([velocity, jnp.stack(acceleration(y[0], y[1],
                                                                forcing_matrix[index], t))])
 
         solution = diffrax.diffeqsolve(
             diffrax.ODETerm(field), RK4(), t0=t0, t1=float(self.stage_times[-1]), dt0=self.h,
-            y0=jnp.transpose(y0, (2, 1, 0)), saveat=diffrax.SaveAt(t0=True, steps=True),
+            y0=jnp.transpose(y0, (2, 1, 0)), args=(mass, state, inner, forcing_matrix),
+            saveat=diffrax.SaveAt(t0=True, steps=True),
             stepsize_controller=diffrax.ConstantStepSize(), max_steps=self.n_steps,
             throw=False, adjoint=adjoint or diffrax.RecursiveCheckpointAdjoint())
         states = solution.ys[:: self.substeps, 0]

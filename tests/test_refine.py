@@ -184,3 +184,18 @@ def test_a_dropped_refiner_frees_its_evaluator_and_compiled_programs(monkeypatch
     del evaluator, refiner, start
     gc.collect()
     assert [ref() for ref in alive] == [None, None]
+
+
+def test_a_dropped_diffrax_evaluator_is_freed(monkeypatch):
+    """The same for the ``"diffrax"`` integrator: its vector field is a static argument of
+    ``diffeqsolve``, which JAX's caches keep."""
+    monkeypatch.setenv("GPJAX_COMPILATION_CACHE", "off")
+    t = np.linspace(0.0, 1.0, 101)
+    data = Measurement(time=t, response=np.sin(t), inputs={"u": np.cos(t)}, response_name="x",
+                       time_name="t")
+    evaluator = PopulationEvaluator(data, S, max_degree=1, batch=1, integrator="diffrax")
+    evaluator.simulate(_models(evaluator, np.full(1, 0.1), np.random.default_rng(1)))
+    alive = weakref.ref(evaluator)
+    del evaluator
+    gc.collect()
+    assert alive() is None
