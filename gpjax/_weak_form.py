@@ -130,7 +130,8 @@ class WeakForm:
 
     def _integrate(self, values: np.ndarray, kernel: int) -> np.ndarray:
         """(K,) window integrals of the kept windows: strided windows times the kernel."""
-        integrals = self._windows(values) @ self._kernels[kernel]
+        with np.errstate(invalid="ignore", over="ignore"):  # a candidate's overflow: data
+            integrals = self._windows(values) @ self._kernels[kernel]
         return integrals if self._kept is None else integrals[self._kept]
 
     def acceleration(self) -> np.ndarray:
@@ -153,8 +154,11 @@ def evaluate(feature: sp.Expr, symbols: Symbols, measurement: Measurement, x: np
              x_dot: np.ndarray) -> np.ndarray:
     """A feature's values at the samples, given x and x' (numpy)."""
     fn = _lambdified(feature, symbols)
-    values = fn(x, x_dot, measurement.time,
-                *(measurement.inputs[name] for name in symbols.inputs))
+    # A candidate's feature may overflow (exp(150·x')); the non-finite values make its
+    # least squares NaN (:func:`scaled_lstsq`), so the candidate scores as diverged.
+    with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
+        values = fn(x, x_dot, measurement.time,
+                    *(measurement.inputs[name] for name in symbols.inputs))
     return np.broadcast_to(np.asarray(values, dtype=np.float64), x.shape).copy()
 
 
@@ -212,6 +216,7 @@ def scaled_lstsq(matrix: np.ndarray, target: np.ndarray) -> np.ndarray:
         return np.zeros(0)
     if not (np.all(np.isfinite(matrix)) and np.all(np.isfinite(target))):
         return np.full(matrix.shape[1], np.nan)
-    scale = np.linalg.norm(matrix, axis=0)
+    with np.errstate(over="ignore"):  # a column beyond 1e154: its norm is inf, its share 0
+        scale = np.linalg.norm(matrix, axis=0)
     scale[scale == 0] = 1.0
     return np.linalg.lstsq(matrix / scale, target, rcond=None)[0] / scale
