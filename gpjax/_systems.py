@@ -208,10 +208,6 @@ def _catalogue() -> dict[str, System]:
                 _c * X_DOT + (Fc + (Fs - Fc) * sp.exp(-(X_DOT / vs) ** 2)) * sign + _k * X,
                 {"c": 2.0, "Fc": 1.0, "Fs": 2.0, "vs": 0.5, "k": 40.0}, 8.0,
                 max_step=SIGN_MAX_STEP),
-        _single("smooth_friction", "m·x'' + c·x' + F·tanh(x'/v0) + k·x = u: a lubricated "
-                "friction law beside viscous damping (not in the physics suite)",
-                _c * X_DOT + F * sp.tanh(X_DOT / v0) + _k * X,
-                {"c": 1.5, "F": 4.0, "v0": 0.2, "k": 30.0}, 6.0),
         _single("saturating_spring", "m·x'' + c·x' + k·tanh(x/a) = u, reaches x/a ≈ 2",
                 _c * X_DOT + _k * sp.tanh(X / a), {"c": 2.0, "k": 20.0, "a": 0.5}, 9.0),
         _single("exponential_stiffening", "m·x'' + c·x' + k·sinh(x/a) = u",
@@ -220,6 +216,10 @@ def _catalogue() -> dict[str, System]:
                 _c * X_DOT + _k * X + k3 * X ** 3, {"c": 2.0, "k": 40.0, "k3": 400.0}, 10.0),
         _single("softening_spring", "m·x'' + c·x' + k·x − k3·x³ = u, below its escape",
                 _c * X_DOT + _k * X - k3 * X ** 3, {"c": 2.0, "k": 40.0, "k3": 60.0}, 4.0),
+        _single("smooth_friction", "m·x'' + c·x' + F·tanh(x'/v0) + k·x = u: a lubricated "
+                "friction law beside viscous damping (not in the physics suite)",
+                _c * X_DOT + F * sp.tanh(X_DOT / v0) + _k * X,
+                {"c": 1.5, "F": 4.0, "v0": 0.2, "k": 30.0}, 6.0),
         _chain(2),
         _chain(3),
         System(name="stage", description="drifting positioning stage: m·x'' + c·x' + "
