@@ -168,15 +168,19 @@ def test_refinement_split_over_two_host_devices_matches_one_device():
     assert float(done.stdout.split()[-1]) < 1e-9
 
 
+def _tiny_record() -> Measurement:
+    """101 samples of a sine driven by a cosine: the smallest record the leak tests trace."""
+    t = np.linspace(0.0, 1.0, 101)
+    return Measurement(time=t, response=np.sin(t), inputs={"u": np.cos(t)}, response_name="x",
+                       time_name="t")
+
+
 def test_a_dropped_refiner_frees_its_evaluator_and_compiled_programs(monkeypatch):
     """JAX's tracing caches outlive a run and keep the functions traced in it; they must not
     keep a dropped refiner's evaluator and compiled programs alive (a process fitting one
     record after another ran out of memory maps after ~70 fits)."""
     monkeypatch.setenv("GPJAX_COMPILATION_CACHE", "off")  # traced here, not loaded
-    t = np.linspace(0.0, 1.0, 101)
-    data = Measurement(time=t, response=np.sin(t), inputs={"u": np.cos(t)}, response_name="x",
-                       time_name="t")
-    evaluator = PopulationEvaluator(data, S, max_degree=1, batch=1)
+    evaluator = PopulationEvaluator(_tiny_record(), S, max_degree=1, batch=1)
     refiner = Refiner(evaluator, iterations=1, batch=1, horizons=(1.0,))
     start = _models(evaluator, np.full(1, 0.1), np.random.default_rng(1))
     refiner.refine(start, np.full(1, evaluator.forcing_index(S.u[0])))
@@ -190,10 +194,8 @@ def test_a_dropped_diffrax_evaluator_is_freed(monkeypatch):
     """The same for the ``"diffrax"`` integrator: its vector field is a static argument of
     ``diffeqsolve``, which JAX's caches keep."""
     monkeypatch.setenv("GPJAX_COMPILATION_CACHE", "off")
-    t = np.linspace(0.0, 1.0, 101)
-    data = Measurement(time=t, response=np.sin(t), inputs={"u": np.cos(t)}, response_name="x",
-                       time_name="t")
-    evaluator = PopulationEvaluator(data, S, max_degree=1, batch=1, integrator="diffrax")
+    evaluator = PopulationEvaluator(_tiny_record(), S, max_degree=1, batch=1,
+                                    integrator="diffrax")
     evaluator.simulate(_models(evaluator, np.full(1, 0.1), np.random.default_rng(1)))
     alive = weakref.ref(evaluator)
     del evaluator
