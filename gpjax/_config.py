@@ -84,9 +84,8 @@ class GPConfig:
         selection_alpha: level of the held-out predictive test that picks the reported
             model (:mod:`gpjax._select`): a simpler neighbour (fewer fitted constants)
             replaces the current model unless the current one predicts the held-out
-            windows of the equation error better at this level, or simulates the record
-            better at this level over the simpler neighbours (Bonferroni). Lower keeps
-            fewer constants.
+            windows of the equation error (blocked cross-validation) better at this
+            level. Lower keeps fewer constants.
         local_search: best distinct structures per generation whose one-term extensions
             (a power of x or x', a constant, an input) are built as trees and compete for
             the next generation; 0 gives the paper's pure GP. In tree mode an added state

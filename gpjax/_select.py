@@ -37,34 +37,20 @@ The null hypothesis is the simpler model, so an adequate simpler model is kept w
 probability ≥ 1 − α at each move: the constants a model keeps are the ones the held-out
 data demonstrably need, not those under a tolerance on the objective. No correction over
 neighbours: each test is of its own simpler model, and a correction would only make the
-current model harder to keep.
-
-**The simulated guard on every step.** The equation error's power against a small real
-term is limited by the input noise, an additive force in it; the simulated response sees
-such a term's effect summed over the dynamics. On a smooth-friction record (m = 2, 2 %
-noise, ``tests/test_select.py``) the held-out equation error let the walk remove the
-viscous term of the truth, which the simulated residuals reject at p = 2e-7. So a simpler
-neighbour must also not simulate significantly worse than the current model (the same
-test on the two refined models' simulated residuals over the record) at level α/n, n the
-valid simpler neighbours: Bonferroni over the neighbours it is applied to, since that test
-is in-sample and, with the input noise ringing through the response, favours the more
-complex model (on another record of the same law, at α alone the guard kept a
-spurious x·|x| at p = 0.029; at α/n it goes). A needless term still goes; a term whose
-loss the response shows at a p-value below α/n stays.
-
-When no simpler neighbour qualifies, a neighbour as complex or more must earn its place as
-the diagnosis's candidates do: it replaces the current model when it predicts the held-out
-part significantly better, at level ``alpha`` Bonferroni-corrected over those neighbours
-(so a GP best that lacks the physics, x where sin x belongs, is still corrected; of two
-stand-ins that fit equally well the walk keeps the one it reached, not a coin flip on the
-noise). Neighbours are tried in the order (complexity, objective on the whole record) and
-the first that qualifies is taken, so the walk goes to the simplest model the test cannot
-reject. A forward move passes a test that the way back fails (p·m < α implies p < α) and
-no model is visited twice, so it ends. Neighbours are refined as the test reaches them,
-one complexity at a time while simpler than the current model, then the rest together: a
-step that takes a simpler neighbour refines none more complex than it. Order and outcome
-are those of refining all first; the cost is not (saturating spring, suite seed 3: 173
-models refined in the whole fit instead of 1,088; ``benchmarks/select_cost.json``).
+current model harder to keep. When no simpler neighbour qualifies, a neighbour as complex
+or more must earn its place as the diagnosis's candidates do: it replaces the current
+model when it predicts the held-out part significantly better, at level ``alpha``
+Bonferroni-corrected over those neighbours (so a GP best that lacks the physics, x where
+sin x belongs, is still corrected; of two stand-ins that fit equally well the walk keeps
+the one it reached, not a coin flip on the noise). Neighbours are tried in the order
+(complexity, objective on the whole record) and the first that qualifies is taken, so the
+walk goes to the simplest model the test cannot reject. A forward move passes a test that
+the way back fails (p·m < α implies p < α) and no model is visited twice, so it ends.
+Neighbours are refined as the test reaches them, one complexity at a time while simpler
+than the current model, then the rest together: a step that takes a simpler neighbour
+refines none more complex than it. Order and outcome are those of refining all first; the
+cost is not (saturating spring, suite seed 3: 173 models refined in the whole fit instead
+of 1,088; ``benchmarks/select_cost.json``).
 
 **Converged constants before a walk ends.** Neighbours are refined one round
 (``refine_iterations`` Levenberg–Marquardt steps from their least-squares start), enough
@@ -218,10 +204,8 @@ def _first_replacing(fitness: Fitness, candidates: list[Record], current: Record
                      base: np.ndarray, alpha: float, simulated: bool,
                      refine_below: float) -> Record | None:
     """The first of ``candidates`` (valid ones, in the order (complexity, objective)) that
-    replaces ``current`` (held-out residual ``base``) by :func:`_replaces` and, if simpler,
-    does not simulate significantly worse (at ``alpha`` with ``simulated``, the ends'
-    guard; else at ``alpha`` over the valid simpler candidates, the steps' guard; module
-    docstring); None if none does. Candidates whose objective is
+    replaces ``current`` (held-out residual ``base``) by :func:`_replaces`, and with
+    ``simulated`` by the ends' guard too; None if none does. Candidates whose objective is
     below ``refine_below`` are refined as the test reaches them: one complexity at a time
     while simpler than ``current``, then all the others together (the Bonferroni count
     needs them all), so none more complex than the one taken is refined — the order and
@@ -229,8 +213,6 @@ def _first_replacing(fitness: Fitness, candidates: list[Record], current: Record
     simpler = sorted({r.complexity for r in candidates if r.complexity < current.complexity})
     groups = [[r for r in candidates if r.complexity == c] for c in simpler]
     groups.append([r for r in candidates if r.complexity >= current.complexity])
-    n_simpler = max(1, sum(r.valid for r in candidates if r.complexity < current.complexity))
-    guard = alpha if simulated else alpha / n_simpler
     for group in groups:
         fitness.refine([r for r in group if r.objective <= refine_below])
         ready = sorted((r for r in group if r.valid and r.status == OK),
@@ -238,8 +220,8 @@ def _first_replacing(fitness: Fitness, candidates: list[Record], current: Record
         peers = sum(r.complexity >= current.complexity for r in ready)
         chosen = next((r for r in ready if _replaces(
             r, held_out_residual(fitness, r), current, base, alpha, peers) and not (
-                r.complexity < current.complexity
-                and _simulates_better(fitness, current, r, guard))), None)
+                simulated and r.complexity < current.complexity
+                and _simulates_better(fitness, current, r, alpha))), None)
         if chosen is not None:
             return chosen
     return None
