@@ -11,9 +11,14 @@ reference solve (diffrax Dopri8). Reported per width:
   cost of integrating that width — the baseline is the default width in the same run;
 * the reference response's NRMS against the generator's noise-free response (exact sign,
   true input): the smoothed law's creep while the true mass sticks, on top of a floor from
-  the measured input's 1 % noise that no width removes.
+  the measured input's 1 % noise that no width removes;
+* with ``--refit``: the law's terms refitted to the record at that width (held) and step
+  count, by gpjax's own estimator (weak-form start, Levenberg–Marquardt to convergence):
+  the constants the smoothed sign biases, v_s and Fs − Fc above all.
 
     python benchmarks/sign_width.py --seeds 5 --json sign_width.json
+    python benchmarks/sign_width.py --first-seed 1 --seeds 1 --widths 0.01,0.0025,0.000625 \
+        --refit --json sign_width_refit.json
 """
 
 from __future__ import annotations
@@ -23,10 +28,13 @@ import json
 import statistics
 
 import numpy as np
+import sympy as sp
 
-from gpjax import Model
+from gpjax import GPConfig, Model
+from gpjax._canonical import CanonicalForm
 from gpjax._convergence import MAX_SUBSTEPS, check_model
 from gpjax._features import SIGN_WIDTH
+from gpjax._fitness import Fitness
 from gpjax.systems import generate, get_system
 
 SYSTEM = "stribeck_resolved"
@@ -67,16 +75,58 @@ def measure(seed: int, record, fraction: float) -> dict:
             "ratio": check.ratio, "converged": check.ratio <= TOLERANCE, "nrms_vs_exact": creep}
 
 
+def refit(record, width: float, substeps: int) -> dict:
+    """The law's terms (x, x', the sign, the Stribeck member) fitted to ``record`` with the
+    sign held at ``width`` (m/s), RK4 at ``substeps``: the constants per unit mass and the
+    objective."""
+    x, v, u = sp.symbols("x x_dot u")
+    fitness = Fitness(record.measurement(), GPConfig(
+        population=8, generations=1, functions=("add", "mul", "tanh", "exp")),
+        substeps=substeps)
+    c = get_system(SYSTEM).constants
+    sign = sp.tanh(v / width)
+    bump = sp.exp(-(v / c["vs"]) ** 2) * sign
+    held = (fitness.evaluator.inner_of(sign)[0].start,
+            fitness.evaluator.inner_of(bump)[0].start + 1)
+    form = CanonicalForm(mass=c["m"], state=((x, c["k"]), (v, c["c"]), (sign, c["Fc"]),
+                                             (bump, c["Fs"] - c["Fc"])), forcing=((u, 1.0),))
+    fitness.score_forms({"law": form}, {"law": held})
+    law = fitness.records["law"]
+    fitness.refine([law], to_convergence=True)
+    k = law.coefficients
+    per_mass = {f: value / k.mass for f, value in k.state.items()}
+    member, = [f for f in per_mass if f.has(sp.exp)]
+    friction, = [f for f in per_mass if f.func == sp.tanh]
+    scale, = [a for a in member.args if a.func == sp.exp]
+    return {"objective": law.objective, "m": k.mass, "k": per_mass[x], "c": per_mass[v],
+            "Fc": per_mass[friction], "Fs-Fc": per_mass[member],
+            "vs": float(1.0 / sp.sqrt(-scale.args[0] / v ** 2))}
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
-    parser.add_argument("--seeds", type=int, default=5, help="seeds 0 … N−1 (default 5)")
+    parser.add_argument("--seeds", type=int, default=5, help="how many seeds (default 5)")
+    parser.add_argument("--first-seed", type=int, default=0)
+    parser.add_argument("--refit", action="store_true",
+                        help="also refit the law's constants at each width (slow)")
     parser.add_argument("--widths", default=f"{SIGN_WIDTH},{SIGN_WIDTH / 4},{SIGN_WIDTH / 16}",
                         help="sign widths as fractions of RMS x' (the first is the baseline)")
     parser.add_argument("--json", help="write the rows and the summary to this file")
     args = parser.parse_args(argv)
     fractions = [float(w) for w in args.widths.split(",")]
-    records = [generate(SYSTEM, seed=seed).fit for seed in range(args.seeds)]
-    rows = [measure(seed, records[seed], f) for f in fractions for seed in range(args.seeds)]
+    seeds = range(args.first_seed, args.first_seed + args.seeds)
+    records = {seed: generate(SYSTEM, seed=seed).fit for seed in seeds}
+    rows = [measure(seed, records[seed], f) for f in fractions for seed in seeds]
+    if args.refit:
+        print("| seed | ε / RMS x' | RK4 steps | v_s | Fs − Fc | Fc | c | k | objective |\n"
+              "| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+        for row in rows:
+            velocity = records[row["seed"]].velocity_true[0]
+            width = row["width_fraction"] * float(np.sqrt(np.mean(velocity ** 2)))
+            row["refit"] = fitted = refit(records[row["seed"]], width, row["substeps"])
+            print(f"| {row['seed']} | {row['width_fraction']:g} | {row['substeps']} | "
+                  + " | ".join(f"{fitted[k]:.4f}" for k in ("vs", "Fs-Fc", "Fc", "c", "k"))
+                  + f" | {fitted['objective']:.5f} |", flush=True)
     base = statistics.median(r["substeps"] for r in rows if r["width_fraction"] == fractions[0])
     summary = []
     print("| ε / RMS x' | RK4 steps per sample (seeds) | cost vs default | "
