@@ -42,8 +42,9 @@ error: on ``stribeck_resolved`` (suite seeds 0–2) the Stribeck law predicted t
 windows better than Coulomb + viscous at p = 0.90, 0.14, 0.03 only. So the test evaluates
 those features at the simulated velocity of the walk's start (:func:`selection_weak_form`;
 in :func:`select`, the best-fitting front member for every walk): noise-free, sharp where
-the model sticks, and the same for every model compared, so no model is judged on its own
-simulation (p = 0.014, 0.0005, 0.001 on the same records). This is the instrumental-variable
+the model sticks, and the same for both models of a comparison (p = 0.014, 0.0005, 0.001
+on the same records). Not neutral: it leans towards the reference's own features (README,
+known limitations); the simpler model's velocity, a score test's null, would not. This is the instrumental-variable
 idea of system identification — a noise-free state simulated by an auxiliary model in
 place of the noisy measured one. x and the linear x' still come from the measured response
 (the latter by integration by parts), and the coefficients per block are still the least
