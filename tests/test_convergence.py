@@ -106,6 +106,7 @@ def _cli(*args, cwd):
                           capture_output=True, text=True, timeout=300)
 
 
+@pytest.mark.slow  # a CLI run: CI's slow step (fast tier <= 5 min on 2 cores)
 def test_gpjax_simulate_writes_the_reference_response(demo_fit, tmp_path):
     identifier, measurement, _ = demo_fit
     identifier.model_.save(tmp_path / "model.json")

@@ -110,6 +110,7 @@ def test_merged_history_takes_the_best_island_per_generation():
 
 
 # --- on the cluster -----------------------------------------------------------------------
+@pytest.mark.slow  # on the cluster: CI's slow step (fast tier <= 5 min on 2 cores)
 def test_same_seed_and_islands_give_the_same_model_bit_for_bit(cluster, reference, tmp_path):
     identifier, out = reference
     again = Identifier(GPConfig.paper(**SMALL)).fit(
@@ -143,6 +144,7 @@ def test_the_command_line_runs_islands_and_resumes_them(cluster, tmp_path, capsy
     assert "phi_ddot" in capsys.readouterr().out
 
 
+@pytest.mark.slow  # on the cluster: CI's slow step (fast tier <= 5 min on 2 cores)
 def test_each_worker_builds_its_island_once(reference):
     tasks = reference[0].timings_["island_tasks"]
     assert sum(t["built"] for t in tasks) == 2

@@ -85,6 +85,7 @@ def test_tree_mode_extensions_try_each_named_constant_as_the_inertia():
     assert all(r.refined for r in fitness.records_for(extensions))
 
 
+@pytest.mark.slow  # two tree-mode runs: CI's slow step (fast tier <= 5 min on 2 cores)
 def test_tree_mode_refines_every_new_candidate_and_refine_top_0_none():
     config = GPConfig.paper(population=30, coefficients="tree", generations=1)
     fitness = Fitness(EXAMPLE.measurement, config)
