@@ -33,16 +33,3 @@ def demo_fit(tmp_path_factory):
     identifier = Identifier(GPConfig.paper()).fit(measurement, seed=0, out=out)
     identifier.run_dir = out
     return identifier, measurement, truth
-
-
-# Files whose tests run longest go first, so that under ``-n 2`` (whole files per process)
-# the other process works through the rest meanwhile. Measured on 2 cores on 2026-11-27
-# (slow step, seconds per file): Silverbox's end-to-end fit 1,397; the selection's walks
-# 1,104; the held-out diagnosis sweep 818; the physics systems 504; the notebooks 418.
-LONGEST_FIRST = ("test_silverbox.py", "test_select.py", "test_diagnose_statistics.py",
-                 "test_systems.py", "test_notebooks.py")
-
-
-def pytest_collection_modifyitems(config, items):
-    rank = {name: position for position, name in enumerate(LONGEST_FIRST)}
-    items.sort(key=lambda item: rank.get(item.path.name, len(rank)))
