@@ -28,6 +28,7 @@ from ._fitness import Fitness, Record
 from ._model import Model
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
 from ._select import pareto_front, select
+from ._sign_width import NARROWING, check_width, narrowed
 
 CHECKPOINT = "checkpoint.json"
 #: Columns of history.csv and equations.csv that hold text, not numbers.
@@ -185,29 +186,45 @@ class Identifier:
                                  "without --resume") from None
 
     def _converge(self, fitness: Fitness, seed: int, state: RunState) -> Fitness:
-        """Check the reported model's integration against the reference solve; with
-        ``substeps="auto"``, refit the Pareto front and the reported model at more RK4
-        steps until it passes (:mod:`gpjax._convergence`). Returns the fitness in use."""
+        """Check the reported model's integration against the reference solve, and its
+        smoothed signs' width (:mod:`gpjax._sign_width`); with ``substeps="auto"``, refit
+        the Pareto front and the reported model at more RK4 steps, or at a narrower sign,
+        until both pass (:mod:`gpjax._convergence`). Returns the fitness in use."""
         tolerance = self.config.convergence_tolerance
+        auto = self.config.substeps == "auto"
         while True:
+            width = None
             check, self._reference = check_model(self.model_, self.measurement_,
                                                  tolerance=tolerance)
             self.convergence_.append(check)
-            if (check.converged or self.config.substeps != "auto"
-                    or check.substeps >= MAX_SUBSTEPS):
+            capped = not auto or check.substeps >= MAX_SUBSTEPS
+            if not check.converged:
+                if capped:
+                    break
+                refit = {"substeps": next_substeps(check), "sign_width": fitness.sign_width}
+            else:
+                width = check_width(self.model_, self._reference, check.rms_reference,
+                                    fitness, tolerance=tolerance)
+                if width is None or width.converged or capped:
+                    break
+                refit = {"substeps": min(MAX_SUBSTEPS, NARROWING * check.substeps),
+                         "sign_width": fitness.sign_width / NARROWING}
+            # The structures were ranked at the coarser step or wider sign (the ranking,
+            # unlike the constants, barely moves); the front and the reported model are
+            # refitted, the reported model to convergence.
+            new = Fitness(self.measurement_, self.config, **refit)
+            carried = {r.key: narrowed(r, fitness, new) for r in self._front + [self._chosen]}
+            adopted = {r.key: r for r in new.adopt(list(carried.values()))}
+            chosen = adopted.get(carried[self._chosen.key].key)
+            if chosen is None or not (chosen.valid and chosen.status == OK):
                 break
-            # The structures were ranked at the coarser step (the ranking, unlike the
-            # constants, barely moves); the front and the reported model are refitted.
-            carried = {r.key: r for r in self._front + [self._chosen]}
-            fitness = Fitness(self.measurement_, self.config, substeps=next_substeps(check))
-            adopted = {r.key: r for r in fitness.adopt(list(carried.values()))}
-            chosen = adopted[self._chosen.key]
-            if not (chosen.valid and chosen.status == OK):
-                break
+            new.refine([chosen], to_convergence=True)
+            fitness = new
             self._report(fitness, pareto_front([r for r in adopted.values()
                                                 if r.status == OK]), chosen, seed, state)
+        widths = {"sign_width": width.to_json()} if width is not None else {}
         self.model_ = dataclasses.replace(
-            self.model_, convergence=check.to_json(),
+            self.model_, convergence=check.to_json() | widths,
             metrics=self.model_.metrics | {"rms_reference": check.rms_reference})
         if not check.converged:
             warnings.warn(f"the reported model's RK4 response differs from the reference "
@@ -215,6 +232,12 @@ class Identifier:
                           f"{check.substeps} steps per sample (tolerance "
                           f"{tolerance:.1%}); use substeps = \"auto\" or more substeps",
                           stacklevel=3)
+        elif width is not None and not width.converged:
+            warnings.warn(f"the reported model's response changes by {width.ratio:.1%} of its "
+                          f"RMS residual when its smoothed sign (width {width.fraction:.2g} × "
+                          f"RMS of its variable) is narrowed {NARROWING}×, at {check.substeps} "
+                          f"steps per sample (tolerance {tolerance:.1%}); its friction "
+                          f"constants depend on the smoothing", stacklevel=3)
         return fitness
 
     def _select(self, fitness: Fitness, seed: int, state: RunState) -> None:

@@ -114,6 +114,8 @@ class Fitness:
         config: the run's settings.
         substeps: RK4 steps per sample interval (default: the config's; for ``"auto"``,
             the data's bandwidth rule, :func:`gpjax._convergence.initial_substeps`).
+        sign_width: width ε of the smoothed sign tanh(z/ε), as a fraction of RMS z
+            (:mod:`gpjax._features`; narrowed by :mod:`gpjax._sign_width`).
 
     Raises:
         UserInputError: the run's estimated memory (:mod:`gpjax._memory`) exceeds what is
@@ -121,7 +123,7 @@ class Fitness:
     """
 
     def __init__(self, measurement: Measurement, config: GPConfig, *,
-                 substeps: int | None = None):
+                 substeps: int | None = None, sign_width: float = SIGN_WIDTH):
         if substeps is None:
             substeps = (initial_substeps(measurement) if config.substeps == "auto"
                         else config.substeps)
@@ -129,6 +131,7 @@ class Fitness:
                          population=config.population)
         self.measurement = measurement
         self.config = config
+        self.sign_width = sign_width
         self.symbols = Symbols(measurement.response_name, measurement.time_name,
                                measurement.input_names)
         self.evaluator = PopulationEvaluator(
@@ -200,7 +203,7 @@ class Fitness:
         family member written one way (equal inner constants, equal features)."""
         if not self.evaluator.families:
             return form
-        widths = {role: SIGN_WIDTH * scale for role, scale in self.scales.items()}
+        widths = {role: self.sign_width * scale for role, scale in self.scales.items()}
         state: dict[sp.Expr, float] = {}
         for feature, value in form.state:
             feature = smoothed_sign(feature, self.symbols, widths)
@@ -292,7 +295,7 @@ class Fitness:
         smoothed sign(z), exp(±z/RMS z) (exp's two slots), sinh and cosh of z/RMS z,
         exp(−(z/vs)²)·tanh(z/ε) with vs = RMS(z)/10 (stribeck)."""
         scale = self.scales[family.role]
-        sign = 1.0 / (SIGN_WIDTH * scale)
+        sign = 1.0 / (self.sign_width * scale)
         theta = {"abs": (), "tanh": (sign,), "sin": (1.0, 0.0), "cos": (1.0, 0.0),
                  "stribeck": (10.0 / scale, sign)}.get(family.function,
                                                       ((-1) ** family.slot / scale,))

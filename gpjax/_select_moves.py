@@ -7,8 +7,8 @@ A neighbour is the model with one of these changes, refitted afterwards:
 * **snap** of an inner constant to its simple value, *held* from then on (never refined,
   not counted as fitted): in sin/cos(a·z + b) the phase b to 0 (an odd law), the scale a
   to 1 (the variable is itself the angle, in radians), or both; in tanh(a·z) the scale to
-  the smoothed sign's, 1/(SIGN_WIDTH·RMS z) (dry friction's sign law has no scale of its
-  own; :mod:`gpjax._features`), and so the sign's scale θ1 in the stribeck family's
+  the smoothed sign's, 1/(ε·RMS z), ε the fitness's ``sign_width`` (dry friction's sign
+  law has no scale of its own; :mod:`gpjax._features`), and so the sign's scale θ1 in the stribeck family's
   exp(−(θ0·z)²)·tanh(θ1·z), which a move that adds a stribeck member (a swap, powers →
   function) holds from the start. exp's scale carries the units of z and has no
   simple value;
@@ -35,7 +35,7 @@ import itertools
 import sympy as sp
 
 from ._canonical import CanonicalForm
-from ._features import SIGN_WIDTH, match
+from ._features import match
 from ._fitness import structure_key
 
 #: Simple values of sin/cos(a·z + b): slot 0 is a, slot 1 is b (see the module docstring).
@@ -102,7 +102,7 @@ def neighbours(fitness, record) -> list[Move]:
                                   added=[first + k for k in snap]))
         sign_slot = _last_slot(fitness, name, family)
         if family.function in ("tanh", "stribeck") and sign_slot not in held:
-            sign = 1.0 / (SIGN_WIDTH * fitness.scales[family.role])
+            sign = 1.0 / (fitness.sign_width * fitness.scales[family.role])
             moves.append(move({**rest, family.feature(symbols, (*theta[:-1], sign)): value},
                               forcing, added=[sign_slot]))
         z = family.variable(symbols)
