@@ -49,7 +49,8 @@ class Identifier:
     selection, ``convergence_s``; ``compiles``, ``generations``), and ``convergence_``:
     each check of the reported model's RK4 integration against the reference solve
     (:class:`~gpjax._convergence.Convergence`), the last one passed unless a fixed
-    ``substeps`` was too coarse (then a warning says so).
+    ``substeps`` was too coarse (then a warning says so); the model's smoothed-sign width
+    check (:mod:`gpjax._sign_width`) is ``model_.convergence["sign_width"]``.
     """
 
     def __init__(self, config: GPConfig | None = None, **overrides):

@@ -39,7 +39,8 @@ given as tree functions.
 tanh(z/ε) with ε = :data:`SIGN_WIDTH` × RMS(z) on the data: a discontinuous right-hand side
 would cost the fixed-step RK4 its order at every zero crossing, and the smoothed law is a
 member of the ``tanh`` family, so ε is refined like any inner constant. The model reports
-the tanh it was fitted with, so the reported ODE is what any accurate solver integrates.
+the tanh it was fitted with, so the reported ODE is what any accurate solver integrates;
+its width is narrowed until the constants no longer depend on it (:mod:`gpjax._sign_width`).
 A ``sign`` written in a model file is simulated as the exact sign.
 """
 
