@@ -375,6 +375,12 @@ class Identifier:
                          f"per sample differs by {check['ratio']:.2%} of it "
                          f"({'converged' if check['converged'] else 'NOT converged'}, "
                          f"tolerance {check['tolerance']:.0%})")
+            width = check.get("sign_width")
+            if width:
+                verdict = "converged" if width["converged"] else "NOT converged"
+                lines.append(f"  smoothed sign tanh(z/ε), ε = {width['fraction']:.3g}·RMS z: "
+                             f"{NARROWING}× narrower changes the response by "
+                             f"{width['ratio']:.2%} of the RMS residual ({verdict})")
         if self.equations_:
             lines.append("  complexity  objective     equation")
             for row in self.equations_:
