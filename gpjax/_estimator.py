@@ -150,9 +150,8 @@ class Identifier:
         selecting = time.perf_counter()
         self._select(fitness, seed, state)
         converging = time.perf_counter()
-        fits = [fitness]
-        fitness = self._converge(fitness, seed, state)
-        fits += [fitness] if fitness is not fits[0] else []
+        fits = [fitness]  # the search's, then each refit's (every one compiles its own)
+        fitness = self._converge(fitness, seed, state, fits)
         self.timings_ = {"total_s": time.perf_counter() - began,
                          "compile_s": sum(f.evaluator.compile_seconds + f.refiner.compile_seconds
                                           for f in fits),
@@ -186,11 +185,13 @@ class Identifier:
             raise UserInputError(f"{out / CHECKPOINT} is damaged ({err}); start the run afresh "
                                  "without --resume") from None
 
-    def _converge(self, fitness: Fitness, seed: int, state: RunState) -> Fitness:
+    def _converge(self, fitness: Fitness, seed: int, state: RunState,
+                  fits: list[Fitness]) -> Fitness:
         """Check the reported model's integration against the reference solve, and its
         smoothed signs' width (:mod:`gpjax._sign_width`); with ``substeps="auto"``, refit
         the Pareto front and the reported model at more RK4 steps, or at a narrower sign,
-        until both pass (:mod:`gpjax._convergence`). Returns the fitness in use."""
+        until both pass (:mod:`gpjax._convergence`). Appends each refit's fitness to
+        ``fits``; returns the fitness in use."""
         tolerance = self.config.convergence_tolerance
         auto = self.config.substeps == "auto"
         while True:
@@ -214,6 +215,7 @@ class Identifier:
             # unlike the constants, barely moves); the front and the reported model are
             # refitted, the reported model to convergence.
             new = Fitness(self.measurement_, self.config, **refit)
+            fits.append(new)
             carried = {r.key: narrowed(r, fitness, new) for r in self._front + [self._chosen]}
             adopted = {r.key: r for r in new.adopt(list(carried.values()))}
             chosen = adopted.get(carried[self._chosen.key].key)

@@ -80,9 +80,10 @@ def test_constants_converge_as_the_sign_narrows(record):
     identifier._report(fitness, [law], law, 0, state)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # a capped width warns; the check itself is asserted
-        final = identifier._converge(fitness, 0, state)
+        fits = [fitness]
+        final = identifier._converge(fitness, 0, state, fits)
     width = identifier.model_.convergence["sign_width"]
-    assert final.sign_width < fitness.sign_width
+    assert final.sign_width < fitness.sign_width and fits[-1] is final  # refits counted
     assert width["fraction"] == final.sign_width
     assert width["converged"] or identifier.model_.substeps == 64
     assert identifier.model_.convergence["converged"]  # RK4 at the steeper sign too
