@@ -1,6 +1,8 @@
 """What a narrower smoothed sign costs and buys on stick–slip (``stribeck_resolved``).
 
-gpjax integrates sign(x') as tanh(x'/ε), ε = ``SIGN_WIDTH`` × RMS x' (:mod:`gpjax._features`).
+gpjax searches with sign(x') as tanh(x'/ε), ε = ``SIGN_WIDTH`` × RMS x' (:mod:`gpjax._features`),
+and narrows the reported model's ε until its response no longer depends on it
+(:mod:`gpjax._sign_width`); this script measures that dependence on the true law.
 For each seed and each width (as a fraction of RMS x'), the system's true constants are
 written as a model file with that tanh and simulated from the true initial state, driven by
 the measured input, by the run's fixed-step RK4 at 1, 2, 4, … steps per sample and by the
