@@ -213,7 +213,7 @@ class Identifier:
                          "sign_width": fitness.sign_width / NARROWING}
             # The structures were ranked at the coarser step or wider sign (the ranking,
             # unlike the constants, barely moves); the front and the reported model are
-            # refitted, the reported model to convergence.
+            # refitted (at a narrower sign the reported model to convergence).
             new = Fitness(self.measurement_, self.config, **refit)
             fits.append(new)
             carried = {r.key: narrowed(r, fitness, new) for r in self._front + [self._chosen]}
@@ -221,7 +221,8 @@ class Identifier:
             chosen = adopted.get(carried[self._chosen.key].key)
             if chosen is None or not (chosen.valid and chosen.status == OK):
                 break
-            new.refine([chosen], to_convergence=True)
+            if new.sign_width != fitness.sign_width:
+                new.refine([chosen], to_convergence=True)  # constants the width check compares
             fitness = new
             self._report(fitness, pareto_front([r for r in adopted.values()
                                                 if r.status == OK]), chosen, seed, state)
