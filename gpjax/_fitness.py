@@ -290,12 +290,17 @@ class Fitness:
         forcing = [sp.Integer(1)] + (list(self.symbols.u) if "u" in variables else [])
         return {"state": state, "forcing": forcing}
 
+    def sign_scale(self, role: str) -> float:
+        """The scale a of the smoothed sign tanh(a·z) of variable ``role`` ("x" or
+        "x_dot"): 1/(ε·RMS z), ε = :attr:`sign_width`."""
+        return 1.0 / (self.sign_width * self.scales[role])
+
     def default_feature(self, family: Family) -> sp.Expr:
         """``family``'s member with default inner constants: sin(z), cos(z), tanh(z/ε) =
         smoothed sign(z), exp(±z/RMS z) (exp's two slots), sinh and cosh of z/RMS z,
         exp(−(z/vs)²)·tanh(z/ε) with vs = RMS(z)/10 (stribeck)."""
         scale = self.scales[family.role]
-        sign = 1.0 / (self.sign_width * scale)
+        sign = self.sign_scale(family.role)
         theta = {"abs": (), "tanh": (sign,), "sin": (1.0, 0.0), "cos": (1.0, 0.0),
                  "stribeck": (10.0 / scale, sign)}.get(family.function,
                                                       ((-1) ** family.slot / scale,))

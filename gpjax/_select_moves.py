@@ -102,7 +102,7 @@ def neighbours(fitness, record) -> list[Move]:
                                   added=[first + k for k in snap]))
         sign_slot = _last_slot(fitness, name, family)
         if family.function in ("tanh", "stribeck") and sign_slot not in held:
-            sign = 1.0 / (fitness.sign_width * fitness.scales[family.role])
+            sign = fitness.sign_scale(family.role)
             moves.append(move({**rest, family.feature(symbols, (*theta[:-1], sign)): value},
                               forcing, added=[sign_slot]))
         z = family.variable(symbols)

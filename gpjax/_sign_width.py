@@ -75,7 +75,7 @@ def _sign_replacements(features, fitness: Fitness, factor: float) -> dict[sp.Exp
     1e-9 relative) inside ``features``."""
     out = {}
     for role, z in (("x", fitness.symbols.x), ("x_dot", fitness.symbols.x_dot)):
-        scale = 1.0 / (fitness.sign_width * fitness.scales[role])
+        scale = fitness.sign_scale(role)
         for feature in features:
             for tanh in feature.atoms(sp.tanh):
                 a = (tanh.args[0] / z)
@@ -106,7 +106,7 @@ def narrowed(record: Record, old: Fitness, new: Fitness) -> Record:
     for feature in coefficients.state:
         slots, theta = new.evaluator.inner_of(feature)
         role = "x_dot" if feature.has(new.symbols.x_dot) else "x"
-        sign = 1.0 / (new.sign_width * new.scales[role])
+        sign = new.sign_scale(role)
         held.update(slots.start + k for k, value in enumerate(theta)
                     if math.isclose(value, sign, rel_tol=1e-9))
     key = structure_key(coefficients.canonical(), new.config.coefficients == "tree")
