@@ -230,12 +230,15 @@ class Fitness:
         return [self.records[self.classify(tree)[0]] for tree in trees]
 
     def score_forms(self, forms: dict[str, CanonicalForm],
-                    held: dict[str, tuple[int, ...]] | None = None) -> None:
+                    held: dict[str, tuple[int, ...]] | None = None,
+                    kept: dict[str, tuple[int, ...]] | None = None) -> None:
         """Set coefficients of each (key, form), score them in one batch, cache them; a form
         the evaluator cannot score (:meth:`unsupported`, e.g. a local-search move that adds
         a second member of a family) is cached as an invalid record. ``held``: per key,
-        inner-constant slots held at the form's values (no grid start for that form)."""
-        held = held or {}
+        inner-constant slots held at the form's values (no grid start for that form);
+        ``kept``: per key, slots that start at the form's values (no grid start) and are
+        refined."""
+        held, kept = held or {}, kept or {}
         rows = []
         for key, form in forms.items():
             reason = self.unsupported(form)
@@ -245,7 +248,7 @@ class Fitness:
             coefficients = Coefficients.from_canonical(form, self.y0)
             if self.config.coefficients == "least_squares":
                 state, forcing = form.structure
-                state = self._inner_start(state, forcing, held.get(key, ()))
+                state = self._inner_start(state, forcing, held.get(key, ()) + kept.get(key, ()))
                 mass, c, g, _ = least_squares(self.weak_form, state, forcing)
                 coefficients = coefficients.replace(
                     mass=float(mass), state=dict(zip(state, map(float, c))),
@@ -257,16 +260,16 @@ class Fitness:
             self.records[record.key] = record
 
     def _inner_start(self, state: tuple[sp.Expr, ...], forcing: tuple[sp.Expr, ...],
-                     held: tuple[int, ...] = ()) -> tuple[sp.Expr, ...]:
+                     fixed: tuple[int, ...] = ()) -> tuple[sp.Expr, ...]:
         """``state`` with each family member's scale θ0 taken from the tree or from
         :data:`gpjax._features.INNER_GRID`, whichever leaves the smaller weak-form
         least-squares residual (one feature at a time, in order); a scale among the
-        ``held`` slots stays."""
+        ``fixed`` slots stays."""
         chosen = list(state)
         for i, feature in enumerate(state):
             found = match(feature, self.symbols)
             if (found is None or found[0].n_inner == 0
-                    or self.evaluator.inner_of(feature)[0].start in held):
+                    or self.evaluator.inner_of(feature)[0].start in fixed):
                 continue
             family, theta = found
             scale = self.scales[family.role]

@@ -157,14 +157,14 @@ def _neighbour_records(fitness: Fitness, current: Record) -> list[Record]:
     start; :func:`_first_replacing` refines them as its test reaches them."""
     tree_mode = fitness.config.coefficients == "tree"
     mass = current.coefficients.mass
-    keys, new, held = [], {}, {}
+    keys, new, held, kept = [], {}, {}, {}
     for m in neighbours(fitness, current):
         key = move_key(m, mass, tree_mode)
         keys.append(key)
         if key not in fitness.records:
-            new[key], held[key] = m.form(mass), m.held
+            new[key], held[key], kept[key] = m.form(mass), m.held, m.kept
     if new:
-        fitness.score_forms(new, held)
+        fitness.score_forms(new, held, kept)
     return [fitness.records[k] for k in dict.fromkeys(keys)]
 
 

@@ -139,6 +139,29 @@ def test_a_move_that_adds_the_stribeck_member_holds_its_sign_scale():
     assert snapped
 
 
+def test_a_stribeck_excess_alone_gets_its_coulomb_level():
+    """The one move that keeps every term and adds one: a stribeck member with no sign of
+    x' in the model is offered the smoothed sign tanh(x'/ε) beside it, its scale held; a
+    model that has a sign of x' (or no stribeck member) is offered no such move."""
+    from gpjax._features import Family
+    from gpjax._select_moves import neighbours
+
+    fitness = _fitness("stribeck_resolved")
+    sign = fitness.default_feature(Family("tanh", "x_dot"))
+    sign_slot = fitness.evaluator.inner_of(sign)[0].start
+    bump = sp.exp(-(2.0 * V) ** 2) * sign
+    excess = types.SimpleNamespace(coefficients=types.SimpleNamespace(
+        state={X: 40.0, V: 2.0, bump: 1.0}, forcing={U: 1.0}), held=())
+    longer = [m for m in neighbours(fitness, excess) if set(m.state) > {X, V, bump}]
+    assert len(longer) == 1
+    assert set(longer[0].state) == {X, V, bump, sign} and sign_slot in longer[0].held
+    for state in ({X: 40.0, V: 2.0, bump: 1.0, sp.tanh(30.0 * V): 1.0},
+                  {X: 40.0, V: 2.0, sign: 1.0}):
+        model = types.SimpleNamespace(coefficients=types.SimpleNamespace(
+            state=state, forcing={U: 1.0}), held=())
+        assert not [m for m in neighbours(fitness, model) if set(m.state) > set(state)]
+
+
 @pytest.mark.slow  # the CI slow step keeps it; the fast tier stays within 5 min
 def test_a_stand_in_walks_to_the_law_once_its_simpler_neighbours_are_converged():
     """Saturating spring, held-out seed 7: from the run's best-fitting stand-in,
