@@ -146,20 +146,46 @@ def test_a_stribeck_excess_alone_gets_its_coulomb_level():
     from gpjax._features import Family
     from gpjax._select_moves import neighbours
 
-    fitness = _fitness("stribeck_resolved")
+    fitness = _fitness("stribeck")
     sign = fitness.default_feature(Family("tanh", "x_dot"))
     sign_slot = fitness.evaluator.inner_of(sign)[0].start
     bump = sp.exp(-(2.0 * V) ** 2) * sign
+    first = fitness.evaluator.inner_of(bump)[0].start  # v_s's slot; the next: its sign's
     excess = types.SimpleNamespace(coefficients=types.SimpleNamespace(
-        state={X: 40.0, V: 2.0, bump: 1.0}, forcing={U: 1.0}), held=())
+        state={X: 40.0, V: 2.0, bump: 1.0}, forcing={U: 1.0}), held=(first + 1,))
     longer = [m for m in neighbours(fitness, excess) if set(m.state) > {X, V, bump}]
     assert len(longer) == 1
     assert set(longer[0].state) == {X, V, bump, sign} and sign_slot in longer[0].held
+    assert longer[0].held == (sign_slot, first + 1) and longer[0].kept == (first,)
     for state in ({X: 40.0, V: 2.0, bump: 1.0, sp.tanh(30.0 * V): 1.0},
                   {X: 40.0, V: 2.0, sign: 1.0}):
         model = types.SimpleNamespace(coefficients=types.SimpleNamespace(
             state=state, forcing={U: 1.0}), held=())
         assert not [m for m in neighbours(fitness, model) if set(m.state) > set(state)]
+
+
+@pytest.mark.slow  # ~1 min: the CI slow step keeps it; the fast tier stays within 5 min
+def test_the_coulomb_level_is_refined_from_the_excess_fitted_v_s():
+    """``stribeck_resolved``, suite seed 0: a walk reached the Stribeck excess alone,
+    c·x' + F·e^{−0.65·x'²}·sign x' + k·x (its front member's Coulomb level was never paired
+    with it). The completing neighbour, refined one round from the excess's fitted v_s,
+    is the law (v_s = 0.5): objective below 0.6× the excess's, v_s within 10 %. From the
+    grid start the weak form picks (v_s = RMS x'/100) it stayed at v_s = 0.013."""
+    from gpjax._features import Family, match
+    from gpjax._select import _neighbour_records
+
+    fitness = _fitness("stribeck_resolved", seed=0)
+    sign = fitness.default_feature(Family("tanh", "x_dot"))
+    bump = sp.exp(-(0.65 ** 0.5 * V) ** 2) * sign
+    excess = _record(fitness, {X: 40.0, V: 2.0, bump: 1.0},
+                     held=(fitness.evaluator.inner_of(bump)[0].start + 1,))
+    law, = [r for r in _neighbour_records(fitness, excess)
+            if r.valid and sign in r.coefficients.state and len(r.coefficients.state) == 4]
+    fitness.refine([law])
+    assert law.objective < 0.6 * excess.objective
+    fitted, = [match(f, fitness.symbols)[1] for f in law.coefficients.state
+               if f not in (X, V, sign)]
+    assert 1.0 / fitted[0] == pytest.approx(0.5, rel=0.1)
 
 
 @pytest.mark.slow  # the CI slow step keeps it; the fast tier stays within 5 min
