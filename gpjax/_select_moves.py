@@ -32,8 +32,8 @@ A neighbour is the model with one of these changes, refitted afterwards:
   every other move removes or replaces terms. The model's fitted inner constants are the
   neighbour's start (``kept``), not a grid start: the grid is chosen by the weak form at
   the smoothed measured velocity, which blurs what a Stribeck bump resolves (on
-  ``stribeck_resolved`` suite seed 0 it restarted v_s = 1.2 at RMS x'/100, a basin
-  Levenberg–Marquardt does not leave). Like every neighbour as complex as the current
+  ``stribeck_resolved`` suite seed 0 it moved the excess's fitted v_s = 1.24 to the
+  grid's RMS x'/100 = 0.013, a basin Levenberg–Marquardt does not leave). Like every neighbour as complex as the current
   model or more, it is taken only if it predicts the held-out data significantly better
   (:mod:`gpjax._select`).
 
