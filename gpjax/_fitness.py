@@ -41,8 +41,9 @@ MAX_ROUNDS = 10
 class Record:
     """A scored model structure (one cache entry); ``coefficients`` is None when invalid;
     ``held``: slots of the evaluator's inner constants held at a snapped value (never
-    refined, not counted as fitted); ``converged``: refined until a round no longer lowered
-    the objective (:meth:`Fitness.refine` with ``to_convergence``)."""
+    refined, not counted as fitted); ``held_signs``: how many of them are a smoothed sign's
+    scale (:meth:`Fitness.sign_slots`); ``converged``: refined until a round no longer
+    lowered the objective (:meth:`Fitness.refine` with ``to_convergence``)."""
 
     key: str
     valid: bool
@@ -55,6 +56,7 @@ class Record:
     status: int = INVALID_STRUCTURE
     refined: bool = False
     held: tuple[int, ...] = ()
+    held_signs: int = 0
     converged: bool = False
 
     @property
@@ -72,8 +74,10 @@ class Record:
     @property
     def complexity(self) -> tuple[int, int, int]:
         """(fitted constants, terms, held constants): the order in which models count as
-        simpler (:mod:`gpjax._select`)."""
-        return self.n_constants, self.n_terms, len(self.held)
+        simpler (:mod:`gpjax._select`). A smoothed sign's held scale is not counted: it is
+        the integration's smoothing of sign(z), which has no constant, not an assumed value
+        (a snapped sin(x)'s a = 1, b = 0 are)."""
+        return self.n_constants, self.n_terms, len(self.held) - self.held_signs
 
     def to_json(self) -> dict:
         data = dataclasses.asdict(dataclasses.replace(self, coefficients=None))
@@ -254,7 +258,8 @@ class Fitness:
                     mass=float(mass), state=dict(zip(state, map(float, c))),
                     forcing=dict(zip(forcing, map(float, g))))
             rows.append(Record(key=key, valid=True, coefficients=coefficients,
-                               held=held.get(key, ())))
+                               held=held.get(key, ()),
+                               held_signs=len(self.sign_slots() & set(held.get(key, ())))))
         self._score_records(rows)
         for record in rows:
             self.records[record.key] = record
@@ -292,6 +297,13 @@ class Fitness:
         state += [self.default_feature(f) for f in self.evaluator.families]
         forcing = [sp.Integer(1)] + (list(self.symbols.u) if "u" in variables else [])
         return {"state": state, "forcing": forcing}
+
+    def sign_slots(self) -> set[int]:
+        """Slots of :attr:`Population.inner` that hold a smoothed sign's scale when held:
+        the last inner constant of each tanh and stribeck family (:mod:`gpjax._features`)."""
+        return {slots.stop - 1 for family, (_, slots) in
+                zip(self.evaluator.families, self.evaluator.inner_columns())
+                if family.function in ("tanh", "stribeck")}
 
     def sign_scale(self, role: str) -> float:
         """The scale a of the smoothed sign tanh(a·z) of variable ``role`` ("x" or

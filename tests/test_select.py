@@ -164,6 +164,28 @@ def test_a_stribeck_excess_alone_gets_its_coulomb_level():
         assert not [m for m in neighbours(fitness, model) if set(m.state) > set(state)]
 
 
+def test_a_held_sign_scale_is_no_assumed_constant():
+    """sign(x') (tanh(x'/ε), ε held) has no constant, like x'·|x'|: the two models are
+    equally complex, so neither is a simpler neighbour of the other (``stribeck_resolved``,
+    suite seed 4: the walk left the Stribeck law for x'·|x'| in place of its Coulomb level,
+    one held constant fewer). A snapped sin(x) still counts its held a = 1, b = 0."""
+    from gpjax._features import Family
+
+    fitness = _fitness("stribeck")
+    sign = fitness.default_feature(Family("tanh", "x_dot"))
+    sine = fitness.default_feature(Family("sin", "x"))
+    forms = {"sign": {X: 40.0, V: 2.0, sign: 1.0}, "drag": {X: 40.0, V: 2.0, V * sp.Abs(V): 1.0},
+             "sine": {sine: 40.0, V: 2.0}}
+    slots = {"sign": (fitness.evaluator.inner_of(sign)[0].start,),
+             "sine": tuple(range(*fitness.evaluator.inner_of(sine)[0].indices(99)[:2]))}
+    fitness.score_forms({k: CanonicalForm(mass=1.0, state=tuple(v.items()), forcing=((U, 1.0),))
+                         for k, v in forms.items()}, slots)
+    records = fitness.records
+    assert records["sign"].held_signs == 1 and records["sine"].held_signs == 0
+    assert records["sign"].complexity == records["drag"].complexity == (5, 5, 0)
+    assert records["sine"].complexity == (4, 4, 2)
+
+
 @pytest.mark.slow  # ~1 min: the CI slow step keeps it; the fast tier stays within 5 min
 def test_the_coulomb_level_is_refined_from_the_excess_fitted_v_s():
     """``stribeck_resolved``, suite seed 0: a walk reached the Stribeck excess alone,
