@@ -42,7 +42,7 @@ class Record:
     """A scored model structure (one cache entry); ``coefficients`` is None when invalid;
     ``held``: slots of the evaluator's inner constants held at a snapped value (never
     refined, not counted as fitted); ``held_signs``: how many of them are a smoothed sign's
-    scale (:meth:`Fitness.sign_slots`); ``converged``: refined until a round no longer
+    scale (:meth:`Fitness.held_signs`); ``converged``: refined until a round no longer
     lowered the objective (:meth:`Fitness.refine` with ``to_convergence``)."""
 
     key: str
@@ -259,7 +259,7 @@ class Fitness:
                     forcing=dict(zip(forcing, map(float, g))))
             rows.append(Record(key=key, valid=True, coefficients=coefficients,
                                held=held.get(key, ()),
-                               held_signs=len(self.sign_slots() & set(held.get(key, ())))))
+                               held_signs=self.held_signs(held.get(key, ()))))
         self._score_records(rows)
         for record in rows:
             self.records[record.key] = record
@@ -298,12 +298,15 @@ class Fitness:
         forcing = [sp.Integer(1)] + (list(self.symbols.u) if "u" in variables else [])
         return {"state": state, "forcing": forcing}
 
-    def sign_slots(self) -> set[int]:
-        """Slots of :attr:`Population.inner` that hold a smoothed sign's scale when held:
-        the last inner constant of each tanh and stribeck family (:mod:`gpjax._features`)."""
-        return {slots.stop - 1 for family, (_, slots) in
-                zip(self.evaluator.families, self.evaluator.inner_columns())
-                if family.function in ("tanh", "stribeck")}
+    def held_signs(self, held) -> int:
+        """How many of the ``held`` slots of :attr:`Population.inner` are a smoothed sign's
+        scale: the last inner constant of a tanh or stribeck family (:mod:`gpjax._features`)."""
+        if not held:
+            return 0
+        signs = {slots.stop - 1 for family, (_, slots) in
+                 zip(self.evaluator.families, self.evaluator.inner_columns())
+                 if family.function in ("tanh", "stribeck")}
+        return len(signs & set(held))
 
     def sign_scale(self, role: str) -> float:
         """The scale a of the smoothed sign tanh(a·z) of variable ``role`` ("x" or

@@ -111,7 +111,7 @@ def narrowed(record: Record, old: Fitness, new: Fitness) -> Record:
                     if math.isclose(value, sign, rel_tol=1e-9))
     key = structure_key(coefficients.canonical(), new.config.coefficients == "tree")
     return dataclasses.replace(record, key=key, coefficients=coefficients,
-                               held=tuple(sorted(held)), held_signs=len(held & new.sign_slots()))
+                               held=tuple(sorted(held)), held_signs=new.held_signs(held))
 
 
 def check_width(model: Model, reference: np.ndarray, rms_reference: float,
