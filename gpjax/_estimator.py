@@ -85,7 +85,7 @@ class Identifier:
                 migration (:mod:`gpjax._islands`); ``None``: one population in this process.
             scheduler: address of a running Dask scheduler (``tcp://HOST:PORT``) for the
                 islands; ``None`` starts a ``distributed.LocalCluster``.
-            migration: a :class:`gpjax._islands.Migration` (default: ring, every 2
+            migration: a :class:`gpjax.Migration` (default: ring, every 2
                 generations, 2 migrants).
 
         Raises:

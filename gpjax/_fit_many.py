@@ -88,8 +88,6 @@ def fit_many(source: str | Path, *, time: str, response: str, inputs: tuple[str,
     Raises:
         UserInputError: no records, ``out`` is a file, bad ``workers`` or scheduler.
     """
-    from distributed import as_completed
-
     paths = record_paths(source)
     out = Path(out)
     if out.exists() and not out.is_dir():
@@ -97,6 +95,7 @@ def fit_many(source: str | Path, *, time: str, response: str, inputs: tuple[str,
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 1):
         raise UserInputError(f"workers must be a positive integer, got {workers!r}")
+    from distributed import as_completed  # after the checks: a bad request fails at once
     config = config or GPConfig()
     rows = {p.stem: dict.fromkeys(COLUMNS, "") | {"record": p.stem} for p in paths}
     data = {}

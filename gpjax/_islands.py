@@ -35,72 +35,15 @@ from . import _trees
 from ._cluster import dask_client, worker_address
 from ._config import GPConfig
 from ._data import Measurement
-from ._errors import ConfigError, UserInputError
+from ._errors import UserInputError
 from ._evolve import Evolution, GenerationStats, RunState
 from ._evaluator import OK
 from ._fitness import Fitness
+from ._island_settings import Migration, island_plan, island_seeds
 from ._report import write_text_atomic
 
-TOPOLOGIES = ("ring", "random")
 #: Island engines (compiled evaluators) a worker keeps.
 ENGINES_PER_WORKER = 8
-
-
-@dataclasses.dataclass(frozen=True, kw_only=True)
-class Migration:
-    """How islands exchange structures.
-
-    Attributes:
-        every: generations per epoch (between migrations).
-        migrants: best distinct structures each island sends; they replace the receiver's
-            worst.
-        topology: ``"ring"`` (island i sends to i + 1) or ``"random"`` (a ring in a random
-            order, drawn anew each epoch from the seed).
-
-    Raises:
-        ConfigError: a value out of range.
-    """
-
-    every: int = 2
-    migrants: int = 2
-    topology: str = "ring"
-
-    def __post_init__(self):
-        for name in ("every", "migrants"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, int):
-                raise ConfigError(f"migration {name} must be an integer, got {value!r}")
-        if self.every < 1:
-            raise ConfigError(f"migration every must be at least 1 generation, got {self.every}")
-        if self.migrants < 0:
-            raise ConfigError(f"migrants must be >= 0, got {self.migrants}")
-        if self.topology not in TOPOLOGIES:
-            raise ConfigError(f"topology must be one of {', '.join(TOPOLOGIES)}, got "
-                              f"{self.topology!r}")
-
-
-def island_configs(config: GPConfig, islands: int) -> list[GPConfig]:
-    """One config per island: ``config.population`` shared out (sizes differ by at most 1).
-
-    Raises:
-        UserInputError: ``islands`` is not a positive integer, or an island would be smaller
-            than the minimum population (or the tournament size).
-    """
-    if isinstance(islands, bool) or not isinstance(islands, (int, np.integer)) or islands < 1:
-        raise UserInputError(f"islands must be a positive integer, got {islands!r}; use e.g. 2")
-    sizes = [config.population // islands + (i < config.population % islands)
-             for i in range(islands)]
-    try:
-        return [config.replace(population=size) for size in sizes]
-    except ConfigError as err:
-        raise UserInputError(f"population {config.population} is too small for {islands} "
-                             f"islands ({err}); raise the population or use fewer islands") from None
-
-
-def island_seeds(seed: int, islands: int) -> list[int]:
-    """Independent seeds of the islands, from ``SeedSequence(seed).spawn(islands)``."""
-    return [int(child.generate_state(1, np.uint64)[0])
-            for child in np.random.SeedSequence(seed).spawn(islands)]
 
 
 # --- worker side ----------------------------------------------------------------------
@@ -241,16 +184,8 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
     """
     from ._estimator import _StopOnInterrupt
 
-    if islands is None:
-        raise UserInputError("a scheduler or migration settings need islands; give "
-                             "islands=K (--islands K)")
-    migration = migration or Migration()
     config = identifier.config
-    configs = island_configs(config, islands)
-    if migration.migrants >= configs[-1].population:
-        raise UserInputError(f"{migration.migrants} migrants would replace a whole island of "
-                             f"{configs[-1].population}; send fewer (--migrants) or use "
-                             "fewer islands")
+    configs, migration = island_plan(config, islands, scheduler=scheduler, migration=migration)
     out = Path(out) if out is not None else None
     fingerprint = measurement.fingerprint()
     began = time.perf_counter()

@@ -14,8 +14,6 @@ from pathlib import Path
 
 import numpy as np
 
-from ._objective import amplitude_spectrum
-
 
 def write_bytes_atomic(path: Path, data: bytes) -> None:
     """Write ``data`` to a temporary file beside ``path``, then rename it into place."""
@@ -52,6 +50,8 @@ def fit_figure(time: np.ndarray, measured: np.ndarray, calculated: np.ndarray, *
                response_name: str, n_bins: int, title: str) -> bytes:
     """PNG bytes: measured vs calculated response (paper Fig. 10) and their spectra."""
     from matplotlib.figure import Figure
+
+    from ._objective import amplitude_spectrum  # JAX: only where a figure is drawn
 
     figure = Figure(figsize=(9, 7), constrained_layout=True)
     top, bottom = figure.subplots(2, 1)

@@ -175,10 +175,11 @@ def _config(args, base: GPConfig) -> GPConfig:
 
 
 def _demo(args) -> int:
+    config = _config(args, GPConfig.paper())
+    _check_out(Path(args.out))
     from .gear import load_bundled_example
 
     measurement, truth = load_bundled_example()
-    config = _config(args, GPConfig.paper())
     identifier = _run(config, measurement, args.seed, Path(args.out), resume=False)
     constants = identifier.model_.constants()
     structure = sorted(identifier.model_.state), sorted(identifier.model_.forcing)
@@ -216,18 +217,20 @@ def _fit(args) -> int:
                              "one --response per coordinate, or drop it")
     config = GPConfig.from_toml(args.config) if args.config else GPConfig()
     config = _config(args, config)
-    measurement = load_csv(args.data, time=args.time, responses=args.responses,
-                           inputs=args.inputs)
     _check_diagnose_options(args)
     islands = {}
     if any(getattr(args, k) is not None for k in ("islands", "scheduler", "every", "migrants",
                                                   "topology")):
-        from ._islands import Migration
+        from ._island_settings import Migration, island_plan
 
         settings = {k: getattr(args, k) for k in ("every", "migrants", "topology")
                     if getattr(args, k) is not None}
-        islands = dict(islands=args.islands, scheduler=args.scheduler,
-                       migration=Migration(**settings))
+        _, migration = island_plan(config, args.islands, scheduler=args.scheduler,
+                                   migration=Migration(**settings))
+        islands = dict(islands=args.islands, scheduler=args.scheduler, migration=migration)
+    measurement = load_csv(args.data, time=args.time, responses=args.responses,
+                           inputs=args.inputs)
+    _check_out(Path(args.out))
     identifier = _run(config, measurement, args.seed, Path(args.out), resume=args.resume,
                       **islands)
     print(identifier)
@@ -245,18 +248,15 @@ def _fit_system(args) -> int:
     import dataclasses
 
     from ._data import load_csv
-    from ._system_diagnose import residual_statistics, summary_line
-    from ._system_file import save_system
-    from ._system_search import SystemSearch, search_system
+    from ._system_settings import SystemSearch
 
     settings = (SystemSearch.from_toml(args.config) if args.config else
                 SystemSearch(config=GPConfig()))
     settings = dataclasses.replace(settings, config=_config(args, settings.config),
                                    third_law=settings.third_law or args.third_law)
+    _check_diagnose_options(args)
     measurement = load_csv(args.data, time=args.time, responses=args.responses,
                            inputs=args.inputs)
-    _check_diagnose_options(args)
-
     used = [flag for flag, on in (("--resume", args.resume), ("--diagnose", args.diagnose),
                                   ("--islands", args.islands is not None),
                                   ("--scheduler", args.scheduler is not None)) if on]
@@ -264,8 +264,11 @@ def _fit_system(args) -> int:
         raise UserInputError(f"{', '.join(used)} work on one response; drop them to identify "
                              f"the system of {measurement.n_coordinates} responses")
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UserInputError(f"--out {out} is a file; give a folder")
+    _check_out(out)
+    from ._system_diagnose import residual_statistics, summary_line
+    from ._system_file import save_system
+    from ._system_search import search_system
+
     result = search_system(measurement, settings=settings, seed=args.seed)
     model = result.model
     residuals = residual_statistics(model, measurement, alpha=args.alpha)
@@ -288,6 +291,12 @@ def _fit_system(args) -> int:
     return 0
 
 
+def _check_out(out: Path) -> None:
+    """Refuse a run folder that is an existing file (before the engine loads)."""
+    if out.exists() and not out.is_dir():
+        raise UserInputError(f"--out {out} is a file; give a folder")
+
+
 def _check_diagnose_options(args) -> None:
     if not 0.05 <= args.holdout <= 0.5:
         raise UserInputError(f"--holdout must lie in [0.05, 0.5], got {args.holdout}; "
@@ -298,13 +307,13 @@ def _check_diagnose_options(args) -> None:
 
 def _diagnose(args) -> int:
     from ._data import load_csv
-    from ._model import Model
 
     _check_diagnose_options(args)
     out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UserInputError(f"--out {out} is a file; give a folder")
+    _check_out(out)
     response = _one_response(args)
+    from ._model import Model
+
     model = Model.load(args.model)
     measurement = load_csv(args.data, time=args.time, response=response, inputs=args.inputs)
     _run_diagnosis(args, measurement, model, out)
@@ -426,8 +435,6 @@ def _fit_many(args) -> int:
 def _run(config, measurement, seed, out: Path, *, resume: bool, **islands):
     from ._estimator import Identifier
 
-    if out.exists() and not out.is_dir():
-        raise UserInputError(f"--out {out} is a file; give a folder")
     created = not out.exists()
     try:
         return Identifier(config).fit(measurement, seed=seed, out=out, resume=resume,

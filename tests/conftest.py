@@ -19,17 +19,3 @@ def silverbox_dir():
             pytest.fail(f"{path} is missing on CI; the shared data must be beside the checkout")
         pytest.skip(f"{path} not present (the Silverbox data lives in ../shared)")
     return path
-
-
-@pytest.fixture(scope="session")
-def demo_fit(tmp_path_factory):
-    """The paper's protocol on the bundled example, run once per session: (identifier with
-    its run folder ``identifier.run_dir``, measurement, truth)."""
-    from gpjax import GPConfig, Identifier
-    from gpjax.gear import load_bundled_example
-
-    measurement, truth = load_bundled_example()
-    out = tmp_path_factory.mktemp("demo-run")
-    identifier = Identifier(GPConfig.paper()).fit(measurement, seed=0, out=out)
-    identifier.run_dir = out
-    return identifier, measurement, truth

@@ -9,7 +9,7 @@ import pytest
 import sympy as sp
 
 import gpjax
-from gpjax import Identifier, Measurement, UserInputError
+from gpjax import Measurement
 from gpjax.engine import (Coefficients, FlatLayout, PopulationEvaluator, Status, Symbols,
                           from_population, to_population)
 
@@ -78,33 +78,3 @@ def test_coefficients_round_trip_through_population_and_flat_layout():
 def test_coefficients_json_round_trip_parses_with_the_whitelist():
     model = Coefficients(mass=2.0, state={X ** 2: 3.0}, forcing={U: 1.0}, y0=(0.5, 0.0))
     assert Coefficients.from_json(model.to_json(), S.names()) == model
-
-
-def test_timings_split_the_run_into_its_stages(demo_fit):
-    t = demo_fit[0].timings_
-    assert 0 < t["selection_s"] and 0 < t["convergence_s"] and 0 <= t["compile_s"]
-    assert t["selection_s"] + t["convergence_s"] < t["total_s"]
-    assert t["compiles"] >= 1 and t["generations"] >= 0
-
-
-def test_identifier_simulates_new_inputs_and_reloads_to_score_again(demo_fit):
-    identifier, measurement, _ = demo_fit
-    model = identifier.model_
-    u = {"T": 1.1 * measurement.inputs["T"]}
-    x0 = (0.0, 0.0)
-    np.testing.assert_allclose(identifier.simulate(measurement.time, u, x0),
-                               model.simulate_inputs(measurement.time, u, x0), rtol=0, atol=0)
-    default = identifier.simulate(measurement.time, measurement.inputs)
-    np.testing.assert_allclose(default, identifier.simulate(), rtol=0, atol=1e-12)
-    rows = identifier.equations_
-    chosen = [i for i, row in enumerate(rows) if row["selected"]][0]
-    assert identifier.sympy(chosen) == identifier.sympy()
-    assert identifier.latex(0) != identifier.latex(chosen)
-    again = Identifier.load(identifier.run_dir, measurement)
-    assert again.score() == pytest.approx(identifier.score(), rel=1e-12)
-    assert [str(again.sympy(i)) for i in range(len(rows))] == [
-        str(identifier.sympy(i)) for i in range(len(rows))]
-    other = Measurement(time=measurement.time, response=measurement.response[::-1].copy(),
-                        inputs=measurement.inputs, time_name="t", response_name="phi")
-    with pytest.raises(UserInputError, match="not the data"):
-        Identifier.load(identifier.run_dir, other)

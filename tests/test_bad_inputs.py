@@ -493,6 +493,28 @@ def test_cli_user_error(cli: CliCase, cli_batch: _CliBatch, request):
         assert not (run.cwd / out).exists(), report
 
 
+#: Runs the command line in-process, then names the heavy libraries it loaded.
+_LOADED_PROBE = ("import sys\nfrom gpjax.cli import main\nstatus = main(sys.argv[1:])\n"
+                 "print(sorted(m for m in ('jax', 'sympy', 'diffrax', 'scipy', 'distributed')"
+                 " if m in sys.modules))\nsys.exit(status)\n")
+
+
+@pytest.mark.parametrize("case_id", [
+    "demo-population-zero", "demo-out-is-an-existing-file", "out-is-an-existing-file",
+    "response-named-twice", "coordinates-of-different-lengths", "islands-zero",
+    "migrate-every-zero", "scheduler-malformed", "scheduler-without-islands",
+    "fit-many-empty-folder", "fit-many-workers-zero", "config-unknown-function"])
+def test_a_user_error_is_reported_before_jax_loads(case_id, tmp_path):
+    # One line at once (JAX, sympy, diffrax and Dask take seconds to import): every
+    # command checks its settings, --out and data before it loads the engine.
+    cli = next(p.values[0] for p in CLI_CASES if p.id == case_id)
+    _setup(tmp_path, cli.files)
+    done = subprocess.run([sys.executable, "-c", _LOADED_PROBE, *cli.args], cwd=tmp_path,
+                          env=_env(), capture_output=True, text=True, timeout=CLI_TIMEOUT_S)
+    assert done.returncode == 2, done.stderr
+    assert done.stdout == "[]\n", f"loaded {done.stdout.strip()} before the error {done.stderr}"
+
+
 # --------------------------------------------------------------------------------------
 # Model files through the Python API
 # --------------------------------------------------------------------------------------

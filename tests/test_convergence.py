@@ -1,13 +1,9 @@
-"""Converged integration: the reference solve, the step-count rule, the fit's check, and
-``gpjax simulate``."""
+"""Converged integration: the reference solve, the step-count rule and the model check
+(the check of a whole fit, and ``gpjax simulate``: tests/test_demo_run.py)."""
 
-import json
 import math
-import subprocess
-import sys
 
 import numpy as np
-import pytest
 from scipy.linalg import expm
 
 from gpjax import Model, Symbols
@@ -82,64 +78,3 @@ def test_a_coarse_model_fails_the_check_and_a_fine_one_passes():
     fine, _ = check_model(_model("hold", initial_conditions=(0.01, -0.2), substeps=8), noisy,
                           tolerance=0.01)
     assert fine.converged and fine.ratio < 0.01
-
-
-def test_the_reported_model_means_the_same_under_the_reference_solver(demo_fit):
-    identifier, measurement, truth = demo_fit
-    model = identifier.model_
-    check = model.convergence
-    assert check["converged"] and check["ratio"] < 0.01
-    assert model.substeps == check["substeps"] > 1  # one RK4 step per sample is not enough
-    reference = identifier.simulate()
-    rk4 = identifier.simulate(solver="rk4")
-    residual = np.sqrt(np.mean((measurement.response - reference) ** 2))
-    assert np.sqrt(np.mean((rk4 - reference) ** 2)) < 0.01 * residual
-    assert model.metrics["rms_reference"] == pytest.approx(residual, rel=1e-6)
-    assert identifier.score() > 0.999
-    assert "reference solve" in str(identifier)
-    for name, key in (("J", "m"), ("K1", "k1"), ("K2", "k2")):
-        assert model.constants()[key] == pytest.approx(truth[name], rel=0.01)
-
-
-def _cli(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "gpjax", *map(str, args)], cwd=cwd,
-                          capture_output=True, text=True, timeout=300)
-
-
-@pytest.mark.slow  # a CLI run: CI's slow step (fast tier <= 5 min on 2 cores)
-def test_gpjax_simulate_writes_the_reference_response(demo_fit, tmp_path):
-    identifier, measurement, _ = demo_fit
-    identifier.model_.save(tmp_path / "model.json")
-    measurement.to_csv(tmp_path / "data.csv")
-    done = _cli("simulate", "model.json", "data.csv", "--out", "sim.csv", cwd=tmp_path)
-    assert done.returncode == 0, done.stderr
-    table = np.loadtxt(tmp_path / "sim.csv", delimiter=",", skiprows=1)
-    header = (tmp_path / "sim.csv").read_text().splitlines()[0]
-    assert header == "t,phi" and table.shape == (measurement.n_samples, 2)
-    expected = identifier.model_.simulate(measurement)
-    np.testing.assert_allclose(table[:, 1], expected, rtol=0, atol=1e-12)
-    # without the response column the initial state must be given
-    inputs_only = tmp_path / "inputs.csv"
-    inputs_only.write_text("t,T\n" + "".join(
-        f"{float(t)!r},{float(u)!r}\n" for t, u in zip(measurement.time, measurement.inputs["T"])))
-    refused = _cli("simulate", "model.json", "inputs.csv", "--out", "sim2.csv", cwd=tmp_path)
-    assert refused.returncode == 2 and not (tmp_path / "sim2.csv").exists()
-    assert refused.stderr.count("\n") == 1 and "--initial" in refused.stderr
-    given = _cli("simulate", "model.json", "inputs.csv", "--out", "sim2.csv", "--initial",
-                 *identifier.model_.initial_conditions, cwd=tmp_path)
-    assert given.returncode == 0, given.stderr
-    again = np.loadtxt(tmp_path / "sim2.csv", delimiter=",", skiprows=1)
-    reference = identifier.simulate()
-    np.testing.assert_allclose(again[:, 1], reference, rtol=0, atol=1e-9 * np.ptp(reference))
-
-
-def test_model_file_records_the_integration_and_refuses_a_bad_one(demo_fit, tmp_path):
-    identifier = demo_fit[0]
-    data = identifier.model_.to_json()
-    assert data["simulation"]["integrator"] == {"method": "rk4",
-                                                "substeps": identifier.model_.substeps}
-    assert data["simulation"]["reference_solver"]["method"] == "diffrax.Dopri8"
-    assert Model.from_json(json.loads(json.dumps(data))) == identifier.model_
-    data["simulation"]["integrator"] = {"method": "rk4", "substeps": 0}
-    with pytest.raises(Exception, match="simulation.integrator"):
-        Model.from_json(data)

@@ -15,7 +15,8 @@ import time
 import pytest
 
 from gpjax import GPConfig, Identifier, Migration, UserInputError, fit_many
-from gpjax._islands import island_configs, island_seeds, merged_state, migrate
+from gpjax._island_settings import island_configs, island_seeds
+from gpjax._islands import merged_state, migrate
 from gpjax.gear import generate_gear_example
 
 SMALL = dict(population=24, generations=4, epsilon=0.0, refine_top=2)

@@ -121,7 +121,8 @@ def test_variational_and_autodiff_refinement_agree(refiner):
     fixed = np.full(2, evaluator.forcing_index(S.u[0]))
     diffrax_evaluator = PopulationEvaluator(evaluator.measurement, S, max_degree=2, batch=4,
                                             integrator="diffrax")
-    diffrax_evaluator.forcing_index(S.u[0])
+    for feature in evaluator.forcing_features:  # the same bank, whatever other tests added
+        diffrax_evaluator.forcing_index(feature)
     reference = Refiner(diffrax_evaluator, iterations=10, batch=4, jacobian="autodiff")
     a = refiner.refine(start, fixed).population
     b = reference.refine(start, fixed).population
