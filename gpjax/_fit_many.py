@@ -19,7 +19,7 @@ from ._cluster import dask_client
 from ._config import GPConfig
 from ._data import Measurement, load_csv
 from ._errors import UserInputError
-from ._report import history_csv, write_bytes_atomic, write_text_atomic
+from ._report import check_out_folder, history_csv, write_bytes_atomic, write_text_atomic
 
 SUMMARY = "summary.csv"
 COLUMNS = ("record", "equation", "constants", "rms", "seconds", "error")
@@ -90,8 +90,7 @@ def fit_many(source: str | Path, *, time: str, response: str, inputs: tuple[str,
     """
     paths = record_paths(source)
     out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise UserInputError(f"--out {out} is a file; give a folder")
+    check_out_folder(out)
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 1):
         raise UserInputError(f"workers must be a positive integer, got {workers!r}")

@@ -14,6 +14,14 @@ from pathlib import Path
 
 import numpy as np
 
+from ._errors import UserInputError
+
+
+def check_out_folder(out: Path) -> None:
+    """Refuse a run folder that is an existing file (UserInputError), before any work."""
+    if out.exists() and not out.is_dir():
+        raise UserInputError(f"--out {out} is a file; give a folder")
+
 
 def write_bytes_atomic(path: Path, data: bytes) -> None:
     """Write ``data`` to a temporary file beside ``path``, then rename it into place."""

@@ -17,6 +17,7 @@ from pathlib import Path
 from ._config import GPConfig
 from ._data import INPUT_INTERPOLATIONS
 from ._errors import UserInputError
+from ._report import check_out_folder
 
 EXIT_USER_ERROR = 2
 
@@ -176,7 +177,7 @@ def _config(args, base: GPConfig) -> GPConfig:
 
 def _demo(args) -> int:
     config = _config(args, GPConfig.paper())
-    _check_out(Path(args.out))
+    check_out_folder(Path(args.out))
     from .gear import load_bundled_example
 
     measurement, truth = load_bundled_example()
@@ -230,7 +231,7 @@ def _fit(args) -> int:
         islands = dict(islands=args.islands, scheduler=args.scheduler, migration=migration)
     measurement = load_csv(args.data, time=args.time, responses=args.responses,
                            inputs=args.inputs)
-    _check_out(Path(args.out))
+    check_out_folder(Path(args.out))
     identifier = _run(config, measurement, args.seed, Path(args.out), resume=args.resume,
                       **islands)
     print(identifier)
@@ -264,7 +265,7 @@ def _fit_system(args) -> int:
         raise UserInputError(f"{', '.join(used)} work on one response; drop them to identify "
                              f"the system of {measurement.n_coordinates} responses")
     out = Path(args.out)
-    _check_out(out)
+    check_out_folder(out)
     from ._system_diagnose import residual_statistics, summary_line
     from ._system_file import save_system
     from ._system_search import search_system
@@ -291,12 +292,6 @@ def _fit_system(args) -> int:
     return 0
 
 
-def _check_out(out: Path) -> None:
-    """Refuse a run folder that is an existing file (before the engine loads)."""
-    if out.exists() and not out.is_dir():
-        raise UserInputError(f"--out {out} is a file; give a folder")
-
-
 def _check_diagnose_options(args) -> None:
     if not 0.05 <= args.holdout <= 0.5:
         raise UserInputError(f"--holdout must lie in [0.05, 0.5], got {args.holdout}; "
@@ -310,7 +305,7 @@ def _diagnose(args) -> int:
 
     _check_diagnose_options(args)
     out = Path(args.out)
-    _check_out(out)
+    check_out_folder(out)
     response = _one_response(args)
     from ._model import Model
 
