@@ -102,6 +102,9 @@ class Population:
         y0: (P, 2) initial response and its derivative at the first sample.
         inner: (P, F_inner) inner constants θ of the feature bank's families
             (:mod:`gpjax._features`); ``None`` for an evaluator without families.
+        forcing_features: the forcing features its forcing columns hold, in column order,
+            as the evaluator that laid it out held them; an evaluator given the
+            population checks them against its own bank. ``None``: not recorded.
     """
 
     mass: np.ndarray
@@ -109,6 +112,7 @@ class Population:
     forcing: np.ndarray
     y0: np.ndarray
     inner: np.ndarray | None = None
+    forcing_features: tuple | None = None
 
     def __post_init__(self):
         if self.inner is None:
@@ -119,13 +123,27 @@ class Population:
 
     def rows(self, rows) -> "Population":
         """The models at ``rows`` (a slice or index array)."""
-        return Population(*(getattr(self, f.name)[rows] for f in dataclasses.fields(self)))
+        return dataclasses.replace(self, **{name: getattr(self, name)[rows]
+                                            for name in _POPULATION_ARRAYS})
 
     @staticmethod
     def concatenate(populations: Iterable["Population"]) -> "Population":
+        """One population of the rows of ``populations`` in order.
+
+        Raises:
+            ValueError: two were laid out on different forcing banks (neither's forcing
+                features begin the other's).
+        """
         populations = list(populations)
-        return Population(*(np.concatenate([getattr(p, f.name) for p in populations])
-                            for f in dataclasses.fields(Population)))
+        banks = [p.forcing_features for p in populations if p.forcing_features is not None]
+        bank = max(banks, key=len) if banks else None
+        if any(b != bank[:len(b)] for b in banks):
+            raise ValueError("populations laid out on different forcing banks cannot be joined")
+        return Population(**{name: np.concatenate([getattr(p, name) for p in populations])
+                             for name in _POPULATION_ARRAYS}, forcing_features=bank)
+
+
+_POPULATION_ARRAYS = ("mass", "state", "forcing", "y0", "inner")
 
 
 class Columns(Protocol):

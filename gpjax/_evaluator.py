@@ -279,7 +279,8 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms):
         rows = (count,) if self.n_coordinates == 1 else (count, self.n_coordinates)
         return Population(mass=np.ones(rows), state=np.zeros(rows + (len(self.state_features),)),
                           forcing=np.zeros(rows + (self.forcing_capacity,)),
-                          y0=np.zeros(rows + (2,)), inner=np.zeros((count, self.n_inner)))
+                          y0=np.zeros(rows + (2,)), inner=np.zeros((count, self.n_inner)),
+                          forcing_features=self.forcing_features)
 
     def score(self, population: Population) -> Scores:
         """Objective (eq. 7), its parts (eqs. 8–9), RMS and status for every model."""
@@ -295,6 +296,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms):
         """Scores (and responses) of ``population`` in padded batches, models that use no
         family apart on :attr:`plain_layout` (one more compile;
         ``benchmarks/bench_feature_bank.py``)."""
+        self.check_forcing_bank(population)
         count = len(population)
         if count == 0:
             empty = np.zeros(0)

@@ -148,8 +148,24 @@ class Columns:
 
     def narrowed(self, population: Population) -> Population:
         """``population`` on :attr:`plain_layout` (its family columns dropped)."""
-        return Population(population.mass, population.state[..., :self.plain_layout.n_state],
-                          population.forcing, population.y0, population.inner[:, :0])
+        return dataclasses.replace(population,
+                                   state=population.state[..., :self.plain_layout.n_state],
+                                   inner=population.inner[:, :0])
+
+    def check_forcing_bank(self, population: Population) -> None:
+        """Check that ``population``'s forcing columns hold this evaluator's forcing features
+        (an evaluator that registered other features, or the same in another order, would
+        multiply each coefficient by another feature).
+
+        Raises:
+            ValueError: they were laid out on another forcing bank.
+        """
+        made = population.forcing_features
+        if made is not None and tuple(self._forcing_features[:len(made)]) != tuple(made):
+            raise ValueError(
+                f"the population's forcing columns hold {list(made)} but this evaluator's "
+                f"hold {list(self._forcing_features)}: lay it out with this evaluator "
+                f"(to_population) or register its forcing features in the same order")
 
     def _layout_of(self, width: int) -> FlatLayout:
         return self.layout if width == self.layout.width else self.plain_layout

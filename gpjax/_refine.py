@@ -151,8 +151,13 @@ class Refiner:
                 that move together, the second by ``sign`` × the first's step (Newton's
                 third law, :mod:`gpjax._system_couplings`; the start must obey them);
                 ``None``: none.
+
+        Raises:
+            ValueError: ``population`` was laid out on another forcing bank than the
+                evaluator's (:meth:`~PopulationEvaluator.check_forcing_bank`).
         """
         ev = self.evaluator
+        ev.check_forcing_bank(population)
         plain = ev.plain_rows(population)
         if ties is not None and not any(ties):
             ties = None
@@ -228,11 +233,12 @@ class Refiner:
                 self.compile_seconds += time.perf_counter() - began
             outputs.append([np.asarray(o)[:size] for o in out])
         params, ok, steps = (np.concatenate(p) for p in zip(*outputs))
-        refined = layout.population(params, population.forcing.shape[-1])
+        refined = dataclasses.replace(layout.population(params, population.forcing.shape[-1]),
+                                      forcing_features=population.forcing_features)
         if plain:  # back on the full layout: the family columns and θ as they were
-            refined = Population(refined.mass, np.concatenate(
+            refined = dataclasses.replace(refined, state=np.concatenate(
                 [refined.state, population.state[..., layout.n_state:]], axis=-1),
-                refined.forcing, refined.y0, population.inner)
+                inner=population.inner)
         return Refinement(population=refined, succeeded=ok.astype(bool), steps=steps)
 
     def _refine_one(self, start, moves, forcing_basis):

@@ -130,6 +130,27 @@ def test_variational_and_autodiff_refinement_agree(refiner):
     np.testing.assert_allclose(a.mass, b.mass, rtol=1e-8)
 
 
+def test_a_population_laid_out_on_another_forcing_bank_is_refused(refiner):
+    """Forcing coefficients laid out on one evaluator's columns would multiply other
+    features on an evaluator that registered its forcing features in another order: that
+    is refused, where it used to refit the wrong model silently; the same bank passes."""
+    evaluator = refiner.evaluator
+    start = _models(evaluator, np.zeros(2), np.random.default_rng(0))
+    other = PopulationEvaluator(evaluator.measurement, S, max_degree=2, batch=4)
+    other.forcing_index(sp.sin(S.t))
+    for feature in evaluator.forcing_features:
+        other.forcing_index(feature)
+    column = np.full(2, other.forcing_index(S.u[0]))
+    with pytest.raises(ValueError, match="forcing columns hold"):
+        other.score(start)
+    with pytest.raises(ValueError, match="forcing columns hold"):
+        Refiner(other, iterations=1, batch=4).refine(start, column)
+    with pytest.raises(ValueError, match="different forcing banks"):
+        start.concatenate([start, other.empty(1)])
+    assert np.all(evaluator.score(start.concatenate([start.rows([0]), start.rows([1])]))
+                  .status == 0)
+
+
 def test_unknown_jacobian_is_refused(refiner):
     with pytest.raises(ValueError, match="jacobian"):
         Refiner(refiner.evaluator, jacobian="finite differences")
