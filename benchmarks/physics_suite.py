@@ -259,7 +259,8 @@ def _row(data, method: str, fit) -> dict:
 def _table(rows: list[dict], systems: list[str]) -> str:
     lines = ["| system | method | structure right | constants within 2 % | "
              "median extrap. NRMS | median s | failed |", "| --- | --- | --- | --- | --- | --- | --- |"]
-    methods = list(dict.fromkeys(r["method"] for r in rows))
+    present = list(dict.fromkeys(r["method"] for r in rows))
+    methods = [m for m in METHODS if m in present] + [m for m in present if m not in METHODS]
     for name in systems:
         for method in methods:
             chosen = [r for r in rows if r["system"] == name and r["method"] == method]
