@@ -94,6 +94,10 @@ def _fit_options(parser, *, out: str) -> None:
     parser.add_argument("--config", help="TOML file of settings (see README)")
     parser.add_argument("--population", type=int, help="individuals per generation")
     parser.add_argument("--generations", type=int, help="maximum generations")
+    parser.add_argument("--functions", type=_names,
+                        help="function set, comma-separated (default: the paper's "
+                        "add,sub,mul; for friction, pendulums and saturation e.g. "
+                        "add,sub,mul,sin,abs,sign,tanh,exp)")
     parser.add_argument("--seed", type=_non_negative, default=0,
                         help="random seed (default: 0)")
     parser.add_argument("--out", default=out, help=f"output folder (default: {out})")
@@ -168,8 +172,16 @@ def _non_negative(text: str) -> int:
     return value
 
 
+def _names(text: str) -> tuple[str, ...]:
+    """A comma-separated list of names (blanks around them dropped)."""
+    names = tuple(n.strip() for n in text.split(",") if n.strip())
+    if not names:
+        raise argparse.ArgumentTypeError(f"expected comma-separated names, got {text!r}")
+    return names
+
+
 def _config(args, base: GPConfig) -> GPConfig:
-    overrides = {k: getattr(args, k) for k in ("population", "generations",
+    overrides = {k: getattr(args, k) for k in ("population", "generations", "functions",
                                                "input_interpolation")
                  if getattr(args, k, None) is not None}
     return base.replace(**overrides) if overrides else base

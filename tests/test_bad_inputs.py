@@ -271,6 +271,12 @@ CLI_CASES = [
     config_case("config-init-depth-beyond-max-depth", "max_depth = 3\ninit_depth = [2, 5]\n",
                 ["init_depth", "max_depth"]),
     # --- command-line arguments -----------------------------------------------------------
+    case("functions-unknown", (*FIT, *SMALL, "--functions", "add,sub,gamma"),
+         {"data.csv": VALID_CSV}, ["unknown function 'gamma'", "choose from"]),
+    case("functions-empty", (*FIT, *SMALL, "--functions", " , "),
+         {"data.csv": VALID_CSV}, ["--functions", "comma-separated names"]),
+    case("functions-without-add-or-sub", (*FIT, *SMALL, "--functions", "mul,sin"),
+         {"data.csv": VALID_CSV}, ["functions must contain add or sub"]),
     case("population-negative", (*FIT, "--population", "-5", "--generations", "1"),
          {"data.csv": VALID_CSV}, ["population must be at least 4", "-5"]),
     case("population-not-an-integer", (*FIT, "--population", "many"),
@@ -503,7 +509,8 @@ _LOADED_PROBE = ("import sys\nfrom gpjax.cli import main\nstatus = main(sys.argv
     "demo-population-zero", "demo-out-is-an-existing-file", "out-is-an-existing-file",
     "response-named-twice", "coordinates-of-different-lengths", "islands-zero",
     "migrate-every-zero", "scheduler-malformed", "scheduler-without-islands",
-    "fit-many-empty-folder", "fit-many-workers-zero", "config-unknown-function"])
+    "fit-many-empty-folder", "fit-many-workers-zero", "config-unknown-function",
+    "functions-unknown"])
 def test_a_user_error_is_reported_before_jax_loads(case_id, tmp_path):
     # One line at once (JAX, sympy, diffrax and Dask take seconds to import): every
     # command checks its settings, --out and data before it loads the engine.

@@ -122,3 +122,19 @@ def test_a_population_where_every_candidate_diverges_ends_with_a_clear_error(tmp
                    "--input", "T", "--config", str(tmp_path / "c.toml"),
                    "--out", str(tmp_path / "run")])
     assert status == 2 and not (tmp_path / "run").exists()
+
+
+def test_functions_option_sets_the_function_set_over_the_config_file(tmp_path):
+    """``gpjax fit --functions`` widens the function set without a config file, and wins
+    over one, as --population does."""
+    from gpjax import cli
+
+    (tmp_path / "c.toml").write_text('functions = ["add", "sub", "mul"]\npopulation = 20\n')
+    args = cli._parser().parse_args([
+        "fit", "d.csv", "--time", "t", "--response", "x", "--input", "u",
+        "--functions", "add, sub,mul,sin,sign", "--config", str(tmp_path / "c.toml")])
+    config = cli._config(args, GPConfig.from_toml(args.config))
+    assert config.functions == ("add", "sub", "mul", "sin", "sign")
+    assert config.population == 20
+    plain = cli._parser().parse_args(["fit", "d.csv", "--time", "t", "--response", "x"])
+    assert cli._config(plain, GPConfig()).functions == GPConfig().functions
