@@ -274,13 +274,15 @@ def _table(rows: list[dict], systems: list[str]) -> str:
                 f"{'diverged/failed' if math.isinf(median) else f'{median:.2%}'} | "
                 f"{statistics.median(r['seconds'] for r in chosen):.1f} | "
                 f"{sum(r['error'] is not None for r in chosen)} |")
-    return "\n".join(lines) + "\n\n" + _floor_table(rows, systems)
+    floor = _floor_table(rows, systems)
+    return "\n".join(lines) + ("\n\n" + floor if floor else "")
 
 
 def _floor_table(rows: list[dict], systems: list[str]) -> str:
     """Per system, the constant with the largest Cramér–Rao relative σ on the fit record
     (median over seeds) and the chance that an efficient unbiased estimator has it within
-    the 2 % tolerance, P(|e| ≤ 2 %) = erf(0.02 / (σ·√2)): an upper bound for any method."""
+    the 2 % tolerance, P(|e| ≤ 2 %) = erf(0.02 / (σ·√2)): an upper bound for any method.
+    Empty where no row carries the floor (no truth rows)."""
     lines = ["| system | least identifiable constant | Cramér–Rao σ (median) | "
              "P(within 2 %) at best |", "| --- | --- | --- | --- |"]
     for name in systems:
@@ -291,7 +293,7 @@ def _floor_table(rows: list[dict], systems: list[str]) -> str:
         worst = max(sigma, key=sigma.get)
         chance = math.erf(TOLERANCE / (sigma[worst] * math.sqrt(2.0)))
         lines.append(f"| {name} | {worst} | {sigma[worst]:.2%} | {chance:.2f} |")
-    return "\n".join(lines)
+    return "\n".join(lines) if len(lines) > 2 else ""
 
 
 if __name__ == "__main__":
