@@ -195,10 +195,17 @@ def truth_error(synthetic: SyntheticRecord, *, record: str = "fit") -> np.ndarra
     if system.loop is not None:
         positions, _ = stage_hold(system, data.time, data.input_measured)
     else:
-        force = CubicSpline(data.time, data.input_measured)
-        positions, _ = integrate(system, data.time, force, state0=data.initial_state)
+        positions = _driven_by_measured_input(system, data)
     sigma = synthetic.noise * data.response_true.std(axis=1)
     return np.sqrt(np.mean((positions - data.response_measured) ** 2, axis=1)) / sigma
+
+
+def _driven_by_measured_input(system: System, data: Record, *, rtol: float = RTOL
+                              ) -> np.ndarray:
+    """Positions (C, N) of ``system`` driven by ``data``'s *measured* input (cubic spline
+    between samples) from its true initial state, at ``rtol`` (:func:`integrate`)."""
+    force = CubicSpline(data.time, data.input_measured)
+    return integrate(system, data.time, force, state0=data.initial_state, rtol=rtol)[0]
 
 
 def cramer_rao(synthetic: SyntheticRecord, *, step: float = 1e-3) -> dict[str, float]:
@@ -256,7 +263,6 @@ def truth_refit(synthetic: SyntheticRecord, *, rtol: float = 1e-8,
     system, data = synthetic.system, synthetic.fit
     if system.loop is not None:
         raise ValueError("the truth refit needs an open-loop system")
-    force = CubicSpline(data.time, data.input_measured)
     truth = np.array(list(system.constants.values()))
     scale = data.response_true.std(axis=1, keepdims=True)
 
@@ -264,9 +270,8 @@ def truth_refit(synthetic: SyntheticRecord, *, rtol: float = 1e-8,
         return {n: float(v) for n, v in zip(system.constants, truth * ratio)}
 
     def residuals(ratio: np.ndarray) -> np.ndarray:
-        refitted = dataclasses.replace(system, constants=constants(ratio))
-        positions = integrate(refitted, data.time, force, state0=data.initial_state,
-                              rtol=rtol)[0]
+        positions = _driven_by_measured_input(
+            dataclasses.replace(system, constants=constants(ratio)), data, rtol=rtol)
         return ((positions - data.response_measured) / scale).ravel()
 
     fit = least_squares(residuals, np.ones(truth.size), method="lm", diff_step=1e-4,
