@@ -254,7 +254,8 @@ def standard_errors(fit, measurement, held: tuple[str, ...]) -> dict:
         direction[flat.size - spread.size + k] = value
         directions.append(direction)
     x, dx = (np.asarray(a) for a in ev.constant_jacobian(
-        jnp.asarray(flat), jnp.asarray(np.array(directions)), jnp.asarray(ev.forcing_basis)))
+        jnp.asarray(flat), jnp.asarray(np.array(directions)),
+        jnp.asarray(ev.forcing_basis)[: ev.stage_rows(measurement.n_samples)]))
     scale = np.std(responses, axis=0)
     residual = ((responses - x) / scale).ravel()
     jacobian = (dx / scale[None, :, None]).reshape(residual.size, -1)

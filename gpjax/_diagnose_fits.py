@@ -339,7 +339,7 @@ class _Simulator:
             self._jacobian = jax.jit(
                 lambda p: ev.constant_jacobian(p, jnp.eye(p.size), basis)[1])
         p = ev.layout.pack(to_population([fit.coefficients], ev))[0]
-        return np.asarray(self._jacobian(jnp.asarray(p)))
+        return np.asarray(self._jacobian(jnp.asarray(p)))[: ev.measurement.n_samples]
 
 
 

@@ -55,6 +55,7 @@ from ._evaluator_systems import SystemTerms, system_state_features
 from ._features import SLOTS, Family, match
 from ._integrate import enable_float64
 from ._objective import _amplitude, _dft_matrix, _objective_parts, default_n_bins
+from ._record import RecordArrays, RecordContext, padded_length, padded_rows
 
 
 class Status(enum.IntEnum):
@@ -122,8 +123,10 @@ class Scores:
     y0: np.ndarray
 
 
-class PopulationEvaluator(Columns, Dynamics, SystemTerms):
-    """Simulates and scores populations against one measurement; compiles once.
+class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext):
+    """Simulates and scores populations against one measurement; compiles once per length
+    bucket and settings (the record enters the programs as :attr:`record_arrays`,
+    :mod:`gpjax._record`).
 
     Args:
         measurement: the data the models are scored against; with D responses the models
@@ -151,6 +154,9 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms):
             (:func:`gpjax._data.between_samples`). With ``"hold"`` the forcing rows are
             split per step (:meth:`stage_rows`), so RK4 keeps its fourth order across the
             input's jumps at the sample times.
+        pad_to_bucket: integrate the record padded to its length bucket, so its programs
+            serve every record of the bucket (:mod:`gpjax._record`; the results are the
+            same); ``False`` compiles for this length alone.
 
     Raises:
         ValueError: for an unknown integrator or input interpolation, or ``"hold"`` with
@@ -164,7 +170,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms):
                  w_freq: float = 1.0, extra_state_features: tuple[sp.Expr, ...] = (),
                  families: tuple[Family, ...] = (), batch: int = 500, fit_initial_conditions: bool = False,
                  integrator: str = "scan", devices: list | None = None,
-                 input_interpolation: str = "linear"):
+                 input_interpolation: str = "linear", pad_to_bucket: bool = True):
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
         if integrator == "diffrax" and input_interpolation == "hold":
@@ -202,25 +208,31 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms):
         #: Whether every RK4 step has its own three forcing rows (see :meth:`stage_rows`).
         self.split_stages = input_interpolation == "hold"
         self.devices = list(devices) if devices is not None else jax.devices()
-        n_stage = self.stage_rows(measurement.n_samples)
+        n = measurement.n_samples
+        self.n_bins = n_bins if n_bins is not None else max(map(default_n_bins,
+                                                                measurement.responses.T))
+        self.n_bins = min(self.n_bins, n // 2 + 1)
+        dft = _dft_matrix(n, self.n_bins)
+        #: Samples the programs integrate: the record padded to its length bucket, or
+        #: unpadded where the spectrum is an rfft (:mod:`gpjax._record`).
+        self.n_padded = padded_length(n) if pad_to_bucket and dft.shape[0] > 1 else n
+        #: DFT bins the programs hold (the record's :attr:`n_bins`, zero-padded).
+        self.n_bins_padded = min(padded_length(self.n_bins), self.n_padded // 2 + 1)
+        n_stage = self.stage_rows(self.n_padded)
         batch = max(1, min(batch, STAGE_ELEMENTS_PER_CALL // n_stage))
         self.batch = -(-batch // len(self.devices)) * len(self.devices)
         self.fit_initial_conditions = fit_initial_conditions
         self.w_time, self.w_freq = float(w_time), float(w_freq)
-        n = measurement.n_samples
         self.h = measurement.dt / substeps
-        self.n_steps = (n - 1) * substeps
+        self.n_steps = (self.n_padded - 1) * substeps
         if self.split_stages:
             steps = np.arange(self.n_steps)[:, None] + np.array([0.0, 0.5, 1.0])
             self.stage_times = measurement.time[0] + self.h * steps.ravel()
         else:
             self.stage_times = measurement.time[0] + 0.5 * self.h * np.arange(2 * self.n_steps + 1)
-        self.stage_times[-1] = measurement.time[-1]
-        self._stage_inputs = {name: self._at_stages(values)
+        self.stage_times[self.stage_rows(n) - 1] = measurement.time[-1]
+        self._stage_inputs = {name: padded_rows(self._at_stages(values), n_stage)
                               for name, values in measurement.inputs.items()}
-        self.n_bins = n_bins if n_bins is not None else max(map(default_n_bins,
-                                                                measurement.responses.T))
-        self.n_bins = min(self.n_bins, n // 2 + 1)
         self._forcing_features: list[sp.Expr] = []
         self._forcing_columns: list[np.ndarray] = []
         self._forcing_index: dict[sp.Expr, int] = {}
@@ -229,27 +241,20 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms):
         self.compile_seconds = 0.0
         self._extra_fns = [sp.lambdify((symbols.x, symbols.x_dot, symbols.t), f, modules="jax")
                            for f in extra_state_features]
-        responses = measurement.responses
-        span = (np.ptp(responses, axis=0) + np.max(np.abs(responses), axis=0))[:, None]
-        self._bound = (DIVERGENCE_RANGES * span, DIVERGENCE_RANGES * span / measurement.dt)
-        #: Per coordinate, (largest |x|, largest |x'|) a simulation is clipped to.
-        self._bounds = [(float(bx), float(bv)) for bx, bv in zip(*(b[:, 0] for b in self._bound))]
-        if self.n_coordinates == 1:  # numbers: the one-coordinate program exactly as before
-            self._bound = self._bounds[0]
-        #: Coordinate d's weight in the objective, s_1/s_d (see the module docstring).
-        self.weights = np.std(responses[:, :1]) / np.std(responses, axis=0)
-        self._dft = _dft_matrix(n, self.n_bins)
-        self._measured_amplitude = _amplitude(self._dft, responses, self.n_bins)
+        #: The record as the programs' argument (:class:`~gpjax._record.RecordArrays`).
+        self.record_arrays = _record_arrays(measurement, self.n_padded, self.n_bins,
+                                            self.n_bins_padded, dft, self.h)
         run = self._simulate_and_score
         if len(self.devices) > 1:
             mesh = jax.make_mesh((len(self.devices),), ("population",),
                                  axis_types=(AxisType.Auto,), devices=self.devices)
             split = PartitionSpec("population")
-            run = jax.shard_map(run, mesh=mesh, in_specs=(split,) * 5 + (PartitionSpec(),),
+            run = jax.shard_map(run, mesh=mesh, in_specs=(split,) * 5 + (PartitionSpec(),) * 2,
                                 out_specs=split, check_vma=False)
-        #: Fingerprint of everything the compiled programs close over: the arguments.
-        self.key = fingerprint(measurement.fingerprint(), symbols, self.state_features,
-                               self.families, max_degree, substeps, self.n_bins, w_time, w_freq,
+        #: Fingerprint of everything the compiled programs close over (the record is an
+        #: argument: records of one length bucket share the programs).
+        self.key = fingerprint(self.n_padded, self.n_bins_padded, symbols, self.state_features,
+                               self.families, max_degree, substeps, w_time, w_freq,
                                self.batch, fit_initial_conditions, integrator, input_interpolation,
                                [str(d) for d in self.devices])
         self._run = Program(run, name="population", key=self.key)
@@ -315,7 +320,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms):
                 out = self._call(*chunk)
                 parts.append([np.asarray(o)[:size] for o in out[:6]])
                 if responses:
-                    paths.append(np.asarray(out[6])[:size])
+                    paths.append(np.asarray(out[6])[:size, ..., :self.measurement.n_samples])
             order.append(rows)
         back = np.argsort(np.concatenate(order))
         stacked = [np.concatenate(p)[back] for p in zip(*parts)]
@@ -327,35 +332,37 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms):
         key = (self.forcing_capacity, state.shape[-1])
         start = time.perf_counter()
         out = jax.block_until_ready(self._run(
-            *map(jnp.asarray, (mass, state, forcing, y0, inner, self._forcing_basis))))
+            *map(jnp.asarray, (mass, state, forcing, y0, inner, self._forcing_basis)),
+            self.record_arrays))
         if key not in self._compiled:  # the first call of a shape includes its compile
             self._compiled.add(key)
             self.compile_seconds += time.perf_counter() - start
         return out
 
-    def _simulate_and_score(self, mass, state, forcing, y0, inner, forcing_basis):
-        forcing_matrix = _forcing_rows(forcing_basis, forcing)  # (n_stage, [D,] P)
-        if self.fit_initial_conditions:
-            y0 = self._fitted_initial_conditions(mass, state, forcing_matrix, y0, inner)
-        if self.integrator == "diffrax":
-            x = self.solve(mass, state, forcing_matrix, y0, inner)  # (N, [D,] P)
-        else:
-            x = self.scan_solve(mass, state, forcing_matrix, y0, inner)
-        paths = jnp.transpose(x)  # (P, [D,] N)
+    def _simulate_and_score(self, mass, state, forcing, y0, inner, forcing_basis, record):
+        with self.tracing(record):
+            forcing_matrix = _forcing_rows(forcing_basis, forcing)  # (n_stage, [D,] P)
+            if self.fit_initial_conditions:
+                y0 = self._fitted_initial_conditions(mass, state, forcing_matrix, y0, inner)
+            if self.integrator == "diffrax":
+                x = self.solve(mass, state, forcing_matrix, y0, inner)  # (N', [D,] P)
+            else:
+                x = self.scan_solve(mass, state, forcing_matrix, y0, inner)
+        paths = jnp.transpose(x)  # (P, [D,] N')
         x = self._coordinates(x, 1)
-        finite = jnp.all(jnp.isfinite(x), axis=(0, 1))
-        bounded = jnp.all(jnp.abs(x) < self._bound[0], axis=(0, 1))
+        padding = (record.valid == 0)[:, None, None]
+        finite = jnp.all(jnp.isfinite(x) | padding, axis=(0, 1))
+        bounded = jnp.all((jnp.abs(x) < record.bounds[:, :1]) | padding, axis=(0, 1))
         positive = jnp.all(self._coordinates(mass, -1) > 0, axis=-1)
         status = jnp.where(positive, jnp.where(finite & bounded, OK, DIVERGED), NONPOSITIVE_MASS)
-        x = jnp.where(jnp.isfinite(x), x, 0.0)
-        measured = jnp.asarray(self.measurement.responses)
+        x = jnp.where(jnp.isfinite(x) & ~padding, x, 0.0)  # the padding's residual is 0
         f_time, f_freq, rms = _objective_parts(  # (D, P) each
-            measured[:, :, None], x, jnp.asarray(self._dft),
-            jnp.asarray(self._measured_amplitude)[:, :, None], self.n_bins)
+            record.responses[:, :, None], x, record.dft, record.amplitude[:, :, None],
+            self.n_bins_padded, count=record.count)
         if self.n_coordinates == 1:
             f_time, f_freq, rms = f_time[0], f_freq[0], rms[0]
         else:
-            weights = jnp.asarray(self.weights)[:, None]
+            weights = record.weights[:, None]
             f_time, f_freq = jnp.sum(weights * f_time, 0), jnp.sum(weights * f_freq, 0)
             rms = jnp.sqrt(jnp.mean((weights * rms) ** 2, 0))
         objective = self.w_time * f_time + self.w_freq * f_freq
@@ -363,6 +370,34 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms):
         out = (jnp.where(good, objective, PENALTY), jnp.where(good, f_time, PENALTY),
                jnp.where(good, f_freq, PENALTY), jnp.where(good, rms, PENALTY), status, y0)
         return out + (paths,)
+
+
+def _record_arrays(measurement: Measurement, n_padded: int, n_bins: int, n_bins_padded: int,
+                   dft: np.ndarray, step: float) -> RecordArrays:
+    """``measurement`` as program arguments, padded to ``n_padded`` samples and
+    ``n_bins_padded`` bins (:class:`~gpjax._record.RecordArrays`); ``dft`` is
+    :func:`~gpjax._objective._dft_matrix` of the unpadded record."""
+    n = measurement.n_samples
+    responses = np.zeros((n_padded, measurement.n_coordinates))
+    responses[:n] = measurement.responses
+    if dft.shape[0] == 1:  # rfft weights: (1, m'), zero past m
+        padded_dft = np.zeros((1, n_bins_padded))
+        padded_dft[0, :n_bins] = dft[0, :n_bins]
+    else:  # cos rows, then sin rows, each zero past m and past N
+        padded_dft = np.zeros((2 * n_bins_padded, n_padded))
+        padded_dft[:n_bins, :n] = dft[:n_bins]
+        padded_dft[n_bins_padded:n_bins_padded + n_bins, :n] = dft[n_bins:]
+    measured = measurement.responses
+    span = np.ptp(measured, axis=0) + np.max(np.abs(measured), axis=0)
+    bounds = DIVERGENCE_RANGES * np.stack([span, span / measurement.dt], axis=1)
+    noise_scale = np.std(measured, axis=0)
+    return RecordArrays(
+        responses=responses, valid=(np.arange(n_padded) < n).astype(float),
+        count=np.asarray(float(n)), dft=padded_dft,
+        amplitude=np.asarray(_amplitude(padded_dft, responses, n_bins_padded)),
+        weights=np.std(measured[:, :1]) / np.std(measured, axis=0), bounds=bounds,
+        step=np.asarray(step), start=np.asarray(float(measurement.time[0])),
+        noise_scale=np.where(noise_scale == 0, 1.0, noise_scale))
 
 
 def _pad_columns(array: np.ndarray, columns: int) -> np.ndarray:

@@ -27,9 +27,10 @@ HOLD_WITH_DIFFRAX = ('the "diffrax" integrator cannot simulate "hold" inputs (it
 
 class Dynamics:
     """Mixin of :class:`gpjax._evaluator.PopulationEvaluator` (uses its ``n_coordinates``,
-    ``max_degree``, ``families``, ``_inner_slots``, ``_extra_fns``, ``_bounds``, ``_bound``,
-    ``h``, ``substeps``, ``n_steps``, ``stage_times``, ``split_stages``, ``integrator``,
-    ``measurement``, :meth:`_layout_of` and the systems' :class:`SystemTerms`)."""
+    ``max_degree``, ``families``, ``_inner_slots``, ``_extra_fns``, ``record`` (the
+    record's step, start time and bounds, :mod:`gpjax._record`), ``substeps``, ``n_steps``,
+    ``split_stages``, ``integrator``, :meth:`_layout_of` and the systems'
+    :class:`SystemTerms`)."""
 
     def _coordinates(self, array, axis: int):
         """``array`` with the coordinate axis at ``axis`` (inserted when D = 1)."""
@@ -55,16 +56,18 @@ class Dynamics:
         """
         inverse_mass = 1.0 / mass
         rows = self._restoring_fn(state, inner, stacked=False)
+        bounds = self.record.bounds
         if self.n_coordinates > 1:  # (D, P) arrays in and out
             def clipped(z, which):  # row by row: faster than one broadcast clip in scan_jvp
-                return [jnp.clip(z[e], -b[which], b[which]) for e, b in enumerate(self._bounds)]
+                return [jnp.clip(z[e], -bounds[e, which], bounds[e, which])
+                        for e in range(self.n_coordinates)]
 
             def system_acceleration(xs, vs, forces, t):
                 r = rows(clipped(xs, 0), clipped(vs, 1), t)
                 return jnp.stack([(forces[e] - r_e) * inverse_mass[e] for e, r_e in enumerate(r)])
 
             return system_acceleration
-        (bx, bv), = self._bounds
+        bx, bv = bounds[0, 0], bounds[0, 1]
 
         def acceleration(xs, vs, forces, t):
             (r,) = rows([jnp.clip(xs[0], -bx, bx)], [jnp.clip(vs[0], -bv, bv)], t)
@@ -277,7 +280,7 @@ class Dynamics:
 
     def _rk4_scan(self, rates, y0, forces, saved, fold=None):
         """:func:`gpjax._integrate.rk4_scan` on this evaluator's stage grid."""
-        return rk4_scan(rates, y0, forces, saved, h=self.h, t0=float(self.stage_times[0]),
+        return rk4_scan(rates, y0, forces, saved, h=self.record.step, t0=self.record.start,
                         substeps=self.substeps, split_stages=self.split_stages, fold=fold)
 
     def solve(self, mass, state, forcing_matrix, y0, inner=None, *, adjoint=None):
@@ -294,8 +297,8 @@ class Dynamics:
         """
         if self.split_stages:
             raise ValueError(HOLD_WITH_DIFFRAX)
-        t0 = float(self.stage_times[0])
-        half = 0.5 * self.h
+        t0, h = self.record.start, self.record.step
+        half = 0.5 * h
         inner = _no_inner(inner, mass)
         mass, state, forcing_matrix, y0 = self._internal(mass, state, forcing_matrix, y0)
         # The field is a static argument JAX's caches keep after the run: it holds this
@@ -304,22 +307,22 @@ class Dynamics:
         ev = weakref.proxy(self)
 
         def field(t, y, args):  # y: (2, D, P)
-            mass, state, inner, forcing_matrix = args
+            mass, state, inner, forcing_matrix, t0, half, speed = args
             index = jnp.clip(jnp.round((t - t0) / half).astype(jnp.int32), 0,
                              forcing_matrix.shape[0] - 1)
-            velocity = jnp.clip(y[1], -ev._bound[1], ev._bound[1])
+            velocity = jnp.clip(y[1], -speed, speed)
             acceleration = ev._acceleration_fn(mass, state, inner)
             return jnp.stack([velocity, jnp.stack(acceleration(y[0], y[1],
                                                                forcing_matrix[index], t))])
 
         solution = diffrax.diffeqsolve(
-            diffrax.ODETerm(field), RK4(), t0=t0, t1=float(self.stage_times[-1]), dt0=self.h,
-            y0=jnp.transpose(y0, (2, 1, 0)), args=(mass, state, inner, forcing_matrix),
+            diffrax.ODETerm(field), RK4(), t0=t0, t1=t0 + h * self.n_steps, dt0=h,
+            y0=jnp.transpose(y0, (2, 1, 0)),
+            args=(mass, state, inner, forcing_matrix, t0, half, self.record.bounds[:, 1:]),
             saveat=diffrax.SaveAt(t0=True, steps=True),
             stepsize_controller=diffrax.ConstantStepSize(), max_steps=self.n_steps,
             throw=False, adjoint=adjoint or diffrax.RecursiveCheckpointAdjoint())
-        states = solution.ys[:: self.substeps, 0]
-        return self._public(states[: self.measurement.n_samples], 1)
+        return self._public(solution.ys[:: self.substeps, 0], 1)
 
 
 def _forcing_rows(forcing_basis, forcing):

@@ -28,7 +28,7 @@ def system_state_features(names: tuple[str, ...], max_degree: int) -> tuple[list
 
 class SystemTerms:
     """Mixin of :class:`gpjax._evaluator.PopulationEvaluator` (uses its ``max_degree``,
-    ``n_coordinates``, ``measurement``, ``weights``, ``substeps`` and :meth:`scan_jvp`)."""
+    ``n_coordinates``, ``record`` (:mod:`gpjax._record`), ``substeps`` and :meth:`scan_jvp`)."""
 
     def _system_coefficients(self, state):
         """(max_degree, D·2D, ..., P) coefficients of every equation's variables (the
@@ -103,9 +103,10 @@ class SystemTerms:
             (2 * count,) + y0.shape[1:])[:, None], (2 * count,) + y0.shape)
         base, sensitivity = self.scan_jvp(mass, state, forcing_matrix, y0, directions,
                                           inner=inner)
-        measured = jnp.asarray(self.measurement.response)[:, None]
-        sx, sv = sensitivity[:, 0], sensitivity[:, 1]
-        residual = measured - base
+        measured = self.record.responses[:, :1]
+        valid = self.record.valid[:, None] > 0  # the padding takes no part (gpjax._record)
+        sx, sv = (jnp.where(valid, s, 0.0) for s in (sensitivity[:, 0], sensitivity[:, 1]))
+        residual = jnp.where(valid, measured - base, 0.0)
         a11, a12, a22 = jnp.sum(sx * sx, 0), jnp.sum(sx * sv, 0), jnp.sum(sv * sv, 0)
         b1, b2 = jnp.sum(sx * residual, 0), jnp.sum(sv * residual, 0)
         det = a11 * a22 - a12 ** 2
@@ -124,8 +125,8 @@ class SystemTerms:
         q = 2 * count
         directions = jnp.broadcast_to(jnp.eye(q).reshape((q,) + y0.shape[1:])[:, None],
                                       (q,) + y0.shape)
-        measured = jnp.asarray(self.measurement.responses)
-        weights = jnp.asarray(self.weights)[:, None]
+        measured, valid = self.record.responses, self.record.valid
+        weights = self.record.weights[:, None]
 
         upper = np.triu_indices(q)  # SᵀS is symmetric: its upper triangle is summed
 
@@ -136,9 +137,10 @@ class SystemTerms:
             s = y[0, 1:] * weights  # (Q, D, P)
             da = jnp.sum(s[upper[0]] * s[upper[1]], axis=1)
             db = jnp.sum(s * residual, axis=1)
+            on = valid[k // substeps] > 0  # a sample of the record, not of its padding
             if substeps > 1:
-                on = (k % substeps) == 0
-                da, db = jnp.where(on, da, 0.0), jnp.where(on, db, 0.0)
+                on = on & ((k % substeps) == 0)
+            da, db = jnp.where(on, da, 0.0), jnp.where(on, db, 0.0)
             return a + da, b + db
 
         p = y0.shape[0]

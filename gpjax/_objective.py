@@ -25,10 +25,13 @@ def objective_parts(measured: jax.Array, calculated: jax.Array, n_bins: int):
     return _objective_parts(measured, calculated, dft, _amplitude(dft, measured, n_bins), n_bins)
 
 
-def _objective_parts(measured, calculated, dft, amplitude_measured, n_bins):
+def _objective_parts(measured, calculated, dft, amplitude_measured, n_bins, *, count=None):
+    """:func:`objective_parts` from a DFT matrix and the measured amplitudes; ``count``:
+    the samples the RMS is taken over (default all; a padded record's residual is zero
+    past them)."""
     residual = measured - calculated
     f_time = jnp.sqrt(jnp.sum(residual ** 2, axis=0))
-    rms = f_time / np.sqrt(measured.shape[0])
+    rms = f_time / (np.sqrt(measured.shape[0]) if count is None else jnp.sqrt(count))
     f_freq = jnp.sum(jnp.abs(amplitude_measured - _amplitude(dft, calculated, n_bins)), axis=0)
     return f_time, f_freq, rms
 

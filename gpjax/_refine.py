@@ -107,19 +107,23 @@ class Refiner:
         self.jacobian = jacobian
         self.evaluator = evaluator
         self.iterations = iterations
-        n = evaluator.measurement.n_samples
-        self.horizon_samples = tuple(max(3, min(n, int(round(h * n)))) for h in horizons)
-        self.batch = refine_batch(batch, n_samples=n, substeps=evaluator.substeps,
+        # Each horizon integrates its share of the padded record (a length of the bucket,
+        # so the program serves every record of it, gpjax._record) and fits its share of
+        # the record itself: residuals past ``horizon_limits`` samples are masked out.
+        padded, n = evaluator.n_padded, evaluator.measurement.n_samples
+        self.horizon_samples = tuple(max(3, min(padded, int(round(h * padded))))
+                                     for h in horizons)
+        #: Samples of the record each horizon fits (a program argument).
+        self.horizon_limits = np.array([max(3, min(n, int(round(h * n)))) for h in horizons],
+                                       dtype=float)
+        self.batch = refine_batch(batch, n_samples=padded, substeps=evaluator.substeps,
                                   max_free=max_free)
         self.max_free = max_free
         responses = evaluator.measurement.responses
-        self._noise_scale = np.std(responses, axis=0)
-        self._noise_scale[self._noise_scale == 0] = 1.0
         self._state_scale = np.stack([np.std(responses, axis=0), np.std(np.diff(
             responses, axis=0), axis=0) / evaluator.measurement.dt], axis=1).ravel() + 1e-300
-        if evaluator.n_coordinates == 1:  # a number: the one-coordinate program as before
-            self._noise_scale = float(self._noise_scale[0])
-        self._run = Program(jax.vmap(self._refine_one, in_axes=(0, 0, None)), name="refine",
+        self._run = Program(jax.vmap(self._refine_one, in_axes=(0, 0, None, None, None)),
+                            name="refine",
                             key=fingerprint(evaluator.key, iterations, self.horizon_samples,
                                             self.batch, max_free, jacobian))
         self._compiled: set[tuple[int, int]] = set()
@@ -226,7 +230,8 @@ class Refiner:
         basis = jnp.asarray(ev.forcing_basis)
         for size, chunk in padded_chunks((start, *moves), self.batch):
             began = time.perf_counter()
-            out = jax.block_until_ready(self._run(chunk[0], tuple(chunk[1:]), basis))
+            out = jax.block_until_ready(self._run(chunk[0], tuple(chunk[1:]), basis,
+                                                  ev.record_arrays, self.horizon_limits))
             shape = (layout.width, width, len(moves))
             if shape not in self._compiled:  # a first call includes its compile
                 self._compiled.add(shape)
@@ -241,29 +246,35 @@ class Refiner:
                 inner=population.inner)
         return Refinement(population=refined, succeeded=ok.astype(bool), steps=steps)
 
-    def _refine_one(self, start, moves, forcing_basis):
+    def _refine_one(self, start, moves, forcing_basis, record, limits):
         ev = self.evaluator
-        measured = jnp.asarray(ev.measurement.responses if ev.n_coordinates > 1 else
-                               ev.measurement.response)
+        single = ev.n_coordinates == 1
+        measured = record.responses[:, 0] if single else record.responses
+        index = jnp.arange(record.valid.size)
+        index = index if single else index[:, None]
+        noise_scale = record.noise_scale[0] if single else record.noise_scale
         # The normal equations need Jᵀ: a matrix with the variational Jacobian, but autodiff
         # through a while loop (diffrax) cannot be transposed, so that path keeps QR.
         linear_solver = LINEAR_SOLVER if self.jacobian == "variational" else lx.QR()
         solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-9, linear_solver=linear_solver)
         delta = jnp.zeros(moves[0].shape)
         ok, steps = jnp.array(True), jnp.array(0)
-        for samples in self.horizon_samples:
+        for samples, limit in zip(self.horizon_samples, limits):
             response = self._response(samples)
-            noise_scale = self._noise_scale
+            valid = index < limit  # the horizon's samples of the record (never its padding)
 
             # JAX's tracing caches keep this function (optx's static argument) after the
             # run: it holds the response, which holds the evaluator weakly, and the data
             # come in ``args`` — so a finished fit's programs can be freed (_response).
-            def residuals(d, args, response=response, noise_scale=noise_scale):
-                x = response(d, *args[:3])
-                return (x - args[3]) / noise_scale
+            def residuals(d, args, response=response):
+                x = response(d, *args[:4])
+                measured, valid, noise_scale = args[4:]
+                return jnp.where(valid, x - measured, 0.0) / noise_scale
 
             solution = optx.least_squares(
-                residuals, solver, delta, args=(start, moves, forcing_basis, measured[:samples]),
+                residuals, solver, delta,
+                args=(start, moves, forcing_basis, record, measured[:samples], valid[:samples],
+                      noise_scale),
                 max_steps=self.iterations, throw=False)
             finite = jnp.all(jnp.isfinite(solution.value))
             delta = jnp.where(finite, solution.value, delta)
@@ -286,36 +297,43 @@ class Refiner:
         ev = weakref.proxy(self.evaluator)
         n_stage = ev.stage_rows(samples)
         if self.jacobian == "autodiff":
-            def plain(delta, start, moves, forcing_basis):
+            def plain(delta, start, moves, forcing_basis, record):
                 constants = _moved(start, moves, delta)
-                return ev.integrate(*ev.unpack(constants, forcing_basis))[:samples, ..., 0]
+                with ev.tracing(record):
+                    return ev.integrate(*ev.unpack(constants, forcing_basis))[:samples, ..., 0]
             return plain
 
+        def jacobian_with(constants, directions, forcing_basis, record):
+            with ev.tracing(record):
+                return ev.constant_jacobian(constants, directions, forcing_basis[:n_stage])
+
         @jax.custom_jvp
-        def response(delta, start, moves, forcing_basis):
+        def response(delta, start, moves, forcing_basis, record):
             constants = _moved(start, moves, delta)
-            return ev.scan_solve(*ev.unpack(constants, forcing_basis[:n_stage]))[..., 0]
+            with ev.tracing(record):
+                return ev.scan_solve(*ev.unpack(constants, forcing_basis[:n_stage]))[..., 0]
 
         @jax.custom_batching.custom_vmap
-        def augmented(constants, directions, forcing_basis):
-            return ev.constant_jacobian(constants, directions, forcing_basis[:n_stage])
+        def augmented(constants, directions, forcing_basis, record):
+            return jacobian_with(constants, directions, forcing_basis, record)
 
         @augmented.def_vmap
-        def augmented_batched(axis_size, in_batched, constants, directions, forcing_basis):
+        def augmented_batched(axis_size, in_batched, constants, directions, forcing_basis,
+                              record):
             # Models are the population axis of one scan, not a vmap of one-model scans.
-            if in_batched[2]:
-                raise ValueError("the forcing basis is shared by every model; batch the "
-                                 "constants and directions only")
+            if in_batched[2] or any(jax.tree_util.tree_leaves(in_batched[3])):
+                raise ValueError("the forcing basis and the record are shared by every model; "
+                                 "batch the constants and directions only")
             constants, directions = (a if batched else jnp.broadcast_to(a, (axis_size,) + a.shape)
                                      for a, batched in zip((constants, directions), in_batched))
-            x, jacobian = _split_over(ev.devices, ev.constant_jacobian, axis_size,
+            x, jacobian = _split_over(ev.devices, jacobian_with, axis_size,
                                       2 + (ev.n_coordinates > 1))(
-                constants, directions, forcing_basis[:n_stage])
+                constants, directions, forcing_basis, record)
             return (jnp.moveaxis(x, -1, 0), jnp.moveaxis(jacobian, -1, 0)), (True, True)
 
         @response.defjvp
         def response_jvp(primals, tangents):
-            delta, start, moves, forcing_basis = primals
+            delta, start, moves, forcing_basis, record = primals
             # Row j of the directions: constant index[j] moved by index_scale[j] (and its
             # tied one by ±index_scale[j]).
             columns = jnp.arange(start.size)[None, :]
@@ -325,14 +343,14 @@ class Refiner:
                 directions = directions + (moves[2][:, None] == columns) * (
                     moves[3] * index_scale)[:, None]
             x, jacobian = augmented(_moved(start, moves, delta), directions,
-                                    forcing_basis)
+                                    forcing_basis, record)
             return x, jacobian @ tangents[0]
 
         return response
 
 
 def _split_over(devices, fn, count, x_rank: int = 2):
-    """``fn(constants, directions, basis)`` with the models (first axis of the first two,
+    """``fn(constants, directions, basis, record)`` with the models (first axis of the first two,
     last of the outputs, x of rank ``x_rank``, its Jacobian one more) split over
     ``devices`` by ``shard_map`` where there are several and ``count`` divides evenly."""
     if len(devices) < 2 or count % len(devices):
@@ -340,7 +358,8 @@ def _split_over(devices, fn, count, x_rank: int = 2):
     mesh = jax.make_mesh((len(devices),), ("population",), axis_types=(AxisType.Auto,),
                          devices=devices)
     models = PartitionSpec("population")
-    return jax.shard_map(fn, mesh=mesh, in_specs=(models, models, PartitionSpec()),
+    return jax.shard_map(fn, mesh=mesh, in_specs=(models, models, PartitionSpec(),
+                                                  PartitionSpec()),
                          out_specs=(PartitionSpec(*[None] * (x_rank - 1), "population"),
                                     PartitionSpec(*[None] * x_rank, "population")),
                          check_vma=False)

@@ -96,22 +96,26 @@ def test_fingerprint_tells_arrays_and_settings_apart():
     assert base != _aot.fingerprint(np.arange(3.0).astype(np.float32), {"substeps": 2}, "x")
 
 
-@pytest.mark.parametrize("change", ["data", "substeps"])
-def test_evaluators_on_other_data_or_settings_have_other_keys(change):
+@pytest.mark.parametrize("change", ["bucket", "substeps"])
+def test_evaluators_on_another_length_bucket_or_settings_have_other_keys(change):
+    """The key holds shapes and settings, not samples: another record of the same length
+    bucket shares it (tests/test_record.py), another bucket or setting does not."""
     from gpjax import Symbols
     from gpjax._evaluator import PopulationEvaluator
     from gpjax.gear import load_bundled_example
 
-    measurement, _ = load_bundled_example()
+    measurement, _ = load_bundled_example()  # 1,334 samples: the 1,536 bucket
     symbols = Symbols("phi", "t", ("T",))
     base = PopulationEvaluator(measurement, symbols, max_degree=2, batch=4)
-    if change == "data":
-        other = measurement.segment(0, measurement.n_samples - 1)
+    if change == "bucket":
+        other = measurement.segment(0, 1280)
         other_ev = PopulationEvaluator(other, symbols, max_degree=2, batch=4)
     else:
         other_ev = PopulationEvaluator(measurement, symbols, max_degree=2, batch=4, substeps=2)
     assert base.key != other_ev.key
     assert base.key == PopulationEvaluator(measurement, symbols, max_degree=2, batch=4).key
+    shorter = PopulationEvaluator(measurement.segment(3, 1300), symbols, max_degree=2, batch=4)
+    assert shorter.key == base.key
 
 
 def test_bypassing_the_persistent_cache_restores_the_settings(tmp_path):

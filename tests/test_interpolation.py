@@ -142,7 +142,7 @@ def _held_model(evaluator, scale=0.0, seed=0):
 
 def _held_error(record, substeps, interpolation="hold", stage_input=None):
     evaluator = PopulationEvaluator(record, H, max_degree=1, substeps=substeps, batch=1,
-                                    input_interpolation=interpolation)
+                                    input_interpolation=interpolation, pad_to_bucket=False)
     if stage_input is not None:
         evaluator._stage_inputs = {"u": stage_input}
     response, scores = evaluator.simulate(_held_model(evaluator))

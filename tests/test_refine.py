@@ -106,7 +106,8 @@ def test_refiner_jacobian_equals_autodiff_of_the_simulated_response(refiner):
                                     (stages @ p[1 + n_state:-2])[:, None], p[None, -2:])[:, 0]
 
     delta = jnp.full(7, 0.01)
-    custom = jax.jacfwd(lambda d: response(d, start, (index, scale), basis))(delta)
+    custom = jax.jacfwd(lambda d: response(d, start, (index, scale), basis,
+                                           evaluator.record_arrays))(delta)
     reference = jax.jacfwd(plain)(delta)
     np.testing.assert_allclose(custom, reference, rtol=0,
                                atol=1e-10 * float(jnp.max(jnp.abs(reference))))

@@ -191,7 +191,7 @@ def test_tied_step_moves_both_coefficients_and_its_jacobian_is_exact():
         return ev.scan_solve(*ev.unpack(constants, basis[:ev.stage_rows(samples)]))[..., 0]
 
     delta = jnp.asarray([0.01, 0.0])
-    custom = jax.jacfwd(lambda d: response(d, start, moves, basis))(delta)
+    custom = jax.jacfwd(lambda d: response(d, start, moves, basis, ev.record_arrays))(delta)
     reference = jax.jacfwd(plain)(delta)
     assert float(jnp.max(jnp.abs(reference[..., 0]))) > 0
     np.testing.assert_allclose(custom, reference, rtol=0,

@@ -1,0 +1,107 @@
+"""What a new record costs: whole-process ``gpjax fit`` on several different 1-DOF records of
+one length bucket, one after another with one cache folder (fresh at the start), at this
+tree and at a baseline revision in the same run.
+
+The first record compiles (cold); every later one is a *different* record, so before the
+record became a program argument (gpjax._record) it compiled again. Each row gives the
+whole process's seconds and the seconds its summary counts as compiling or loading.
+
+    python benchmarks/bench_new_record.py --baseline e894e77 --json benchmarks/new_record.json
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import dataclasses
+import json
+import os
+import platform
+import re
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _baseline import ROOT, baseline_tree  # noqa: E402
+
+WIDE = "add,sub,mul,sin,abs,sign,tanh,exp"
+#: (system, duration in s): 100 Hz records of 6,501–7,001 samples, one bucket (6,145–7,168).
+RECORDS = (("duffing", 70.0), ("pendulum", 68.0), ("quadratic_drag", 66.0),
+           ("exponential_stiffening", 65.0))
+SUMMARY = re.compile(r"([\d.]+) s in all, ([\d.]+) s of it compiling or loading (\d+)")
+
+
+def _write_records(folder: Path, count: int) -> list[Path]:
+    from gpjax.systems import generate, get_system, write_csv
+
+    paths = []
+    for name, duration in RECORDS[:count]:
+        system = dataclasses.replace(get_system(name), duration=duration)
+        path = folder / f"{name}.csv"
+        write_csv(generate(system, seed=0).fit, path)
+        paths.append(path)
+    return paths
+
+
+def _fit_all(tree: Path, records: list[Path], cache: Path, args) -> list[dict]:
+    rows = []
+    env = dict(os.environ, PYTHONPATH=str(tree), JAX_PLATFORMS="cpu",
+               GPJAX_COMPILATION_CACHE="on", GPJAX_CACHE_DIR=str(cache))
+    for path in records:
+        began = time.perf_counter()
+        run = subprocess.run(
+            [sys.executable, "-m", "gpjax", "fit", str(path), "--time", "t", "--response", "x",
+             "--input", "u", "--functions", WIDE, "--population", str(args.population),
+             "--generations", str(args.generations), "--out", str(cache.parent / path.stem)],
+            env=env, capture_output=True, text=True, cwd=tree)
+        whole = time.perf_counter() - began
+        found = SUMMARY.search(run.stdout)
+        equation = run.stdout.splitlines()[0] if run.stdout else run.stderr[-300:]
+        rows.append({"record": path.stem, "exit": run.returncode, "whole_s": whole,
+                     "fit_s": float(found[1]) if found else None,
+                     "compile_s": float(found[2]) if found else None,
+                     "programs": int(found[3]) if found else None, "equation": equation})
+    return rows
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--records", type=int, default=len(RECORDS))
+    parser.add_argument("--population", type=int, default=500)
+    parser.add_argument("--generations", type=int, default=10)
+    parser.add_argument("--baseline", help="git revision to compare against in the same run")
+    parser.add_argument("--json", help="write the results here")
+    args = parser.parse_args()
+    scratch = Path(tempfile.mkdtemp(prefix="gpjax-bench-record-"))
+    records = _write_records(scratch, args.records)
+    trees = {"this tree": ROOT}
+    results = {}
+    with (baseline_tree(args.baseline) if args.baseline else contextlib.nullcontext()) as base:
+        if base is not None:
+            trees = {args.baseline: base, **trees}
+        for label, tree in trees.items():
+            results[label] = _fit_all(tree, records, scratch / f"cache-{len(results)}", args)
+    print(f"{'record':24s}" + "".join(f"{label:>32s}" for label in results))
+    for i, path in enumerate(records):
+        cells = "".join(f"{r[i]['whole_s']:>12.1f} s ({r[i]['compile_s'] or 0:5.1f} s compiling)"
+                        for r in results.values())
+        print(f"{path.stem:24s}{cells}")
+    if args.json:
+        revision = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
+                                  capture_output=True, text=True).stdout.strip()
+        dirty = bool(subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain"],
+                                    capture_output=True, text=True).stdout.strip())
+        Path(args.json).write_text(json.dumps({
+            "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+            "revision": revision + ("+changes" if dirty else ""),
+            "date": time.strftime("%Y-%m-%d"), "machine": platform.platform(),
+            "cpus": os.cpu_count(), "population": args.population,
+            "generations": args.generations, "functions": WIDE, "results": results},
+            indent=1) + "\n", encoding="utf-8")
+
+
+if __name__ == "__main__":
+    main()

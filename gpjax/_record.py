@@ -1,0 +1,103 @@
+"""The record as arguments of the compiled programs, padded to a few lengths.
+
+A compiled program that closed over the record's samples (the measured response, its
+spectrum, the step, the divergence bounds) was a new program for every record, so a new
+record compiled everything again, also where its cache folder held the programs of another
+record of the same length. The population evaluator and the refiner therefore take the
+record as an argument (:class:`RecordArrays`), and their program keys hold only shapes and
+settings: every record of a *length bucket* shares them.
+
+Buckets (:func:`padded_length`): the record's N samples are padded to the next of
+:data:`BUCKETS_PER_OCTAVE` lengths per octave (…, 1024, 1280, 1536, 1792, 2048, …), so a
+program serves every length from one bucket to the next and a record integrates at most
+25 % (on average ~12 %) more samples than it has. The padded samples hold the last input
+value; they are masked out of every sum (:attr:`RecordArrays.valid`), so the objective,
+the fitted initial states and the refined constants are those of the unpadded record
+exactly (tested). The spectral part of the objective is a DFT-matrix product whose columns
+past N are zero and whose rows are the record's own bins j/N, padded with zero rows to a
+bucket of bins. Records too long for a DFT matrix (the rfft path of
+:mod:`gpjax._objective`) are not padded: their programs serve records of the same length.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+
+import jax
+import numpy as np
+
+#: Lengths per octave that records are padded to (see the module docstring).
+BUCKETS_PER_OCTAVE = 4
+#: Shortest padded length.
+SMALLEST_BUCKET = 16
+
+
+def padded_length(n: int) -> int:
+    """The smallest bucket length ≥ ``n``: m·2^k with m in 4…7 (BUCKETS_PER_OCTAVE = 4),
+    at least :data:`SMALLEST_BUCKET`."""
+    n = max(int(n), SMALLEST_BUCKET)
+    octave = 1 << max(0, (n - 1).bit_length() - 1)  # largest power of two below n (or n)
+    step = max(1, octave // BUCKETS_PER_OCTAVE)
+    return -(-n // step) * step
+
+
+def padded_rows(array: np.ndarray, rows: int) -> np.ndarray:
+    """``array`` extended along axis 0 to ``rows`` by repeating its last row."""
+    array = np.asarray(array)
+    if array.shape[0] >= rows:
+        return array
+    return np.concatenate([array, np.repeat(array[-1:], rows - array.shape[0], axis=0)])
+
+
+@jax.tree_util.register_dataclass
+@dataclasses.dataclass(frozen=True)
+class RecordArrays:
+    """What a compiled program needs of a record, as arrays (N' the padded length, m' the
+    padded bins, D the coordinates).
+
+    Attributes:
+        responses: (N', D) measured responses, zero past N.
+        valid: (N',) 1.0 for the record's samples, 0.0 for the padding.
+        count: () N, the record's samples.
+        dft: (2m', N') weighted cos and sin rows of the record's bins (zero past N and m),
+            or (1, m') the rfft weights (:func:`gpjax._objective._dft_matrix`).
+        amplitude: (m', D) the measured amplitude spectra (zero past m).
+        weights: (D,) each coordinate's weight in the objective.
+        bounds: (D, 2) largest |x| and |x'| a simulation is clipped to.
+        step: () the RK4 step h (s).
+        start: () the time of the first sample (s).
+        noise_scale: (D,) the responses' standard deviations (residual scales of the
+            refiner).
+    """
+
+    responses: np.ndarray
+    valid: np.ndarray
+    count: np.ndarray
+    dft: np.ndarray
+    amplitude: np.ndarray
+    weights: np.ndarray
+    bounds: np.ndarray
+    step: np.ndarray
+    start: np.ndarray
+    noise_scale: np.ndarray
+
+
+class RecordContext:
+    """Mixin: :meth:`record` gives the record arrays being traced inside
+    :meth:`tracing`, else the evaluator's own (:attr:`record_arrays`)."""
+
+    _traced_record: RecordArrays | None = None
+
+    @property
+    def record(self) -> RecordArrays:
+        return self._traced_record if self._traced_record is not None else self.record_arrays
+
+    @contextlib.contextmanager
+    def tracing(self, record: RecordArrays):
+        """While JAX traces a program body: :attr:`record` is ``record`` (its arguments)."""
+        outer, self._traced_record = self._traced_record, record
+        try:
+            yield
+        finally:
+            self._traced_record = outer
