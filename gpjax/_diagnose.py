@@ -91,6 +91,7 @@ from __future__ import annotations
 import dataclasses
 import math
 
+from . import _progress
 from ._canonical import Symbols
 from ._convergence import (MAX_SUBSTEPS, Convergence, check_model, initial_substeps,
                            next_substeps)
@@ -324,7 +325,11 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         candidates = [structure.plus(c.terms) for c in shortlisted]
         pairs = (rank_pairs(problem.weak, context, structure, ranked, shortlist)
                  if chosen_mode == "equation_error" and shortlisted else [])
+        also = f" and {len(pairs)} pair(s)" if pairs else ""
+        _progress.stage(f"diagnosis: step {round_number + 1}: fitting {len(candidates)} "
+                        f"candidate effect(s){also} ({chosen_mode} mode)")
         while chosen_mode == "simulation" and automatic:  # integrate the current model
+            _progress.stage(f"diagnosis: convergence check at {substeps} substeps")
             probe = current or problem.fit_equation_error([structure])[0]  # converged
             check = _integration(probe, problem, convergence_tolerance)
             if check.converged or substeps >= MAX_SUBSTEPS or not math.isfinite(check.ratio):
@@ -392,6 +397,8 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
                 "min_gain": min_gain, "alpha": alpha, "iterations": iterations,
                 "input_interpolation": input_interpolation, "input_noise": input_noise}
     while True:  # the structures are chosen; refit them on the whole record, converged
+        _progress.stage(f"diagnosis: refitting {len(fits)} model(s) on the whole record at "
+                        f"{substeps} substeps")
         whole = FitProblem(measurement, symbols, holdout=0.0, iterations=iterations,
                          substeps=substeps, batch=len(fits),
                          input_interpolation=input_interpolation,

@@ -18,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from . import _progress
 from ._config import GPConfig
 from ._convergence import MAX_SUBSTEPS, Convergence, check_model, next_substeps
 from ._data import Measurement
@@ -80,7 +81,9 @@ class Identifier:
             seed: seed of the run's random generator (same seed and data: same model).
             out: run folder for outputs and checkpoints (created if needed).
             resume: continue from ``out/checkpoint.json`` instead of starting afresh.
-            progress: show a progress bar (default: only on a terminal).
+            progress: show a progress bar (default: only where stderr is a terminal);
+                each generation and stage is also logged on the ``gpjax`` logger
+                (:mod:`gpjax._progress`; the command line prints it where there is no bar).
             islands: run K sub-populations (``population`` shared among them) on Dask with
                 migration (:mod:`gpjax._islands`); ``None``: one population in this process.
             scheduler: address of a running Dask scheduler (``tcp://HOST:PORT``) for the
@@ -112,26 +115,31 @@ class Identifier:
         fingerprint = measurement.fingerprint()
         if resume:
             state, seed = self._load_checkpoint(out, fitness, fingerprint)
+            _progress.stage(f"resuming {out / CHECKPOINT} after generation {state.generation}")
         else:
+            _progress.stage(f"generation 0: compiling (or loading) the population evaluator, "
+                            f"scoring {self.config.population} candidates")
             state = evolution.start(seed)
         self.measurement_ = measurement
 
-        def save(state: RunState) -> None:
+        def finished(state: RunState) -> None:
+            """Checkpoint (with a run folder) and log a finished generation."""
             if out is not None:
                 payload = {"config": self.config.to_dict(), "seed": seed, "data": fingerprint,
                            "state": state.to_json(fitness)}
                 write_text_atomic(out / CHECKPOINT, json.dumps(payload))
+            last = state.history[-1]
+            _progress.generation(last.generation, self.config.generations,
+                                 last.best_objective, last.seconds)
 
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=self.config.generations, initial=state.generation, unit="gen",
-                   disable=None if progress is None else not progress, leave=False)
-        save(state)
+        bar = _progress.bar(self.config.generations, initial=state.generation,
+                            progress=progress)
+        finished(state)
         with _StopOnInterrupt() as stop:
             try:
                 while not state.done and not stop.requested:
                     state = evolution.step(state)
-                    save(state)
+                    finished(state)
                     bar.update(1)
                     bar.set_postfix(best=f"{state.history[-1].best_objective:.4g}")
             finally:
@@ -196,6 +204,7 @@ class Identifier:
         auto = self.config.substeps == "auto"
         while True:
             width = None
+            _progress.stage(f"convergence check at {self.model_.substeps} substeps")
             check, self._reference = check_model(self.model_, self.measurement_,
                                                  tolerance=tolerance)
             self.convergence_.append(check)
@@ -214,6 +223,8 @@ class Identifier:
             # The structures were ranked at the coarser step or wider sign (the ranking,
             # unlike the constants, barely moves); the front and the reported model are
             # refitted (at a narrower sign the reported model to convergence).
+            _progress.stage(f"refitting the Pareto front at {refit['substeps']} substeps, "
+                            f"smoothed-sign width {refit['sign_width']:.3g}")
             new = Fitness(self.measurement_, self.config, **refit)
             fits.append(new)
             carried = {r.key: narrowed(r, fitness, new) for r in self._front + [self._chosen]}
@@ -251,6 +262,8 @@ class Identifier:
                 "no candidate model could be simulated (all invalid or diverged); check that "
                 "the response and input columns are right, or widen the function/terminal sets")
         front = pareto_front(valid)
+        _progress.stage(f"final model selection: refining the {len(front)} models of the "
+                        "Pareto front")
         fitness.refine(front)
         chosen, _ = select(fitness, pareto_front(front), self.config.selection_alpha)
         self._report(fitness, pareto_front([r for r in fitness.records.values()
@@ -282,6 +295,7 @@ class Identifier:
                         "data": fitness.measurement.fingerprint()} | self._provenance)
 
     def _write(self, out: Path, fitness: Fitness) -> None:
+        _progress.stage(f"writing results to {out}/")
         self.model_.save(out / "model.json")
         write_text_atomic(out / "history.csv", history_csv(self.history_))
         write_text_atomic(out / "equations.csv", history_csv(self.equations_))

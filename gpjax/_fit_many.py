@@ -15,6 +15,7 @@ import tempfile
 import time
 from pathlib import Path
 
+from . import _progress
 from ._cluster import dask_client
 from ._config import GPConfig
 from ._data import Measurement, load_csv
@@ -108,7 +109,10 @@ def fit_many(source: str | Path, *, time: str, response: str, inputs: tuple[str,
         futures = {client.submit(fit_record, m, config, seed, pure=False,
                                  key=f"gpjax-record-{name}-{os.urandom(4).hex()}"): name
                    for name, m in data.items()}
-        for future in as_completed(futures):
+        unread = len(paths) - len(data)
+        _progress.stage(f"fitting {len(data)} record(s) on Dask, one task each"
+                        + (f"; {unread} could not be read" if unread else ""))
+        for done, future in enumerate(as_completed(futures), start=1):
             name = futures[future]
             try:
                 result = future.result()
@@ -117,6 +121,8 @@ def fit_many(source: str | Path, *, time: str, response: str, inputs: tuple[str,
             for file_name, content in result.pop("files", {}).items():
                 write_bytes_atomic(out / name / file_name, content)
             rows[name].update(result)
+            outcome = f"failed: {result['error']}" if result["error"] else "fitted"
+            _progress.stage(f"record {name} {outcome} ({done}/{len(futures)})")
             write_text_atomic(out / SUMMARY, history_csv(list(rows.values())))
     write_text_atomic(out / SUMMARY, history_csv(list(rows.values())))
     return list(rows.values())

@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _trees
+from . import _progress, _trees
 from ._cluster import dask_client, worker_address
 from ._config import GPConfig
 from ._data import Measurement
@@ -140,18 +140,11 @@ def _finished(states: list[dict | None], config: GPConfig) -> bool:
     return reached or all(s["generation"] >= config.generations for s in states)
 
 
-def merged_state(states: list[dict]) -> dict:
-    """One state JSON holding every island's records (the best of a key's copies), for the
-    final selection; its history has one row per generation across islands (best
-    objective and its key over islands, median of the island medians, mean valid
-    fraction, distinct structures summed over islands, the slowest island's seconds); an
-    island that stopped early (it reached epsilon) counts with its last row."""
-    records: dict[str, dict] = {}
-    for state in states:
-        for record in state["records"]:
-            own = records.get(record["key"])
-            if own is None or record["objective"] < own["objective"]:
-                records[record["key"]] = record
+def merged_history(states: list[dict]) -> list[dict]:
+    """One history row per generation across islands (best objective and its key over
+    islands, median of the island medians, mean valid fraction, distinct structures
+    summed over islands, the slowest island's seconds); an island that stopped early (it
+    reached epsilon) counts with its last row."""
     history = []
     for generation in range(max(len(s["history"]) for s in states)):
         rows = [s["history"][min(generation, len(s["history"]) - 1)] for s in states]
@@ -163,10 +156,23 @@ def merged_state(states: list[dict]) -> dict:
             valid_fraction=float(np.mean([r["valid_fraction"] for r in rows])),
             unique_structures=sum(r["unique_structures"] for r in rows),
             seconds=max(r["seconds"] for r in rows), best_key=best["best_key"])))
+    return history
+
+
+def merged_state(states: list[dict]) -> dict:
+    """One state JSON holding every island's records (the best of a key's copies) and
+    their :func:`merged_history`, for the final selection."""
+    records: dict[str, dict] = {}
+    for state in states:
+        for record in state["records"]:
+            own = records.get(record["key"])
+            if own is None or record["objective"] < own["objective"]:
+                records[record["key"]] = record
     features = list(dict.fromkeys(f for s in states for f in s["forcing_features"]))
     return {"generation": max(s["generation"] for s in states),
             "population": [t for s in states for t in s["population"]],
-            "rng_state": states[0]["rng_state"], "history": history, "done": True,
+            "rng_state": states[0]["rng_state"], "history": merged_history(states),
+            "done": True,
             "records": list(records.values()), "forcing_features": features}
 
 
@@ -197,12 +203,13 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
     seeds = island_seeds(seed, islands)
     tasks: list[dict] = []
     epochs: list[dict] = []
-    from tqdm.auto import tqdm
-
+    logged = 0 if states[0] is None else len(merged_history(states))  # generations
     with dask_client(scheduler, workers=min(islands, os.cpu_count() or 1)) as client, \
             _StopOnInterrupt() as stop, \
-            tqdm(total=config.generations, unit="gen", leave=False,
-                 disable=None if progress is None else not progress) as bar:
+            _progress.bar(config.generations, progress=progress) as bar:
+        _progress.stage(f"{islands} islands on Dask, migrating every {migration.every} "
+                        "generations; each island's first task compiles (or loads) its "
+                        "evaluator")
         placement: list[str | None] = [None] * islands
         run_id = uuid.uuid4().hex[:8]
         while not _finished(states, config) and not stop.requested:
@@ -232,6 +239,11 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
                            "client_s": time.perf_counter() - gathered,
                            "checkpoint_bytes": len(text)})
             bar.update(min(until, config.generations) - bar.n)
+            history = merged_history(states)
+            for row in history[logged:]:
+                _progress.generation(row["generation"], config.generations,
+                                     row["best_objective"], row["seconds"])
+            logged = len(history)
     fitness = Fitness(measurement, configs[0])
     state = RunState.from_json(merged_state(states), fitness)
     identifier.measurement_ = measurement

@@ -25,6 +25,7 @@ import math
 import numpy as np
 import sympy as sp
 
+from . import _progress
 from ._canonical import Symbols
 from ._coefficients import Coefficients, from_system_population, to_system_population
 from ._convergence import check_model, initial_substeps, next_substeps
@@ -268,6 +269,8 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
     steps = substeps or initial_substeps(measurement)
     checks = []
     while True:
+        _progress.stage(f"fitting the system's constants at {steps} substeps, then its "
+                        "convergence check")
         model, scores = _refit(measurement, structure, start, steps, max_degree,
                                input_interpolation, iterations, ties)
         check, _ = check_model(model, measurement, tolerance=tolerance)

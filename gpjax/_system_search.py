@@ -44,11 +44,13 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
+import time
 from functools import lru_cache
 
 import numpy as np
 import sympy as sp
 
+from . import _progress
 from ._canonical import Symbols
 from ._coefficients import Coefficients, from_system_population, to_system_population
 from ._data import Measurement
@@ -210,9 +212,15 @@ def search_system(measurement: Measurement, *, settings: SystemSearch = SystemSe
     for k in range(0, len(trees), 2):  # half of them sums of valid terms (see the docstring)
         trees[k] = _as_trees(tuple(_random_terms(i, equations, rng) for i in range(count)),
                              equations)
+    _progress.stage(f"generation 0: compiling (or loading) the evaluator of {count} "
+                    f"equations, scoring {config.population} systems")
+    began = time.perf_counter()
     fitness = scorer(trees)
+    _progress.generation(0, config.generations, float(fitness.min()),
+                         time.perf_counter() - began)
     history = []
-    for _ in range(config.generations):
+    for generation in range(1, config.generations + 1):
+        began = time.perf_counter()
         offspring = [_offspring(trees, fitness, grammars, rng, settings)
                      for _ in range(config.population)]
         offspring += _local_search(trees, fitness, equations, scorer, settings)
@@ -222,11 +230,15 @@ def search_system(measurement: Measurement, *, settings: SystemSearch = SystemSe
         scores = scorer(pool)
         trees, fitness = _survivors(pool, scores, scorer, config.population)
         history.append(float(fitness.min()))
+        _progress.generation(generation, config.generations, history[-1],
+                             time.perf_counter() - began)
         if history[-1] <= config.epsilon:
             break
     best = scorer.key(trees[int(np.argmin(fitness))])
     if best is None:
         raise ValueError("no valid system was found; widen the search")
+    _progress.stage("final model selection: the simplest system within "
+                    f"{settings.selection_tolerance:.0%} of the best")
     best = _simplest(best, scorer, settings.selection_tolerance)
     start = scorer.coefficients(best)
     fit = fit_system(measurement, scorer.normalised(best), max_degree=config.max_degree,

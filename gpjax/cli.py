@@ -4,7 +4,9 @@
 User errors (bad file, column, configuration, model file, scheduler address) print one
 line, ``gpjax: error: <problem>; <fix>``, exit with status 2 and leave no output behind.
 ``fit-many`` exits with 2 when any record failed, after writing every other record and
-the summary.
+the summary. Where stderr is not a terminal (a log file, CI, ``nohup``, a cluster job),
+every command writes its progress there, one line per generation and per stage
+(:mod:`gpjax._progress`); stdout carries only the results.
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ import shutil
 import sys
 from pathlib import Path
 
+from . import _progress
 from ._config import GPConfig
 from ._data import INPUT_INTERPOLATIONS
 from ._errors import UserInputError
@@ -284,6 +287,7 @@ def _fit_system(args) -> int:
 
     result = search_system(measurement, settings=settings, seed=args.seed)
     model = result.model
+    _progress.stage(f"residuals by the reference solve; writing results to {out}/")
     residuals = residual_statistics(model, measurement, alpha=args.alpha)
     check = result.fit.checks[-1]
     save_system(model, out / "model.json",
@@ -334,6 +338,7 @@ def _run_diagnosis(args, measurement, model, out: Path) -> None:
     result = diagnose(measurement, model, frequencies=tuple(args.frequencies),
                       holdout=args.holdout, max_steps=args.max_steps, alpha=args.alpha,
                       input_interpolation=args.input_interpolation)
+    _progress.stage(f"diagnosis: writing the report to {out}/")
     write_report(result, out)
     before, after = result.before.metrics, result.after.metrics
     print(f"Diagnosis ({result.mode}): effects added: {', '.join(result.effects_added) or 'none'}")
@@ -458,7 +463,8 @@ def main(argv: list[str] | None = None) -> int:
         args = _parser().parse_args(argv)
         handler = {"demo": _demo, "fit": _fit, "fit-many": _fit_many, "diagnose": _diagnose,
                    "simulate": _simulate}[args.command]
-        return handler(args)
+        with _progress.lines_on_stderr():
+            return handler(args)
     except UserInputError as err:
         message = " ".join(str(err).split("\n"))  # one line, whatever a name holds
         print(f"gpjax: error: {message}", file=sys.stderr)

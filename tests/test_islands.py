@@ -225,7 +225,8 @@ def test_fit_many_writes_every_good_record_and_a_row_per_bad_one(cluster, tmp_pa
                    "--config", str(tmp_path / "small.toml"), "--out", str(tmp_path / "out"),
                    "--scheduler", cluster[0].scheduler_address])
     err = capsys.readouterr().err
-    assert status == 2 and err.startswith("gpjax: error: 1 of 3 records failed")
+    assert status == 2 and err.splitlines()[-1].startswith("gpjax: error: 1 of 3 records failed")
+    assert "gpjax: record gear1 fitted" in err  # the progress lines before it
     rows = list(csv.DictReader((tmp_path / "out" / "summary.csv").open()))
     assert [r["record"] for r in rows] == ["broken", "gear0", "gear1"]
     assert "1 data rows" in rows[0]["error"] and not rows[0]["equation"]
