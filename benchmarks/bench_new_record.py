@@ -31,7 +31,9 @@ WIDE = "add,sub,mul,sin,abs,sign,tanh,exp"
 #: (system, duration in s): 100 Hz records of 6,501–7,001 samples, one bucket (6,145–7,168).
 RECORDS = (("duffing", 70.0), ("pendulum", 68.0), ("quadratic_drag", 66.0),
            ("exponential_stiffening", 65.0))
-SUMMARY = re.compile(r"([\d.]+) s in all, ([\d.]+) s of it compiling or loading (\d+)")
+#: The run summary's whole seconds and compile seconds, in the older and the newer wording.
+SUMMARIES = (re.compile(r"([\d.]+) s in all, ([\d.]+) s of it compiling or loading (\d+)"),
+             re.compile(r"([\d.]+) s in all: .*Of these, ([\d.]+) s compiling or loading (\d+)"))
 
 
 def _write_records(folder: Path, count: int) -> list[Path]:
@@ -58,7 +60,7 @@ def _fit_all(tree: Path, records: list[Path], cache: Path, args) -> list[dict]:
              "--generations", str(args.generations), "--out", str(cache.parent / path.stem)],
             env=env, capture_output=True, text=True, cwd=tree)
         whole = time.perf_counter() - began
-        found = SUMMARY.search(run.stdout)
+        found = next((m for m in (p.search(run.stdout) for p in SUMMARIES) if m), None)
         equation = run.stdout.splitlines()[0] if run.stdout else run.stderr[-300:]
         rows.append({"record": path.stem, "exit": run.returncode, "whole_s": whole,
                      "fit_s": float(found[1]) if found else None,

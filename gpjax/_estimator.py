@@ -160,16 +160,21 @@ class Identifier:
         converging = time.perf_counter()
         fits = [fitness]  # the search's, then each refit's (every one compiles its own)
         fitness = self._converge(fitness, seed, state, fits)
-        self.timings_ = {"total_s": time.perf_counter() - began,
+        writing = time.perf_counter()
+        if out is not None:
+            self._write(out, fitness)
+        ended = time.perf_counter()
+        # The parts add up to total_s: each is the time between two of the marks above.
+        self.timings_ = {"total_s": ended - began,
+                         "search_s": selecting - began,
+                         "selection_s": converging - selecting,
+                         "convergence_s": writing - converging,
+                         "writing_s": ended - writing,
                          "compile_s": sum(f.evaluator.compile_seconds + f.refiner.compile_seconds
                                           for f in fits),
                          "compiles": sum(f.evaluator.compile_count + f.refiner.compile_count
                                          for f in fits),
-                         "selection_s": converging - selecting,
-                         "convergence_s": time.perf_counter() - converging,
-                         "generations": state.generation}
-        if out is not None:
-            self._write(out, fitness)
+                         "generations": state.generation, "finished_at": time.time()}
         return self
 
     def _load_checkpoint(self, out: Path | None, fitness: Fitness, fingerprint: str):

@@ -212,15 +212,29 @@ def _demo(args) -> int:
 
 
 def _timings(identifier, out) -> None:
+    """Print where the whole process's seconds went: parts that add up to the whole, from
+    the process's start (start-up: Python, imports, reading the data) to this line."""
+    import time
+
+    import psutil
+
     t = identifier.timings_
+    now = time.time()
+    started = psutil.Process().create_time()
     seconds = [row["seconds"] for row in identifier.history_]
-    later = (f", later generations {sum(seconds[1:]) / len(seconds[1:]):.2f} s each"
+    later = (f", then {sum(seconds[1:]) / len(seconds[1:]):.2f} s a generation"
              if len(seconds) > 1 else "")
-    print(f"\nStopped by {identifier.stopped_by} after generation {t['generations']}; "
-          f"{t['total_s']:.1f} s in all, {t['compile_s']:.1f} s of it compiling or loading "
-          f"{t['compiles']} population evaluator/refiner programs; generation 0 "
-          f"{seconds[0]:.2f} s{later}; final model selection {t['selection_s']:.1f} s. "
-          f"Results in {out}/")
+    parts = [("start-up and reading the data", t["finished_at"] - t["total_s"] - started),
+             (f"search ({t['generations'] + 1} generations: generation 0 {seconds[0]:.2f} s"
+              f"{later})", t["search_s"]),
+             ("final model selection", t["selection_s"]),
+             ("convergence check", t["convergence_s"]), ("writing results", t["writing_s"]),
+             ("printing", now - t["finished_at"])]
+    print(f"\nStopped by {identifier.stopped_by} after generation {t['generations']}. "
+          f"{now - started:.1f} s in all: "
+          + "; ".join(f"{name} {value:.1f} s" for name, value in parts)
+          + f". Of these, {t['compile_s']:.1f} s compiling or loading {t['compiles']} "
+          f"population evaluator/refiner programs. Results in {out}/")
 
 
 def _fit(args) -> int:
