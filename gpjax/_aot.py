@@ -22,6 +22,7 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
+import time
 from functools import lru_cache
 from pathlib import Path
 from typing import Callable
@@ -92,6 +93,13 @@ class Program:
         self._name = name
         self._key = key
         self._executables: dict[tuple, Callable] = {}
+        #: Seconds spent tracing and compiling, or loading, executables (not running them).
+        self.compile_seconds = 0.0
+
+    @property
+    def compile_count(self) -> int:
+        """Executables compiled or loaded (one per argument signature)."""
+        return len(self._executables)
 
     def __call__(self, *args):
         leaves, tree = jax.tree_util.tree_flatten(args)
@@ -100,8 +108,10 @@ class Program:
                                       for x in leaves))
         executable = self._executables.get(signature)
         if executable is None:
+            began = time.perf_counter()
             executable = self._executables[signature] = self._executable(tree, leaves,
                                                                         signature)
+            self.compile_seconds += time.perf_counter() - began
         return executable(*leaves)
 
     def _executable(self, tree, leaves, signature) -> Callable:

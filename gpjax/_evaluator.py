@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import dataclasses
 import enum
-import time
 
 import jax
 import jax.numpy as jnp
@@ -235,7 +234,6 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext):
         self._forcing_index: dict[sp.Expr, int] = {}
         self._finite: dict[sp.Expr, bool] = {}  # forcing_finite's verdicts
         self._forcing_basis = np.zeros((self.stage_times.size, 0))
-        self.compile_seconds = 0.0
         self._extra_fns = [sp.lambdify((symbols.x, symbols.x_dot, symbols.t), f, modules="jax")
                            for f in extra_state_features]
         #: The record as the programs' argument (:class:`~gpjax._record.RecordArrays`).
@@ -254,7 +252,6 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext):
                                self.batch, fit_initial_conditions, integrator, input_interpolation,
                                [str(d) for d in self.devices])
         self._run = Program(run, name="population", key=self.key)
-        self._compiled: set[tuple] = set()
 
     def stage_rows(self, samples: int) -> int:
         """Forcing rows that the first ``samples`` samples need (the rows of
@@ -324,16 +321,20 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext):
                         rms=stacked[3], status=stacked[4].astype(int), y0=stacked[5])
         return scores, (np.concatenate(paths)[back] if responses else None)
 
+    @property
+    def compile_seconds(self) -> float:
+        """Seconds spent compiling or loading this evaluator's programs."""
+        return self._run.compile_seconds
+
+    @property
+    def compile_count(self) -> int:
+        """Programs compiled or loaded (one per forcing capacity and layout used)."""
+        return self._run.compile_count
+
     def _call(self, mass, state, forcing, y0, inner):
-        key = (self.forcing_capacity, state.shape[-1])
-        start = time.perf_counter()
-        out = jax.block_until_ready(self._run(
+        return jax.block_until_ready(self._run(
             *map(jnp.asarray, (mass, state, forcing, y0, inner, self._forcing_basis)),
             self.record_arrays))
-        if key not in self._compiled:  # the first call of a shape includes its compile
-            self._compiled.add(key)
-            self.compile_seconds += time.perf_counter() - start
-        return out
 
     def _simulate_and_score(self, mass, state, forcing, y0, inner, forcing_basis, record):
         with self.tracing(record):

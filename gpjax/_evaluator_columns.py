@@ -106,11 +106,6 @@ class Columns:
         return self._forcing_index[feature]
 
     @property
-    def compile_count(self) -> int:
-        """Shapes compiled so far (one per forcing capacity used; :attr:`compile_seconds`)."""
-        return len(self._compiled)
-
-    @property
     def forcing_capacity(self) -> int:
         return self._forcing_basis.shape[1]
 

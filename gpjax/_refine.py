@@ -28,7 +28,6 @@ faster than with forward-mode autodiff through the scan and ~9× faster than thr
 from __future__ import annotations
 
 import dataclasses
-import time
 import weakref
 
 import jax
@@ -126,13 +125,16 @@ class Refiner:
                             name="refine",
                             key=fingerprint(evaluator.key, iterations, self.horizon_samples,
                                             self.batch, max_free, jacobian))
-        self._compiled: set[tuple[int, int]] = set()
-        self.compile_seconds = 0.0
+
+    @property
+    def compile_seconds(self) -> float:
+        """Seconds spent compiling or loading this refiner's programs."""
+        return self._run.compile_seconds
 
     @property
     def compile_count(self) -> int:
-        """Shapes compiled so far (one per flat-layout width and Jacobian width used)."""
-        return len(self._compiled)
+        """Programs compiled or loaded (one per flat-layout width and Jacobian width used)."""
+        return self._run.compile_count
 
     def width(self, free: int) -> int:
         """Jacobian columns for a call whose models have at most ``free`` free constants:
@@ -229,13 +231,8 @@ class Refiner:
         outputs = []
         basis = jnp.asarray(ev.forcing_basis)
         for size, chunk in padded_chunks((start, *moves), self.batch):
-            began = time.perf_counter()
             out = jax.block_until_ready(self._run(chunk[0], tuple(chunk[1:]), basis,
                                                   ev.record_arrays, self.horizon_limits))
-            shape = (layout.width, width, len(moves))
-            if shape not in self._compiled:  # a first call includes its compile
-                self._compiled.add(shape)
-                self.compile_seconds += time.perf_counter() - began
             outputs.append([np.asarray(o)[:size] for o in out])
         params, ok, steps = (np.concatenate(p) for p in zip(*outputs))
         refined = dataclasses.replace(layout.population(params, population.forcing.shape[-1]),
