@@ -191,3 +191,19 @@ def _store(path: Path, compiled) -> None:
         os.replace(temporary, path)
     except Exception:  # noqa: BLE001 - caching is an optimisation, never a failure
         return
+
+
+class CompileFigures:
+    """Mixin: the compile figures of an object whose program is ``_run``."""
+
+    _run: Program
+
+    @property
+    def compile_seconds(self) -> float:
+        """Seconds spent compiling or loading the object's programs (not running them)."""
+        return self._run.compile_seconds
+
+    @property
+    def compile_count(self) -> int:
+        """Programs compiled or loaded (one per argument signature)."""
+        return self._run.compile_count

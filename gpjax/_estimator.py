@@ -207,24 +207,31 @@ class Identifier:
         ``fits``; returns the fitness in use."""
         tolerance = self.config.convergence_tolerance
         auto = self.config.substeps == "auto"
+        refits, stopped = 0, "converged"
         while True:
             width = None
             _progress.stage(f"convergence check at {self.model_.substeps} substeps")
             check, self._reference = check_model(self.model_, self.measurement_,
                                                  tolerance=tolerance)
             self.convergence_.append(check)
-            capped = not auto or check.substeps >= MAX_SUBSTEPS
+            capped = ("fixed substeps" if not auto else
+                      "substeps cap" if check.substeps >= MAX_SUBSTEPS else None)
             if not check.converged:
                 if capped:
+                    stopped = capped
                     break
                 refit = {"substeps": next_substeps(check), "sign_width": fitness.sign_width}
             else:
                 width = check_width(self.model_, self._reference, check.rms_reference,
                                     fitness, tolerance=tolerance)
-                if width is None or width.converged or capped:
+                if width is None or width.converged:
+                    break
+                if capped:
+                    stopped = capped
                     break
                 refit = {"substeps": min(MAX_SUBSTEPS, NARROWING * check.substeps),
                          "sign_width": fitness.sign_width / NARROWING}
+            refits += 1
             # The structures were ranked at the coarser step or wider sign (the ranking,
             # unlike the constants, barely moves); the front and the reported model are
             # refitted (at a narrower sign the reported model to convergence).
@@ -236,6 +243,7 @@ class Identifier:
             adopted = {r.key: r for r in new.adopt(list(carried.values()))}
             chosen = adopted.get(carried[self._chosen.key].key)
             if chosen is None or not (chosen.valid and chosen.status == OK):
+                stopped = "refit failed"
                 break
             if new.sign_width != fitness.sign_width:
                 new.refine([chosen], to_convergence=True)  # constants the width check compares
@@ -244,19 +252,22 @@ class Identifier:
                                                 if r.status == OK]), chosen, seed, state)
         widths = {"sign_width": width.to_json()} if width is not None else {}
         self.model_ = dataclasses.replace(
-            self.model_, convergence=check.to_json() | widths,
+            self.model_, convergence=check.to_json() | widths | {"refits": refits,
+                                                                 "stopped": stopped},
             metrics=self.model_.metrics | {"rms_reference": check.rms_reference})
+        why = {"fixed substeps": "substeps is fixed; use substeps = \"auto\" or more substeps",
+               "substeps cap": f"at the cap of {MAX_SUBSTEPS} steps per sample",
+               "refit failed": "the refit at more steps or a narrower sign failed"}.get(stopped)
         if not check.converged:
             warnings.warn(f"the reported model's RK4 response differs from the reference "
                           f"solve by {check.ratio:.1%} of its RMS residual at "
                           f"{check.substeps} steps per sample (tolerance "
-                          f"{tolerance:.1%}); use substeps = \"auto\" or more substeps",
-                          stacklevel=3)
+                          f"{tolerance:.1%}): {why}", stacklevel=3)
         elif width is not None and not width.converged:
             warnings.warn(f"the reported model's response changes by {width.ratio:.1%} of its "
                           f"RMS residual when its smoothed sign (width {width.fraction:.2g} × "
                           f"RMS of its variable) is narrowed {NARROWING}×, at {check.substeps} "
-                          f"steps per sample (tolerance {tolerance:.1%}); its friction "
+                          f"steps per sample (tolerance {tolerance:.1%}): {why}; its friction "
                           f"constants depend on the smoothing", stacklevel=3)
         return fitness
 

@@ -44,7 +44,7 @@ import sympy as sp
 
 from jax.sharding import AxisType, PartitionSpec
 
-from ._aot import Program, fingerprint
+from ._aot import CompileFigures, Program, fingerprint
 from ._canonical import Symbols
 from ._coefficients import Population, padded_chunks
 from ._data import Measurement, between_samples
@@ -122,7 +122,7 @@ class Scores:
     y0: np.ndarray
 
 
-class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext):
+class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, CompileFigures):
     """Simulates and scores populations against one measurement; compiles once per length
     bucket and settings (the record enters the programs as :attr:`record_arrays`,
     :mod:`gpjax._record`).
@@ -320,16 +320,6 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext):
         scores = Scores(objective=stacked[0], f_time=stacked[1], f_freq=stacked[2],
                         rms=stacked[3], status=stacked[4].astype(int), y0=stacked[5])
         return scores, (np.concatenate(paths)[back] if responses else None)
-
-    @property
-    def compile_seconds(self) -> float:
-        """Seconds spent compiling or loading this evaluator's programs."""
-        return self._run.compile_seconds
-
-    @property
-    def compile_count(self) -> int:
-        """Programs compiled or loaded (one per forcing capacity and layout used)."""
-        return self._run.compile_count
 
     def _call(self, mass, state, forcing, y0, inner):
         return jax.block_until_ready(self._run(

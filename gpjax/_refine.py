@@ -38,7 +38,7 @@ import optimistix as optx
 
 from jax.sharding import AxisType, PartitionSpec
 
-from ._aot import Program, fingerprint
+from ._aot import CompileFigures, Program, fingerprint
 from ._coefficients import Population, padded_chunks
 from ._evaluator import STAGE_ELEMENTS_PER_CALL, PopulationEvaluator
 
@@ -68,7 +68,7 @@ def refine_batch(batch: int, *, n_samples: int, substeps: int, max_free: int) ->
     return max(1, min(batch, STAGE_ELEMENTS_PER_CALL // (stages * max_free)))
 
 
-class Refiner:
+class Refiner(CompileFigures):
     """Compiles the batched Levenberg–Marquardt refinement once per evaluator.
 
     Args:
@@ -125,16 +125,6 @@ class Refiner:
                             name="refine",
                             key=fingerprint(evaluator.key, iterations, self.horizon_samples,
                                             self.batch, max_free, jacobian))
-
-    @property
-    def compile_seconds(self) -> float:
-        """Seconds spent compiling or loading this refiner's programs."""
-        return self._run.compile_seconds
-
-    @property
-    def compile_count(self) -> int:
-        """Programs compiled or loaded (one per flat-layout width and Jacobian width used)."""
-        return self._run.compile_count
 
     def width(self, free: int) -> int:
         """Jacobian columns for a call whose models have at most ``free`` free constants:

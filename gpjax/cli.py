@@ -225,7 +225,8 @@ def _timings(identifier, out) -> None:
     later = (f", then {sum(seconds[1:]) / len(seconds[1:]):.2f} s a generation"
              if len(seconds) > 1 else "")
     parts = [("start-up and reading the data", t["finished_at"] - t["total_s"] - started),
-             (f"search ({t['generations'] + 1} generations: generation 0 {seconds[0]:.2f} s"
+             (f"search ({len(seconds)} generation{'s' * (len(seconds) != 1)}: generation 0 "
+              f"{seconds[0]:.2f} s"
               f"{later})", t["search_s"]),
              ("final model selection", t["selection_s"]),
              ("convergence check", t["convergence_s"]), ("writing results", t["writing_s"]),

@@ -62,6 +62,9 @@ def test_the_reported_model_means_the_same_under_the_reference_solver(demo_fit):
     check = model.convergence
     assert check["converged"] and check["ratio"] < 0.01
     assert model.substeps == check["substeps"] > 1  # one RK4 step per sample is not enough
+    # the loop refitted at more steps (one step per sample is not enough) and says why it
+    # stopped: the check passed
+    assert check["stopped"] == "converged" and check["refits"] == len(identifier.convergence_) - 1
     reference = identifier.simulate()
     rk4 = identifier.simulate(solver="rk4")
     residual = np.sqrt(np.mean((measurement.response - reference) ** 2))
