@@ -53,7 +53,7 @@ from ._evaluator_dynamics import HOLD_WITH_DIFFRAX, Dynamics, _forcing_rows
 from ._evaluator_systems import SystemTerms, system_state_features
 from ._features import SLOTS, Family, match
 from ._integrate import enable_float64
-from ._objective import _objective_parts, chirp_z, chirp_z_amplitude, default_n_bins
+from ._objective import _amplitude, _dft_matrix, _objective_parts, default_n_bins
 from ._record import RecordArrays, RecordContext, padded_length, padded_rows
 
 
@@ -211,9 +211,12 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         self.n_bins = n_bins if n_bins is not None else max(map(default_n_bins,
                                                                 measurement.responses.T))
         self.n_bins = min(self.n_bins, n // 2 + 1)
-        #: Samples the programs integrate: the record padded to its length bucket
-        #: (:mod:`gpjax._record`).
-        self.n_padded = padded_length(n) if pad_to_bucket else n
+        dft = _dft_matrix(n, self.n_bins)
+        #: Samples the programs integrate: the record padded to its length bucket, or
+        #: unpadded where the spectrum is an rfft (:mod:`gpjax._record`).
+        self.n_padded = padded_length(n) if pad_to_bucket and dft.shape[0] > 1 else n
+        #: DFT bins the programs hold (the record's :attr:`n_bins`, zero-padded).
+        self.n_bins_padded = min(padded_length(self.n_bins), self.n_padded // 2 + 1)
         n_stage = self.stage_rows(self.n_padded)
         batch = max(1, min(batch, STAGE_ELEMENTS_PER_CALL // n_stage))
         self.batch = -(-batch // len(self.devices)) * len(self.devices)
@@ -237,7 +240,8 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         self._extra_fns = [sp.lambdify((symbols.x, symbols.x_dot, symbols.t), f, modules="jax")
                            for f in extra_state_features]
         #: The record as the programs' argument (:class:`~gpjax._record.RecordArrays`).
-        self.record_arrays = _record_arrays(measurement, self.n_padded, self.n_bins, self.h)
+        self.record_arrays = _record_arrays(measurement, self.n_padded, self.n_bins,
+                                            self.n_bins_padded, dft, self.h)
         run = self._simulate_and_score
         if len(self.devices) > 1:
             mesh = jax.make_mesh((len(self.devices),), ("population",),
@@ -247,7 +251,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
                                 out_specs=split, check_vma=False)
         #: Fingerprint of everything the compiled programs close over (the record is an
         #: argument: records of one length bucket share the programs).
-        self.key = fingerprint(self.n_padded, symbols, self.state_features,
+        self.key = fingerprint(self.n_padded, self.n_bins_padded, symbols, self.state_features,
                                self.families, max_degree, substeps, w_time, w_freq,
                                self.batch, fit_initial_conditions, integrator, input_interpolation,
                                [str(d) for d in self.devices])
@@ -344,8 +348,8 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         status = jnp.where(positive, jnp.where(finite & bounded, OK, DIVERGED), NONPOSITIVE_MASS)
         x = jnp.where(jnp.isfinite(x) & ~padding, x, 0.0)  # the padding's residual is 0
         f_time, f_freq, rms = _objective_parts(  # (D, P) each
-            record.responses[:, :, None], x, record.spectrum, record.amplitude[:, :, None],
-            count=record.count)
+            record.responses[:, :, None], x, record.dft, record.amplitude[:, :, None],
+            self.n_bins_padded, count=record.count)
         if self.n_coordinates == 1:
             f_time, f_freq, rms = f_time[0], f_freq[0], rms[0]
         else:
@@ -359,22 +363,29 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         return out + (paths,)
 
 
-def _record_arrays(measurement: Measurement, n_padded: int, n_bins: int,
-                   step: float) -> RecordArrays:
-    """``measurement`` as program arguments, padded to ``n_padded`` samples, with eq. 9's
-    first ``n_bins`` bins (:class:`~gpjax._record.RecordArrays`)."""
+def _record_arrays(measurement: Measurement, n_padded: int, n_bins: int, n_bins_padded: int,
+                   dft: np.ndarray, step: float) -> RecordArrays:
+    """``measurement`` as program arguments, padded to ``n_padded`` samples and
+    ``n_bins_padded`` bins (:class:`~gpjax._record.RecordArrays`); ``dft`` is
+    :func:`~gpjax._objective._dft_matrix` of the unpadded record."""
     n = measurement.n_samples
     responses = np.zeros((n_padded, measurement.n_coordinates))
     responses[:n] = measurement.responses
-    spectrum = chirp_z(n, n_padded, n_bins)
+    if dft.shape[0] == 1:  # rfft weights: (1, m'), zero past m
+        padded_dft = np.zeros((1, n_bins_padded))
+        padded_dft[0, :n_bins] = dft[0, :n_bins]
+    else:  # cos rows, then sin rows, each zero past m and past N
+        padded_dft = np.zeros((2 * n_bins_padded, n_padded))
+        padded_dft[:n_bins, :n] = dft[:n_bins]
+        padded_dft[n_bins_padded:n_bins_padded + n_bins, :n] = dft[n_bins:]
     measured = measurement.responses
     span = np.ptp(measured, axis=0) + np.max(np.abs(measured), axis=0)
     bounds = DIVERGENCE_RANGES * np.stack([span, span / measurement.dt], axis=1)
     noise_scale = np.std(measured, axis=0)
     return RecordArrays(
         responses=responses, valid=(np.arange(n_padded) < n).astype(float),
-        count=np.asarray(float(n)), spectrum=spectrum,
-        amplitude=np.asarray(chirp_z_amplitude(spectrum, responses)),
+        count=np.asarray(float(n)), dft=padded_dft,
+        amplitude=np.asarray(_amplitude(padded_dft, responses, n_bins_padded)),
         weights=np.std(measured[:, :1]) / np.std(measured, axis=0), bounds=bounds,
         step=np.asarray(step), start=np.asarray(float(measurement.time[0])),
         noise_scale=np.where(noise_scale == 0, 1.0, noise_scale))

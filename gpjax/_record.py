@@ -13,9 +13,10 @@ program serves every length from one bucket to the next and a record integrates 
 25 % (on average ~12 %) more samples than it has. The padded samples hold the last input
 value; they are masked out of every sum (:attr:`RecordArrays.valid`), so the objective,
 the fitted initial states and the refined constants are those of the unpadded record
-(tested). The spectral part of the objective takes the record's own bins j/N, j < m, by a
-chirp-z transform whose FFT lengths depend on the padded length alone
-(:func:`gpjax._objective.chirp_z`): neither N nor the number of bins m is a shape.
+exactly (tested). The spectral part of the objective is a DFT-matrix product whose columns
+past N are zero and whose rows are the record's own bins j/N, padded with zero rows to a
+bucket of bins. Records too long for a DFT matrix (the rfft path of
+:mod:`gpjax._objective`) are not padded: their programs serve records of the same length.
 """
 
 from __future__ import annotations
@@ -59,9 +60,9 @@ class RecordArrays:
         responses: (N', D) measured responses, zero past N.
         valid: (N',) 1.0 for the record's samples, 0.0 for the padding.
         count: () N, the record's samples.
-        spectrum: the chirp-z arrays of the record's bins
-            (:func:`gpjax._objective.chirp_z`; m' = N' // 2 + 1 bins, zero weight from m on).
-        amplitude: (m', D) the measured amplitude spectra (zero from m on).
+        dft: (2m', N') weighted cos and sin rows of the record's bins (zero past N and m),
+            or (1, m') the rfft weights (:func:`gpjax._objective._dft_matrix`).
+        amplitude: (m', D) the measured amplitude spectra (zero past m).
         weights: (D,) each coordinate's weight in the objective.
         bounds: (D, 2) largest |x| and |x'| a simulation is clipped to.
         step: () the RK4 step h (s).
@@ -73,7 +74,7 @@ class RecordArrays:
     responses: np.ndarray
     valid: np.ndarray
     count: np.ndarray
-    spectrum: dict
+    dft: np.ndarray
     amplitude: np.ndarray
     weights: np.ndarray
     bounds: np.ndarray

@@ -10,7 +10,7 @@ from gpjax.engine import PopulationEvaluator, objective_parts
 from gpjax._coefficients import Population
 from gpjax._evaluator import DIVERGED, NONPOSITIVE_MASS, OK, PENALTY
 from gpjax._integrate import enable_float64
-from gpjax._objective import amplitude_spectrum, chirp_z, chirp_z_amplitude
+from gpjax._objective import _amplitude, _dft_matrix
 
 S = Symbols("x", "t", ("u",))
 
@@ -161,19 +161,15 @@ def test_initial_condition_fit_recovers_a_models_own_start():
     assert scores.f_time[0] < 1e-8
 
 
-@pytest.mark.parametrize("n", [4001, 4000, 5120])  # odd, even (a Nyquist bin), a bucket
-@pytest.mark.parametrize("trailing", [(3,), (2, 3)])  # models; coordinates, models
-def test_chirp_z_gives_the_records_bins_from_its_padded_samples(n, trailing):
-    """The first m bins j/N of N samples, from the N' = 5,120 padded ones (zero past N,
-    which may hold anything), agree with numpy's rfft; bins from m on weigh nothing."""
+@pytest.mark.parametrize("shape", [(4000, 3), (4000, 2, 3)])  # models; coordinates, models
+def test_dft_matrix_and_fft_amplitudes_agree(shape):
     enable_float64()  # as every evaluator does; the test may run first
-    signal = np.random.default_rng(4).standard_normal((5120,) + trailing)
-    m = 400 if n != 4000 else 2001  # every bin of an even record, its Nyquist bin too
-    out = np.asarray(chirp_z_amplitude(chirp_z(n, 5120, m), jnp.asarray(signal)))
-    assert out.shape == (2561,) + trailing
-    expected = np.apply_along_axis(amplitude_spectrum, 0, signal[:n])[:m]
-    np.testing.assert_allclose(out[:m], expected, rtol=1e-9, atol=1e-13)
-    assert np.all(out[m:] == 0)
+    signal = np.random.default_rng(4).standard_normal(shape)
+    by_matrix = _amplitude(jnp.asarray(_dft_matrix(4000, 400)), signal, 400)
+    by_fft = _amplitude(jnp.asarray(_dft_matrix(4000, 600)), signal, 400)
+    assert _dft_matrix(4000, 600).shape == (1, 600)  # over the size limit: weights only
+    assert by_matrix.shape == by_fft.shape == (400,) + shape[1:]
+    np.testing.assert_allclose(by_fft, by_matrix, rtol=1e-10, atol=1e-14)
 
 
 def test_variational_scan_equals_forward_mode_autodiff_of_the_solve():
