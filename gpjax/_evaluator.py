@@ -251,10 +251,17 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
                                 out_specs=split, check_vma=False)
         #: Fingerprint of everything the compiled programs close over (the record is an
         #: argument: records of one length bucket share the programs).
-        self.key = fingerprint(self.n_padded, self.n_bins_padded, symbols, self.state_features,
-                               self.families, max_degree, substeps, w_time, w_freq,
-                               self.batch, fit_initial_conditions, integrator, input_interpolation,
-                               [str(d) for d in self.devices])
+        #: The same without eq. 9's bins: the key of programs that integrate but take no
+        #: spectrum (the refiner's; their record is :attr:`time_record`).
+        self.time_key = fingerprint(self.n_padded, symbols, self.state_features,
+                                    self.families, max_degree, substeps, self.batch,
+                                    fit_initial_conditions, integrator, input_interpolation,
+                                    [str(d) for d in self.devices])
+        self.key = fingerprint(self.time_key, self.n_bins_padded, w_time, w_freq)
+        #: :attr:`record_arrays` without the spectrum, whose bins would be a shape.
+        self.time_record = dataclasses.replace(
+            self.record_arrays, dft=np.zeros((1, 1)),
+            amplitude=np.zeros((1, self.n_coordinates)))
         self._run = Program(run, name="population", key=self.key)
 
     def stage_rows(self, samples: int) -> int:

@@ -123,7 +123,7 @@ class Refiner(CompileFigures):
             responses, axis=0), axis=0) / evaluator.measurement.dt], axis=1).ravel() + 1e-300
         self._run = Program(jax.vmap(self._refine_one, in_axes=(0, 0, None, None, None)),
                             name="refine",
-                            key=fingerprint(evaluator.key, iterations, self.horizon_samples,
+                            key=fingerprint(evaluator.time_key, iterations, self.horizon_samples,
                                             self.batch, max_free, jacobian))
 
     def width(self, free: int) -> int:
@@ -222,7 +222,7 @@ class Refiner(CompileFigures):
         basis = jnp.asarray(ev.forcing_basis)
         for size, chunk in padded_chunks((start, *moves), self.batch):
             out = jax.block_until_ready(self._run(chunk[0], tuple(chunk[1:]), basis,
-                                                  ev.record_arrays, self.horizon_limits))
+                                                  ev.time_record, self.horizon_limits))
             outputs.append([np.asarray(o)[:size] for o in out])
         params, ok, steps = (np.concatenate(p) for p in zip(*outputs))
         refined = dataclasses.replace(layout.population(params, population.forcing.shape[-1]),

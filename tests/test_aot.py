@@ -116,6 +116,8 @@ def test_evaluators_on_another_length_bucket_or_settings_have_other_keys(change)
     assert base.key == PopulationEvaluator(measurement, symbols, max_degree=2, batch=4).key
     shorter = PopulationEvaluator(measurement.segment(3, 1300), symbols, max_degree=2, batch=4)
     assert shorter.key == base.key
+    other_bins = PopulationEvaluator(measurement, symbols, max_degree=2, batch=4, n_bins=200)
+    assert other_bins.key != base.key and other_bins.time_key == base.time_key  # the refiner's
 
 
 def test_bypassing_the_persistent_cache_restores_the_settings(tmp_path):
