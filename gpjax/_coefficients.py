@@ -19,6 +19,7 @@ Two array forms serve the compiled code:
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Iterable, Protocol, Sequence
 
@@ -314,14 +315,44 @@ class FlatLayout:
                           inner=inner)
 
 
-def padded_chunks(arrays: Sequence[np.ndarray], batch: int):
+#: Padding rows a smaller compiled call must save to be worth one more call (per-call
+#: overhead in rows; the cost of a call is about linear in its rows).
+CALL_OVERHEAD_ROWS = 8
+
+
+def chunk_sizes(count: int, sizes: Sequence[int]) -> list[int]:
+    """The compiled batch sizes (from ``sizes``) of the calls that cover ``count`` rows:
+    full calls of the largest, then the remainder by the calls that cost least, a call
+    costing its rows plus :data:`CALL_OVERHEAD_ROWS` (150 rows of sizes (16, 128, 512):
+    128 + 16 + 16; 300 rows: 128 + 128 + 16 + 16 + 16)."""
+    sizes = tuple(sorted(set(sizes)))
+    full, remainder = divmod(count, sizes[-1])
+    return [sizes[-1]] * full + list(_cheapest(remainder, sizes)[1])
+
+
+@functools.lru_cache(maxsize=4096)
+def _cheapest(count: int, sizes: tuple[int, ...]) -> tuple[int, tuple[int, ...]]:
+    """(cost, calls) of the cheapest calls covering ``count`` < ``sizes[-1]`` rows."""
+    if count <= 0:
+        return 0, ()
+    options = []
+    for size in sizes:
+        cost, rest = _cheapest(count - size, sizes) if size < count else (0, ())
+        options.append((size + CALL_OVERHEAD_ROWS + cost, (size, *rest)))
+    return min(options)
+
+
+def padded_chunks(arrays: Sequence[np.ndarray], sizes: int | Sequence[int]):
     """Yield (size, chunk) for consecutive row blocks of ``arrays`` (same first axis), each
-    padded to ``batch`` rows by repeating the block's first row, so every compiled call
-    sees one shape and every padding row is a valid model."""
+    padded to one of the compiled batch ``sizes`` (:func:`chunk_sizes`) by repeating the
+    block's first row, so every compiled call sees one of a few shapes and every padding
+    row is a valid model."""
     count = arrays[0].shape[0]
-    for begin in range(0, count, batch):
+    begin = 0
+    for batch in chunk_sizes(count, (sizes,) if isinstance(sizes, int) else sizes):
         stop = min(begin + batch, count)
         pad = batch - (stop - begin)
         yield stop - begin, [np.concatenate([a[begin:stop], np.repeat(a[begin:begin + 1], pad,
                                                                        axis=0)])
                              for a in arrays]
+        begin = stop

@@ -74,6 +74,10 @@ DIVERGENCE_RANGES = 100.0
 INTEGRATORS = ("scan", "diffrax")
 #: Most (RK4 stage × model) numbers one compiled call holds per array (200 MB in float64).
 STAGE_ELEMENTS_PER_CALL = 25_000_000
+#: Batch sizes compiled besides the population's, for calls of a few models (a front's
+#: refits, the selection's neighbours): padded to the population, a call of one model cost
+#: as much as 500 (1.3–3.8 s on 8,000 samples with the wide function set).
+SMALL_BATCHES = (16, 128)
 
 
 def polynomial_state_features(symbols: Symbols, max_degree: int) -> list[sp.Expr]:
@@ -220,6 +224,11 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         n_stage = self.stage_rows(self.n_padded)
         batch = max(1, min(batch, STAGE_ELEMENTS_PER_CALL // n_stage))
         self.batch = -(-batch // len(self.devices)) * len(self.devices)
+        #: The batch sizes compiled (each on first use): :data:`SMALL_BATCHES` below
+        #: :attr:`batch`, and it; a call of a few models runs at a small size.
+        self.batch_sizes = tuple(sorted({-(-b // len(self.devices)) * len(self.devices)
+                                         for b in SMALL_BATCHES if b < self.batch}
+                                        | {self.batch}))
         self.fit_initial_conditions = fit_initial_conditions
         self.w_time, self.w_freq = float(w_time), float(w_freq)
         self.h = measurement.dt / substeps
@@ -320,7 +329,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
             part = self.narrowed(part) if plain[rows[0]] else part
             forcing = _pad_columns(part.forcing, self.forcing_capacity)
             for size, chunk in padded_chunks((part.mass, part.state, forcing, part.y0,
-                                              part.inner), self.batch):
+                                              part.inner), self.batch_sizes):
                 out = self._call(*chunk)
                 parts.append([np.asarray(o)[:size] for o in out[:6]])
                 if responses:

@@ -200,3 +200,32 @@ def test_variational_scan_equals_forward_mode_autodiff_of_the_solve():
         np.testing.assert_allclose(x, x_ad, rtol=0, atol=1e-14 * float(jnp.max(jnp.abs(x_ad))))
         np.testing.assert_allclose(sensitivities[:, j], s_ad, rtol=0,
                                    atol=1e-10 * float(jnp.max(jnp.abs(s_ad))))
+
+
+@pytest.mark.parametrize("sizes", [(16, 128, 512), (8,), (16, 100)])
+def test_chunk_plans_cover_the_rows_and_never_pad_more_than_one_call_would(sizes):
+    from gpjax._coefficients import CALL_OVERHEAD_ROWS, chunk_sizes
+
+    for count in range(0, 3 * max(sizes) + 3):
+        plan = chunk_sizes(count, sizes)
+        assert set(plan) <= set(sizes) and sum(plan) >= count
+        assert sum(plan) - count < max(sizes)  # no call is wholly padding
+        remainder = count % max(sizes)
+        if remainder:
+            single = min(s for s in sizes if s >= remainder) + CALL_OVERHEAD_ROWS
+            tail = plan[count // max(sizes):]
+            assert sum(tail) + CALL_OVERHEAD_ROWS * len(tail) <= single
+
+
+def test_a_call_of_a_few_models_runs_at_a_small_compiled_size():
+    measurement = _measurement()
+    evaluator = PopulationEvaluator(measurement, S, max_degree=3, batch=200)
+    assert evaluator.batch_sizes == (16, 128, 200)
+    pop = _random_models(evaluator, np.random.default_rng(7), 150)
+    few = Population(pop.mass[:3], pop.state[:3], pop.forcing[:3], pop.y0[:3])
+    alone = evaluator.score(few).objective
+    assert evaluator.compile_count == 1  # one executable, of 16 rows
+    together = evaluator.score(pop).objective  # 16 + 16 + 128 rows, not 200
+    assert evaluator.compile_count == 2
+    np.testing.assert_allclose(alone, together[:3], rtol=1e-13)
+    assert np.all(np.isfinite(together))
