@@ -6,7 +6,10 @@ The first record compiles (cold); every later one is a *different* record, so be
 record became a program argument (gpjax._record) it compiled again. Each row gives the
 whole process's seconds and the seconds its summary counts as compiling or loading.
 
-    python benchmarks/bench_new_record.py --baseline e894e77 --json benchmarks/new_record.json
+    python benchmarks/bench_new_record.py --baseline 2596765 --timeout 1200 \
+        --json benchmarks/new_record.json
+
+A row of a fit stopped by ``--timeout`` shows the timeout with a "+".
 """
 
 from __future__ import annotations
@@ -28,9 +31,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _baseline import ROOT, baseline_tree  # noqa: E402
 
 WIDE = "add,sub,mul,sin,abs,sign,tanh,exp"
-#: (system, duration in s): 100 Hz records of 6,501–7,001 samples, one bucket (6,145–7,168).
-RECORDS = (("duffing", 70.0), ("pendulum", 68.0), ("quadratic_drag", 66.0),
-           ("exponential_stiffening", 65.0))
+#: (system, duration in s): issue 43's four records, 100 Hz, 7,601–7,991 samples, one
+#: length bucket (7,169–8,192); Coulomb + viscous exercises the sign-width loop.
+RECORDS = (("duffing", 79.9), ("pendulum", 78.0), ("quadratic_drag", 77.0),
+           ("coulomb_viscous", 76.0))
 #: The run summary's whole seconds and compile seconds, in the older and the newer wording.
 SUMMARIES = (re.compile(r"([\d.]+) s in all, ([\d.]+) s of it compiling or loading (\d+)"),
              re.compile(r"([\d.]+) s in all: .*Of these, ([\d.]+) s compiling or loading (\d+)"))
@@ -54,11 +58,18 @@ def _fit_all(tree: Path, records: list[Path], cache: Path, args) -> list[dict]:
                GPJAX_COMPILATION_CACHE="on", GPJAX_CACHE_DIR=str(cache))
     for path in records:
         began = time.perf_counter()
-        run = subprocess.run(
-            [sys.executable, "-m", "gpjax", "fit", str(path), "--time", "t", "--response", "x",
-             "--input", "u", "--functions", WIDE, "--population", str(args.population),
-             "--generations", str(args.generations), "--out", str(cache.parent / path.stem)],
-            env=env, capture_output=True, text=True, cwd=tree)
+        try:
+            run = subprocess.run(
+                [sys.executable, "-m", "gpjax", "fit", str(path), "--time", "t", "--response",
+                 "x", "--input", "u", "--functions", WIDE, "--population",
+                 str(args.population), "--generations", str(args.generations), "--out",
+                 str(cache.parent / f"{cache.name}-{path.stem}")],
+                env=env, capture_output=True, text=True, cwd=tree, timeout=args.timeout)
+        except subprocess.TimeoutExpired:
+            rows.append({"record": path.stem, "exit": "timeout", "whole_s": args.timeout,
+                         "fit_s": None, "compile_s": None, "programs": None,
+                         "equation": f"did not finish in {args.timeout:.0f} s"})
+            continue
         whole = time.perf_counter() - began
         found = next((m for m in (p.search(run.stdout) for p in SUMMARIES) if m), None)
         equation = run.stdout.splitlines()[0] if run.stdout else run.stderr[-300:]
@@ -76,6 +87,8 @@ def main() -> None:
     parser.add_argument("--generations", type=int, default=10)
     parser.add_argument("--baseline", help="git revision to compare against in the same run")
     parser.add_argument("--json", help="write the results here")
+    parser.add_argument("--timeout", type=float, default=None,
+                        help="seconds after which a fit is stopped and its row marked")
     args = parser.parse_args()
     scratch = Path(tempfile.mkdtemp(prefix="gpjax-bench-record-"))
     records = _write_records(scratch, args.records)
@@ -86,10 +99,14 @@ def main() -> None:
             trees = {args.baseline: base, **trees}
         for label, tree in trees.items():
             results[label] = _fit_all(tree, records, scratch / f"cache-{len(results)}", args)
-    print(f"{'record':24s}" + "".join(f"{label:>32s}" for label in results))
+    print(f"{'record':24s}" + "".join(f"{label:>32s}" for label in results)
+          + ("   ratio" if len(results) == 2 else ""))
     for i, path in enumerate(records):
-        cells = "".join(f"{r[i]['whole_s']:>12.1f} s ({r[i]['compile_s'] or 0:5.1f} s compiling)"
-                        for r in results.values())
+        cells = "".join(f"{r[i]['whole_s']:>10.1f} s{'+' if r[i]['exit'] == 'timeout' else ' '}"
+                        f"({r[i]['compile_s'] or 0:5.1f} s compiling)" for r in results.values())
+        if len(results) == 2:
+            before, after = (r[i]["whole_s"] for r in results.values())
+            cells += f"   {after / before:5.2f}"
         print(f"{path.stem:24s}{cells}")
     if args.json:
         revision = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import signal
 import threading
 import time
@@ -29,7 +30,7 @@ from ._fitness import Fitness, Record
 from ._model import Model
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
 from ._select import pareto_front, select
-from ._sign_width import NARROWING, check_width, narrowed
+from ._sign_width import MAX_NARROWINGS, NARROWING, check_width, narrowed, narrowed_steps
 
 CHECKPOINT = "checkpoint.json"
 #: Columns of history.csv and equations.csv that hold text, not numbers.
@@ -203,11 +204,18 @@ class Identifier:
         """Check the reported model's integration against the reference solve, and its
         smoothed signs' width (:mod:`gpjax._sign_width`); with ``substeps="auto"``, refit
         the Pareto front and the reported model at more RK4 steps, or at a narrower sign,
-        until both pass (:mod:`gpjax._convergence`). Appends each refit's fitness to
-        ``fits``; returns the fitness in use."""
+        until both pass, the steps reach :data:`MAX_SUBSTEPS` (:mod:`gpjax._convergence`),
+        the sign its narrowest (:data:`~gpjax._sign_width.MAX_NARROWINGS`) or the width
+        check's own rate of convergence
+        (:attr:`~gpjax._sign_width.WidthCheck.narrowings_needed`) says that narrowing
+        does not converge. Once the sign is narrowed, only the reported model is refitted
+        (a sign's width changes the constants of the models that have one, not the
+        ranking; refitting the front at every width cost a Coulomb fit of 8,000 samples
+        13 minutes); the front's other rows keep their fit. Appends each refit's fitness
+        to ``fits``; returns the fitness in use."""
         tolerance = self.config.convergence_tolerance
         auto = self.config.substeps == "auto"
-        refits, stopped = 0, "converged"
+        refits, narrowings, stopped, front_too = 0, 0, "converged", True
         while True:
             width = None
             _progress.stage(f"convergence check at {self.model_.substeps} substeps")
@@ -226,20 +234,26 @@ class Identifier:
                                     fitness, tolerance=tolerance)
                 if width is None or width.converged:
                     break
-                if capped:
-                    stopped = capped
+                if not auto or narrowings == MAX_NARROWINGS or math.isinf(
+                        width.narrowings_needed):
+                    stopped = ("fixed substeps" if not auto else "narrowest sign"
+                               if narrowings == MAX_NARROWINGS else "width not converging")
                     break
-                refit = {"substeps": min(MAX_SUBSTEPS, NARROWING * check.substeps),
+                narrowings, front_too = narrowings + 1, False
+                refit = {"substeps": narrowed_steps(self.model_, fitness, tolerance=tolerance),
                          "sign_width": fitness.sign_width / NARROWING}
             refits += 1
             # The structures were ranked at the coarser step or wider sign (the ranking,
             # unlike the constants, barely moves); the front and the reported model are
-            # refitted (at a narrower sign the reported model to convergence).
-            _progress.stage(f"refitting the Pareto front at {refit['substeps']} substeps, "
-                            f"smoothed-sign width {refit['sign_width']:.3g}")
+            # refitted at more steps, the reported model alone at a narrower sign (to
+            # convergence).
+            _progress.stage(f"refitting {'the Pareto front' if front_too else 'the reported model'}"
+                            f" at {refit['substeps']} substeps, smoothed-sign width "
+                            f"{refit['sign_width']:.3g}")
             new = Fitness(self.measurement_, self.config, **refit)
             fits.append(new)
-            carried = {r.key: narrowed(r, fitness, new) for r in self._front + [self._chosen]}
+            carried = {r.key: narrowed(r, fitness, new)
+                       for r in (self._front if front_too else []) + [self._chosen]}
             adopted = {r.key: r for r in new.adopt(list(carried.values()))}
             chosen = adopted.get(carried[self._chosen.key].key)
             if chosen is None or not (chosen.valid and chosen.status == OK):
@@ -248,8 +262,11 @@ class Identifier:
             if new.sign_width != fitness.sign_width:
                 new.refine([chosen], to_convergence=True)  # constants the width check compares
             fitness = new
-            self._report(fitness, pareto_front([r for r in adopted.values()
-                                                if r.status == OK]), chosen, seed, state)
+            if front_too:
+                self._report(fitness, pareto_front([r for r in adopted.values()
+                                                    if r.status == OK]), chosen, seed, state)
+            else:
+                self._replace_chosen(fitness, chosen, seed, state)
         widths = {"sign_width": width.to_json()} if width is not None else {}
         self.model_ = dataclasses.replace(
             self.model_, convergence=check.to_json() | widths | {"refits": refits,
@@ -257,7 +274,12 @@ class Identifier:
             metrics=self.model_.metrics | {"rms_reference": check.rms_reference})
         why = {"fixed substeps": "substeps is fixed; use substeps = \"auto\" or more substeps",
                "substeps cap": f"at the cap of {MAX_SUBSTEPS} steps per sample",
+               "narrowest sign": f"at the narrowest sign, {NARROWING ** MAX_NARROWINGS}× "
+                                 "narrower than the default",
+               "width not converging": "narrowing the sign further would not converge",
                "refit failed": "the refit at more steps or a narrower sign failed"}.get(stopped)
+        if why and width is not None and not width.converged:
+            why += f" ({_projection(width)})"
         if not check.converged:
             warnings.warn(f"the reported model's RK4 response differs from the reference "
                           f"solve by {check.ratio:.1%} of its RMS residual at "
@@ -297,6 +319,15 @@ class Identifier:
                            for r, model in zip(front, self._equation_models)]
         self.history_ = [dict(vars(h)) for h in state.history]
         self.model_ = self._equation_models[[r.key for r in front].index(chosen.key)]
+
+    def _replace_chosen(self, fitness: Fitness, chosen: Record, seed: int,
+                        state: RunState) -> None:
+        """Put ``chosen`` (refitted on ``fitness``) in the reported model's row of the
+        equations table; the other rows stay as they are."""
+        row = [r.key for r in self._front].index(self._chosen.key)
+        self._front[row], self._chosen = chosen, chosen
+        self._equation_models[row] = self.model_ = self._to_model(chosen, fitness, seed, state)
+        self.equations_[row] = _row(chosen, self.model_, chosen)
 
     def _to_model(self, record: Record, fitness: Fitness, seed: int, state: RunState) -> Model:
         return Model.from_coefficients(
@@ -486,6 +517,15 @@ class _StopOnInterrupt:
         if self._previous is not None:
             signal.signal(signal.SIGINT, self._previous)
         return False
+
+
+def _projection(width) -> str:
+    """How fast the width check converged, for the warning of an unconverged sign."""
+    if math.isinf(width.narrowings_needed):
+        return (f"its change did not fall as the sign narrowed: {width.ratio:.1%}, then "
+                f"{width.next_ratio:.1%}")
+    return (f"its change falls {width.rate:.2g}× per narrowing: about "
+            f"{width.narrowings_needed} more narrowing(s) would pass")
 
 
 def _row(record: Record, model: Model, chosen: Record) -> dict:

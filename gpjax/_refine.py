@@ -75,7 +75,8 @@ class Refiner(CompileFigures):
         evaluator: supplies the simulation and the measured response.
         iterations: maximum Levenberg–Marquardt steps.
         batch: models refined per compiled call (padded; split over the evaluator's
-            devices when it divides evenly among them). Capped so one call's forcing
+            devices when it divides evenly among them); a model refined alone (a
+            convergence loop's reported model) runs in a call of one. Capped so one call's forcing
             directions (stages × ``max_free`` × models) hold at most
             :data:`gpjax._evaluator.STAGE_ELEMENTS_PER_CALL` numbers (on a 10⁶-sample
             record one model per call: 2.2 GB peak instead of 5.5 GB for eight).
@@ -220,7 +221,7 @@ class Refiner(CompileFigures):
             moves += [mirror, mirror_sign]
         outputs = []
         basis = jnp.asarray(ev.forcing_basis)
-        for size, chunk in padded_chunks((start, *moves), self.batch):
+        for size, chunk in padded_chunks((start, *moves), (1, self.batch)):
             out = jax.block_until_ready(self._run(chunk[0], tuple(chunk[1:]), basis,
                                                   ev.time_record, self.horizon_limits))
             outputs.append([np.asarray(o)[:size] for o in out])

@@ -10,7 +10,7 @@ import sympy as sp
 from gpjax import GPConfig, Identifier
 from gpjax._canonical import CanonicalForm
 from gpjax._fitness import Fitness
-from gpjax._sign_width import NARROWING, narrowed, narrowed_coefficients
+from gpjax._sign_width import NARROWING, WidthCheck, narrowed, narrowed_coefficients
 from gpjax.systems import generate, get_system
 
 CONFIG = GPConfig(population=8, generations=1, functions=("add", "mul", "tanh", "exp"))
@@ -62,7 +62,7 @@ def test_narrowing_rewrites_the_smoothed_signs_only_and_holds_them(record):
     assert narrowed_coefficients(fitted, wide, NARROWING) is None
 
 
-@pytest.mark.slow  # three refits up to 64 RK4 steps per sample: ~5 min on 2 cores
+@pytest.mark.slow  # up to three narrowings of the reported model: ~3 min on 2 cores
 def test_constants_converge_as_the_sign_narrows(record):
     """The true Stribeck law fitted at the default width (suite seed 2: v_s 10 % low, the
     smoothing's creep absorbed), then the estimator's convergence loop: the width shrinks
@@ -85,7 +85,20 @@ def test_constants_converge_as_the_sign_narrows(record):
     width = identifier.model_.convergence["sign_width"]
     assert final.sign_width < fitness.sign_width and fits[-1] is final  # refits counted
     assert width["fraction"] == final.sign_width
-    assert width["converged"] or identifier.model_.substeps == 64
+    assert width["converged"] or identifier.model_.convergence["stopped"] in (
+        "narrowest sign", "width not converging", "substeps cap")
     assert identifier.model_.convergence["converged"]  # RK4 at the steeper sign too
     end = abs(_stribeck_velocity(identifier._chosen.coefficients.state) / TRUTH["vs"] - 1)
     assert end < start / 3, (start, end)
+
+
+@pytest.mark.parametrize("ratio, next_ratio, needed", [
+    (0.005, 0.001, 0),            # passes already
+    (0.13, 0.13 / 2.7, 3),        # 13 % falling 2.7x a narrowing: 13 % / 2.7^3 < 1 %
+    (0.02, 0.0, 1),               # the next narrowing leaves nothing to change
+    (0.05, 0.06, math.inf),       # does not fall: narrowing further would not converge
+    (0.05, math.nan, math.inf),   # a sharper solve failed
+])
+def test_the_width_check_projects_the_narrowings_it_needs(ratio, next_ratio, needed):
+    check = WidthCheck(0.01, ratio * 1e-3, 1e-3, ratio, 0.01, next_ratio=next_ratio)
+    assert check.narrowings_needed == needed
