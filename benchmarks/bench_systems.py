@@ -49,7 +49,7 @@ import time
 import numpy as np
 import sympy as sp
 
-from gpjax import Symbols
+from gpjax import GPConfig, Symbols
 from gpjax._coefficients import Coefficients, to_population, to_system_population
 from gpjax.engine import PopulationEvaluator, fit_system
 from gpjax.systems import generate, get_system, simulate_equations
@@ -93,10 +93,10 @@ def chains(seeds: int, search: bool, population: int, generations: int,
             measurement = data.fit.system_measurement()
             began = time.perf_counter()
             if search:
-                from gpjax.engine import SystemSearch, search_system
-                settings = SystemSearch.of(population=population, generations=generations,
-                                           max_degree=4, third_law=third_law)
-                model = search_system(measurement, settings=settings, seed=seed).model
+                from gpjax.engine import search_system
+                config = GPConfig(population=population, generations=generations,
+                                  third_law=third_law)
+                model = search_system(measurement, config=config, seed=seed).model
             else:
                 model = fit_system(measurement, chain_structure(n), third_law=third_law).model
             seconds = time.perf_counter() - began
@@ -121,7 +121,7 @@ def chains(seeds: int, search: bool, population: int, generations: int,
 
 
 def gear(seed: int = 0) -> dict:
-    from gpjax.engine import SystemSearch, search_system
+    from gpjax.engine import search_system
     from gpjax.gear import two_dof_record
 
     record = two_dof_record(seed=seed)
@@ -135,9 +135,9 @@ def gear(seed: int = 0) -> dict:
         print("gear, line of action, structure searched by the system GP (population 60, "
               f"2 generations{', third law' if third_law else ''}):")
         began = time.perf_counter()
-        settings = SystemSearch.of(population=60, generations=2, epsilon=0.0,
-                                   input_interpolation="bandlimited", third_law=third_law)
-        result = search_system(record.line_of_action(), settings=settings, seed=seed)
+        config = GPConfig(population=60, generations=2, epsilon=0.0,
+                          input_interpolation="bandlimited", third_law=third_law)
+        result = search_system(record.line_of_action(), config=config, seed=seed)
         row = _line_constants(result.fit, time.perf_counter() - began, *args)
         row["generations_run"] = len(result.history)
         row["structure"] = [{"state": sorted(map(str, e.state)),

@@ -24,6 +24,11 @@ FUNCTIONS = {"add": 2, "sub": 2, "mul": 2, "div": 2, "sin": 1, "cos": 1, "tanh":
 #: Variable roles a tree may use: the response x, its derivatives, every input u, time t.
 VARIABLES = ("x", "x_dot", "x_ddot", "u", "t")
 COEFFICIENT_MODES = ("least_squares", "tree")
+#: Fields of one coordinate's grammar, not (yet) of the search over systems: a system's
+#: trees use add, sub, mul on the states and inputs, its constants come from least squares,
+#: its refinements take 20 steps, and its RK4 steps and initial states are found.
+ONE_COORDINATE = ("functions", "variables", "named_constants", "interval_constants",
+                  "coefficients", "refine_iterations", "substeps", "initial_conditions")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -91,6 +96,13 @@ class GPConfig:
             the next generation; 0 gives the paper's pure GP. In tree mode an added state
             term starts from a value drawn from the interval constants (Rnd[real] if none),
             and each named constant is also tried as the structure's inertia coefficient.
+        local_steps: several coordinates: most one-term descent steps from each of the
+            ``local_search`` best systems per generation (:mod:`gpjax._system_search`).
+        p_swap: several coordinates: probability that a crossover swaps a whole equation
+            between the parents instead of two subtrees of one equation.
+        third_law: several coordinates: each coupling force (a power of x_i − x_j or
+            x_i' − x_j') acts on both of its coordinates with opposite signs, its constants
+            shared (:mod:`gpjax._system_couplings`); no effect on one coordinate.
     """
 
     population: int = 500
@@ -125,6 +137,9 @@ class GPConfig:
     initial_conditions: tuple[float, float] | None = None
     selection_alpha: float = 0.05
     local_search: int = 3
+    local_steps: int = 4
+    p_swap: float = 0.3
+    third_law: bool = False
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -198,9 +213,11 @@ def _plain(value: Any) -> Any:
 
 
 _INT_FIELDS = {"population", "generations", "max_depth", "max_size", "max_degree",
-               "tournament_size", "n_bins", "refine_top", "refine_iterations", "local_search"}
+               "tournament_size", "n_bins", "refine_top", "refine_iterations", "local_search",
+               "local_steps"}
 _FLOAT_FIELDS = {"epsilon", "p_crossover", "p_mutation", "p_perturbation", "p_reproduction",
-                 "w_time", "w_freq", "selection_alpha", "convergence_tolerance"}
+                 "w_time", "w_freq", "selection_alpha", "convergence_tolerance",
+                 "p_swap"}
 
 
 def _number(name: str, value: Any, source: str, *, integer: bool) -> float | int:
@@ -227,6 +244,10 @@ def _convert(name: str, value: Any, source: str) -> Any:
         if value == "auto":
             return value
         return _number(name, value, source, integer=True)
+    if name == "third_law":
+        if not isinstance(value, bool):
+            raise ConfigError(f"{source}: third_law must be true or false, got {value!r}")
+        return value
     if name in ("coefficients", "input_interpolation"):
         if not isinstance(value, str):
             raise ConfigError(f"{source}: {name} must be a string, got {value!r}")
@@ -338,5 +359,18 @@ def _validate(c: GPConfig) -> None:
         need(all(math.isfinite(v) for v in c.initial_conditions),
              f"initial_conditions must be finite, got {c.initial_conditions}")
     need(c.local_search >= 0, f"local_search must be >= 0, got {c.local_search}")
+    need(c.local_steps >= 0, f"local_steps must be >= 0, got {c.local_steps}")
+    need(0 <= c.p_swap <= 1, f"p_swap must be in [0, 1], got {c.p_swap}")
+    need(isinstance(c.third_law, bool), f"third_law must be true or false, got {c.third_law!r}")
     need(0 < c.selection_alpha < 1,
          f"selection_alpha must be in (0, 1), got {c.selection_alpha}")
+
+
+def check_system_config(config: GPConfig) -> None:
+    """Raise :class:`gpjax.ConfigError` if ``config``, for several responses, changes a
+    :data:`ONE_COORDINATE` field."""
+    defaults = GPConfig()
+    changed = [k for k in ONE_COORDINATE if getattr(config, k) != getattr(defaults, k)]
+    if changed:
+        raise ConfigError(f"{changed[0]} is not supported with several responses yet (the "
+                          "search over systems uses add, sub, mul); leave it at its default")

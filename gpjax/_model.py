@@ -185,13 +185,14 @@ class Model:
 
     # --- simulation ---------------------------------------------------------------------
     def evaluator(self, measurement: Measurement, *,
-                  substeps: int | None = None) -> PopulationEvaluator:
+                  substeps: int | None = None, **options) -> PopulationEvaluator:
         """An RK4 evaluator on ``measurement`` whose basis holds this model's features
-        (``substeps`` default: the model's)."""
+        (``substeps`` default: the model's; ``options``: :class:`PopulationEvaluator`'s)."""
         degree, extra, families = split_state_features(self.coefficients.state, self.symbols)
         return _evaluator(measurement, self.symbols, max_degree=degree,
                           substeps=substeps or self.substeps, extra_state_features=extra,
-                          families=families, input_interpolation=self.input_interpolation)
+                          families=families, input_interpolation=self.input_interpolation,
+                          **options)
 
     def population(self, evaluator: PopulationEvaluator, y0: tuple[float, float]) -> Population:
         """This model as a population of one on ``evaluator``, starting from ``y0``."""
@@ -441,6 +442,32 @@ def _check_inputs(model: Model, measurement: Measurement) -> None:
     if tuple(measurement.input_names) != tuple(model.symbols.inputs):
         raise ModelFileError(f"the model's inputs {list(model.symbols.inputs)} differ from the "
                              f"data's {list(measurement.input_names)}; pass the same --input columns")
+
+
+#: Gauss–Newton steps of :func:`fitted_initial_state` at most.
+INITIAL_STATE_STEPS = 4
+
+
+def fitted_initial_state(model, measurement: Measurement, start) -> np.ndarray:
+    """The initial state with which ``model`` (a :class:`Model` or a system model: anything
+    with ``evaluator(measurement, **options)`` and ``population(evaluator, y0)``) best
+    reproduces ``measurement``'s response(s), (2,) or (D, 2): Gauss–Newton steps on the
+    simulated response from ``start`` (eq. 13's estimate), by the evaluator's own
+    initial-state step (exact sensitivities), while the objective falls.
+
+    Why not eq. 13's estimate alone: it is a Savitzky–Golay polynomial evaluated at the
+    record's first sample, the point where its noise is largest, and a lightly damped
+    model carries that error through the whole record (a 2-mass chain started at rest:
+    x1(0) estimated 5σ from 0, 5 % NRMS against 1 % from the true state)."""
+    evaluator = model.evaluator(measurement, fit_initial_conditions=True)
+    y0, best = np.asarray(start, dtype=np.float64), math.inf
+    for _ in range(INITIAL_STATE_STEPS):
+        scores = evaluator.score(model.population(evaluator, y0))
+        objective = float(scores.objective[0])
+        if not (math.isfinite(objective) and objective < best * (1 - 1e-6)):
+            break
+        y0, best = np.asarray(scores.y0[0], dtype=np.float64), objective
+    return y0
 
 
 def simulate_model(model: Model, measurement: Measurement, *,

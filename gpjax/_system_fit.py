@@ -27,9 +27,11 @@ import sympy as sp
 
 from . import _progress
 from ._canonical import Symbols
-from ._coefficients import Coefficients, from_system_population, to_system_population
-from ._convergence import check_model, initial_substeps, next_substeps
+from ._coefficients import (Coefficients, Population, from_system_population,
+                            to_system_population)
+from ._convergence import MAX_SUBSTEPS, check_model, initial_substeps, next_substeps
 from ._data import Measurement
+from ._diagnose_fits import blocked_cv_residual
 from ._evaluator import PopulationEvaluator, Scores
 from ._reference import ReferenceSolver, reference_system_response
 from ._refine import Refiner
@@ -114,6 +116,11 @@ class SystemModel:
                                    max_degree=self.max_degree, substeps=self.substeps,
                                    input_interpolation=self.input_interpolation, **options)
 
+    def population(self, evaluator: PopulationEvaluator, y0) -> Population:
+        """This system as a population of one on ``evaluator``, starting from ``y0`` (D, 2)."""
+        return to_system_population([[e.replace(y0=tuple(map(float, s)))
+                                      for e, s in zip(self.equations, y0)]], evaluator)
+
     def simulate(self, measurement: Measurement, *, initial_conditions=None,
                  solver: str = "reference") -> np.ndarray:
         """Responses (N, D) on ``measurement``'s time grid and inputs, by the reference
@@ -122,8 +129,7 @@ class SystemModel:
         y0 = self.initial_conditions if initial_conditions is None else initial_conditions
         if solver == "rk4":
             evaluator = self.evaluator(measurement)
-            equations = [e.replace(y0=tuple(s)) for e, s in zip(self.equations, y0)]
-            responses, _ = evaluator.simulate(to_system_population([equations], evaluator))
+            responses, _ = evaluator.simulate(self.population(evaluator, y0))
             return responses[0].T
         spread = measurement.responses.std(axis=0)
         rate = np.diff(measurement.responses, axis=0).std(axis=0) / measurement.dt
@@ -187,18 +193,39 @@ class SystemWeakForm:
         """(x_d, x_d') at the first sample, from the smoothed record."""
         return self._states[d]
 
+    def _mass_normalised(self, d: int, state, forcing) -> tuple[np.ndarray, np.ndarray]:
+        """(columns, target) of equation ``d`` with mass 1: ``state`` and ``forcing``
+        features against −∫ψ''·x_d."""
+        target = -self._weak[d].acceleration()
+        columns = [self.column(d, f) for f in state] + [-self.column(d, f) for f in forcing]
+        return (np.stack(columns, axis=1) if columns else np.zeros((target.size, 0))), target
+
     def residual(self, d: int, state, forcing) -> float:
         """Relative weak-form equation error of equation ``d`` with ``state`` and
         ``forcing`` features (mass 1): how much of ∫ψ''·x_d the features leave unexplained."""
-        target = -self._weak[d].acceleration()
-        columns = [self.column(d, f) for f in state] + [-self.column(d, f) for f in forcing]
-        if not columns:
+        matrix, target = self._mass_normalised(d, state, forcing)
+        if not matrix.shape[1]:
             return 1.0
-        matrix = np.stack(columns, axis=1)
         norm = np.linalg.norm(matrix, axis=0)
         norm[norm == 0] = 1.0
         solution = np.linalg.lstsq(matrix / norm, target, rcond=None)[0]
         return float(np.linalg.norm(target - matrix / norm @ solution) / np.linalg.norm(target))
+
+    def held_out(self, structure) -> np.ndarray:
+        """Held-out weak-form residual of a system, one number per window: per equation the
+        blocked cross-validation residual of its mass-normalised least squares
+        (:func:`gpjax._diagnose_fits.blocked_cv_residual`) relative to the RMS of its
+        inertia column, combined over the equations as a root sum of squares, so the
+        square that :func:`gpjax._diagnose_acceptance.predictive_test` compares is the
+        sum of the equations' squares. Mass-normalised, so the equations' own
+        normalisation (an input or the mass) does not change it; couplings are not tied
+        (each equation is predicted by its own least squares)."""
+        total = np.zeros(self.rows(0))
+        for d, (state, forcing) in enumerate(structure):
+            matrix, target = self._mass_normalised(d, state, forcing)
+            residual = blocked_cv_residual(matrix, target, self._weak[d])
+            total += (residual * self._weak[d].kernel_area / np.sqrt(np.mean(target ** 2))) ** 2
+        return np.sqrt(total)
 
     def equation(self, d: int, state, forcing: dict) -> Coefficients:
         """Constants of equation ``d`` with ``state`` and ``forcing`` features; a forcing
@@ -275,7 +302,7 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
                                input_interpolation, iterations, ties)
         check, _ = check_model(model, measurement, tolerance=tolerance)
         checks.append(check)
-        if substeps or check.converged or steps >= 64:
+        if substeps or check.converged or steps >= MAX_SUBSTEPS:
             return SystemFit(model, scores, tuple(checks))
         start, steps = list(model.equations), next_substeps(check)
 

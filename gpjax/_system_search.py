@@ -27,17 +27,27 @@ only for coordinate i. A crossover swaps a whole equation instead with probabili
 coordinate i fits, so a parent's good equation is a building block that subtree crossover
 would mostly break. Each generation the ``local_search`` best systems also offer their
 one-term changes (a power of one variable or an input added to one equation, or a term
-dropped). The reported system is the simplest whose objective is within
-``SystemSearch.selection_tolerance`` of the best found (one-term removals, refitted), refitted at
-converged integration (:func:`gpjax._system_fit.fit_system`).
+dropped), at most ``local_steps`` steps each.
 
-With Newton's third law (``SystemSearch.third_law``, :mod:`gpjax._system_couplings`) the
+The reported system is chosen as one coordinate's is (:mod:`gpjax._select`), by the
+held-out predictive test at level ``selection_alpha``: from the best system found, a
+system one term smaller replaces it unless the larger one predicts the held-out windows of
+the weak-form equation error significantly better (blocked cross-validation,
+:meth:`gpjax._system_fit.SystemWeakForm.held_out`; Diebold–Mariano by batch means), the
+removals tried in the order of their held-out mean square, until none qualifies. So an input
+in an equation that the data do not need, or a coupling term, goes unless the held-out
+windows demonstrate it. The chosen system is refitted at converged integration
+(:func:`gpjax._system_fit.fit_system`).
+
+With Newton's third law (``GPConfig.third_law``, :mod:`gpjax._system_couplings`) the
 relative coordinates d_ij are terminals of equation min(i, j) only; each coupling term
 found there also acts on coordinate j with the opposite sign, its constant shared (least
 squares over all equations at once, tied Levenberg–Marquardt steps), and the multi-term
 local moves are scored by the weak-form residual of all equations together.
-Settings: :class:`gpjax._system_settings.SystemSearch` (a :class:`gpjax.GPConfig` and the
-system's own).
+Settings: one :class:`gpjax.GPConfig`, the same object and defaults as one coordinate's
+(``local_steps``, ``p_swap`` and ``third_law`` only act on several coordinates). The fields
+that shape one coordinate's grammar (:data:`gpjax._config.ONE_COORDINATE`) must keep their
+defaults.
 """
 
 from __future__ import annotations
@@ -53,14 +63,15 @@ import sympy as sp
 from . import _progress
 from ._canonical import Symbols
 from ._coefficients import Coefficients, from_system_population, to_system_population
+from ._config import GPConfig, check_system_config
 from ._data import Measurement
+from ._diagnose_acceptance import predictive_test
 from ._evaluator import PopulationEvaluator
 from ._operators import Grammar, crossover, initial_population, mutation, perturbation
 from ._refine import Refiner
 from ._system_couplings import (couple, coupled_least_squares, coupled_residual,
                                 fixed_columns, normalisation, tie_columns)
 from ._system_fit import SystemFit, SystemWeakForm, fit_system
-from ._system_settings import SystemSearch
 
 PENALTY = 1e12
 #: Systems per compiled refinement call.
@@ -186,18 +197,19 @@ def _expression(tree, table, inputs, t):
     return sp.Float(tree[-1])
 
 
-def search_system(measurement: Measurement, *, settings: SystemSearch = SystemSearch(),
+def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
                   seed: int = 0) -> SearchResult:
     """Identify one equation per coordinate of ``measurement`` by GP (module docstring),
-    stopping after ``settings.config.generations`` or once the best objective is at most
-    its ``epsilon``.
+    stopping after ``config.generations`` or once the best objective is at most its
+    ``epsilon``.
 
     Raises:
+        ConfigError: a :data:`gpjax._config.ONE_COORDINATE` field changed.
         ValueError: no valid system was found.
     """
-    config = settings.config
+    check_system_config(config)
     rng = np.random.default_rng(seed)
-    equations = _Equations(measurement, config.max_degree, settings.third_law)
+    equations = _Equations(measurement, config.max_degree, config.third_law)
     count = len(equations.names)
     grammars = [equations.grammar(i, config) for i in range(count)]
     evaluator = PopulationEvaluator(
@@ -221,9 +233,9 @@ def search_system(measurement: Measurement, *, settings: SystemSearch = SystemSe
     history = []
     for generation in range(1, config.generations + 1):
         began = time.perf_counter()
-        offspring = [_offspring(trees, fitness, grammars, rng, settings)
+        offspring = [_offspring(trees, fitness, grammars, rng, config)
                      for _ in range(config.population)]
-        offspring += _local_search(trees, fitness, equations, scorer, settings)
+        offspring += _local_search(trees, fitness, equations, scorer, config)
         pool = trees + offspring
         scores = np.concatenate([fitness, scorer(offspring)])
         scorer.refine_best(pool, scores, config.refine_top)
@@ -237,13 +249,13 @@ def search_system(measurement: Measurement, *, settings: SystemSearch = SystemSe
     best = scorer.key(trees[int(np.argmin(fitness))])
     if best is None:
         raise ValueError("no valid system was found; widen the search")
-    _progress.stage("final model selection: the simplest system within "
-                    f"{settings.selection_tolerance:.0%} of the best")
-    best = _simplest(best, scorer, settings.selection_tolerance)
+    _progress.stage("final model selection: one-term removals by the held-out test at "
+                    f"level {config.selection_alpha}")
+    best = _simplest(best, scorer, config.selection_alpha)
     start = scorer.coefficients(best)
     fit = fit_system(measurement, scorer.normalised(best), max_degree=config.max_degree,
                      input_interpolation=config.input_interpolation, start=start,
-                     tolerance=config.convergence_tolerance, third_law=settings.third_law)
+                     tolerance=config.convergence_tolerance, third_law=config.third_law)
     return SearchResult(fit, history)
 
 
@@ -302,6 +314,11 @@ class _Scorer:
             self._residuals[changed] = coupled_residual(self.weak, changed,
                                                         self.equations.names)
         return self._residuals[changed]
+
+    def held_out(self, key) -> np.ndarray:
+        """Held-out weak-form residual of ``key`` with every coupling's mirror
+        (:meth:`gpjax._system_fit.SystemWeakForm.held_out`)."""
+        return self.weak.held_out(self.coupled(key)[0])
 
     def coefficients(self, key) -> list[Coefficients]:
         if key in self.refined:
@@ -365,14 +382,13 @@ class _Scorer:
                 self.refined[k] = start
 
 
-def _offspring(trees, fitness, grammars, rng, settings: SystemSearch):
-    config = settings.config
+def _offspring(trees, fitness, grammars, rng, config: GPConfig):
     parent = list(trees[_tournament(fitness, rng, config.tournament)])
     i = int(rng.integers(len(parent)))
     draw = rng.random()
     if draw < config.p_crossover:
         other = trees[_tournament(fitness, rng, config.tournament)]
-        if rng.random() < settings.p_swap:
+        if rng.random() < config.p_swap:
             parent[i] = other[i]
         else:
             parent[i] = crossover(parent[i], other[i], grammars[i], rng)
@@ -389,19 +405,19 @@ def _tournament(fitness, rng, size: int) -> int:
 
 
 def _local_search(trees, fitness, equations: _Equations, scorer: _Scorer,
-                  settings: SystemSearch) -> list:
+                  config: GPConfig) -> list:
     """Descent by one-term changes from the ``local_search`` best distinct systems, at
     most ``local_steps`` steps each; every system it moves to, as trees."""
     out, seen = [], set()
     for index in np.argsort(fitness):
         key = scorer.key(trees[index])
-        if len(seen) == settings.config.local_search or fitness[index] >= PENALTY:
+        if len(seen) == config.local_search or fitness[index] >= PENALTY:
             break
         if key is None or key in seen:
             continue
         seen.add(key)
         current, value = key, fitness[index]
-        for _ in range(settings.local_steps):
+        for _ in range(config.local_steps):
             changed = list(dict.fromkeys([*_neighbours(current, equations),
                                           *_equation_error_steps(current, scorer)]))
             as_trees = [_as_trees(c, equations) for c in changed]
@@ -486,22 +502,21 @@ def _survivors(pool, scores, scorer: _Scorer, count: int):
     return [pool[i] for i in chosen], scores[chosen]
 
 
-def _simplest(best, scorer: _Scorer, tolerance: float):
-    """One-term removals from ``best`` while the objective stays within ``tolerance`` of
-    the best objective seen (each candidate least-squares fitted, then refined)."""
-    limit = min(scorer.objective.values()) * (1 + tolerance)
+def _simplest(best, scorer: _Scorer, alpha: float):
+    """From ``best``, one-term removals by the held-out test (module docstring), tried in
+    the order of their held-out mean square; the first that the current system does not
+    predict significantly better (level ``alpha``) replaces it. Ends when none does. Only
+    weak-form least squares: no simulation, no refinement."""
     current = best
     while True:
         candidates = [c for i in range(len(current)) for c in _removals(current, i)
                       if all(part[0] or part[1] for part in c)]
-        if not candidates:
+        base = scorer.held_out(current)
+        residuals = [scorer.held_out(c) for c in candidates]
+        order = np.argsort([np.mean(r ** 2) for r in residuals], kind="stable")
+        for index in order:
+            if predictive_test(residuals[index], base)["p_value"] >= alpha:
+                current = candidates[index]
+                break
+        else:
             return current
-        trees = [_as_trees(c, scorer.equations) for c in candidates]
-        scores = scorer(trees)
-        scorer.refine_best(trees, scores, len(trees))
-        scores = scorer(trees)
-        index = int(np.argmin([s + 1e-9 * n for s, n in zip(
-            scores, [sum(len(a) + len(b) for a, b in c) for c in candidates])]))
-        if scores[index] > limit:
-            return current
-        current = candidates[index]

@@ -58,7 +58,7 @@ def _parser() -> argparse.ArgumentParser:
     fit.add_argument("--third-law", action="store_true", dest="third_law",
                      help="several responses: each coupling force acts on both of its "
                      "coordinates with opposite signs, its constants shared (Newton's third "
-                     "law; or third_law = true in the config's [system] table)")
+                     "law; or third_law = true in the config file)")
     _diagnose_options(fit)
     many = commands.add_parser("fit-many", help="fit every CSV file of a folder (or a glob), "
                                "one Dask task each; writes OUT/summary.csv")
@@ -85,7 +85,8 @@ def _parser() -> argparse.ArgumentParser:
     simulate.add_argument("--out", required=True, help="CSV file to write (time, response)")
     simulate.add_argument("--initial", nargs=2, type=_finite_float, metavar=("X0", "V0"),
                           help="response and its derivative at the first sample (default: "
-                          "estimated from the data's first samples, eq. 13)")
+                          "the state that best reproduces the data's response column(s): "
+                          "eq. 13's estimate refined by Gauss-Newton steps)")
     return parser
 
 
@@ -274,17 +275,15 @@ def _fit(args) -> int:
 
 
 def _fit_system(args) -> int:
-    """``gpjax fit`` with several responses: the GP over systems (one equation each); the
-    config file's top-level keys are GPConfig's, its ``[system]`` table SystemSearch's."""
-    import dataclasses
-
+    """``gpjax fit`` with several responses: the GP over systems (one equation each), with
+    the same settings and defaults as one response."""
+    from ._config import check_system_config
     from ._data import load_csv
-    from ._system_settings import SystemSearch
 
-    settings = (SystemSearch.from_toml(args.config) if args.config else
-                SystemSearch(config=GPConfig()))
-    settings = dataclasses.replace(settings, config=_config(args, settings.config),
-                                   third_law=settings.third_law or args.third_law)
+    config = _config(args, GPConfig.from_toml(args.config) if args.config else GPConfig())
+    if args.third_law:
+        config = config.replace(third_law=True)
+    check_system_config(config)
     _check_diagnose_options(args)
     measurement = load_csv(args.data, time=args.time, responses=args.responses,
                            inputs=args.inputs)
@@ -300,7 +299,7 @@ def _fit_system(args) -> int:
     from ._system_file import save_system
     from ._system_search import search_system
 
-    result = search_system(measurement, settings=settings, seed=args.seed)
+    result = search_system(measurement, config=config, seed=args.seed)
     model = result.model
     _progress.stage(f"residuals by the reference solve; writing results to {out}/")
     residuals = residual_statistics(model, measurement, alpha=args.alpha)
@@ -311,7 +310,7 @@ def _fit_system(args) -> int:
                          "residuals": residuals},
                 convergence=check.to_json())
     print(f"System of {measurement.n_coordinates} equations (GP over systems, "
-          f"{len(result.history)} generations{', third law' if settings.third_law else ''}):")
+          f"{len(result.history)} generations{', third law' if config.third_law else ''}):")
     for equation in model.sympy():
         print(f"  {equation}")
     print("Residuals per coordinate (reference solve):")
@@ -372,9 +371,11 @@ def _simulate(args) -> int:
     import numpy as np
 
     from ._data import Measurement, check_time, read_columns
+    from ._model import fitted_initial_state
     from ._report import write_text_atomic
     from ._system_file import load_model
     from ._system_fit import SystemModel
+    from ._weak_form import estimate_initial_conditions
 
     out = Path(args.out)
     if out.is_dir():
@@ -389,8 +390,9 @@ def _simulate(args) -> int:
         measurement = Measurement(time=data[names.time], response=data[names.response],
                                   inputs={u: data[u] for u in names.inputs},
                                   time_name=names.time, response_name=names.response)
-        response = model.simulate(measurement, initial_conditions=args.initial
-                                  and tuple(args.initial))
+        response = model.simulate(measurement, initial_conditions=tuple(
+            args.initial or fitted_initial_state(model, measurement,
+                                                 estimate_initial_conditions(measurement))))
     elif args.initial is None:
         raise UserInputError(f"{args.data} has no column {names.response!r} to estimate the "
                              "initial state from; give --initial X0 V0")
@@ -413,8 +415,9 @@ def _simulate_system(args, model, out: Path) -> int:
     import numpy as np
 
     from ._data import Measurement, read_columns
+    from ._model import fitted_initial_state
     from ._report import write_text_atomic
-    from ._weak_form import smoothed_derivatives
+    from ._weak_form import estimate_initial_conditions
 
     if args.initial is not None:
         raise UserInputError("a system's initial states are estimated from its response "
@@ -424,9 +427,10 @@ def _simulate_system(args, model, out: Path) -> int:
                               responses=[data[n] for n in model.coordinates],
                               inputs={u: data[u] for u in model.input_names},
                               time_name=model.time_name, response_names=model.coordinates)
-    y0 = [smoothed_derivatives(Measurement(time=measurement.time, response=data[n])).initial_state
+    y0 = [estimate_initial_conditions(Measurement(time=measurement.time, response=data[n]))
           for n in model.coordinates]
-    responses = model.simulate(measurement, initial_conditions=y0)
+    responses = model.simulate(measurement,
+                               initial_conditions=fitted_initial_state(model, measurement, y0))
     if not np.all(np.isfinite(responses)):
         raise UserInputError("the system diverged on this input (the reference solve failed); "
                              "check the input's units and the initial state")

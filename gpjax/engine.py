@@ -25,11 +25,11 @@ from ._model import simulate_model
 from ._objective import objective_parts
 from ._system_file import load_model
 from ._system_fit import SystemFit, SystemModel, fit_system, weak_form_start
-from ._system_search import SystemSearch, search_system
+from ._system_search import search_system
 
 __all__ = ["CanonicalForm", "Coefficients", "FlatLayout", "Population", "PopulationEvaluator",
            "Scores", "Status", "StructureCheck", "Symbols", "check_structure", "check_tree",
-           "SystemFit", "SystemModel", "SystemSearch", "fit_system", "from_population",
+           "SystemFit", "SystemModel", "fit_system", "from_population",
            "load_model", "search_system",
            "from_system_population", "objective_parts", "parse_expression", "simulate_model",
            "system_state_features", "to_population", "to_system_population",

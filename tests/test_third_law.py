@@ -115,36 +115,35 @@ def test_third_law_needs_several_responses(tmp_path, capsys):
     assert not (tmp_path / "run").exists()
 
 
-# --- the settings of a system search: a GPConfig and the system's own ----------------
-def test_system_search_takes_a_gpconfig_and_refuses_fields_it_does_not_use(tmp_path):
+# --- the settings of a system search: the one GPConfig ---------------------------------
+def test_system_search_takes_the_one_gpconfig_and_refuses_one_coordinate_fields(tmp_path):
     from gpjax import ConfigError, GPConfig
-    from gpjax.engine import SystemSearch
+    from gpjax.engine import search_system
 
-    settings = SystemSearch.of(population=60, generations=2, third_law=True)
-    assert settings.config.population == 60 and settings.config.max_degree == 3
-    assert settings.third_law and settings.config.tournament == 7
-    with pytest.raises(ConfigError, match="coefficients is not used"):
-        SystemSearch(config=GPConfig(coefficients="tree"))
-    with pytest.raises(ConfigError, match="p_swap"):
-        SystemSearch(p_swap=1.5)
-    with pytest.raises(ConfigError, match="third_law"):
-        SystemSearch(third_law="yes")
-    with pytest.raises(ConfigError, match="selection_tolerance must be"):
-        SystemSearch(selection_tolerance=1.0)
-    with pytest.raises(ConfigError, match="selection_alpha is not used"):
-        SystemSearch(config=GPConfig(selection_alpha=0.01))
-    with pytest.raises(ConfigError, match="population"):
-        SystemSearch.of(population=2)
-    with pytest.raises(TypeError):
-        SystemSearch(GPConfig())  # keyword-only
+    config = GPConfig(population=60, generations=2, third_law=True, p_swap=0.5)
+    assert config.third_law and config.p_swap == 0.5 and config.local_steps == 4
+    assert not GPConfig().third_law  # the same defaults for one and several coordinates
+    with pytest.raises(ConfigError, match="p_swap must be in"):
+        GPConfig(p_swap=1.5)
+    with pytest.raises(ConfigError, match="third_law must be true or false"):
+        GPConfig(third_law="yes")
+    with pytest.raises(ConfigError, match="local_steps must be >= 0"):
+        GPConfig(local_steps=-1)
+    _, _, measurement = _chain(duration=1.0)
+    with pytest.raises(ConfigError, match="coefficients is not supported with several"):
+        search_system(measurement, config=GPConfig(coefficients="tree"))
+    with pytest.raises(ConfigError, match="functions is not supported with several"):
+        search_system(measurement, config=GPConfig(functions=("add", "sub", "mul", "sin")))
     path = tmp_path / "run.toml"
-    path.write_text("population = 30\ngenerations = 1\n[system]\nthird_law = true\n"
-                    "p_swap = 0.5\n")
-    read = SystemSearch.from_toml(path)
-    assert read.config.population == 30 and read.third_law and read.p_swap == 0.5
-    path.write_text("population = 30\n[system]\nthird_lw = true\n")
-    with pytest.raises(ConfigError, match="unknown key 'third_lw' in \\[system\\]"):
-        SystemSearch.from_toml(path)
+    path.write_text("population = 30\ngenerations = 1\nthird_law = true\np_swap = 0.5\n")
+    read = GPConfig.from_toml(path)
+    assert read.population == 30 and read.third_law and read.p_swap == 0.5
+    path.write_text("population = 30\nthird_lw = true\n")
+    with pytest.raises(ConfigError, match="unknown key 'third_lw'"):
+        GPConfig.from_toml(path)
+    path.write_text("third_law = 1\n")
+    with pytest.raises(ConfigError, match="third_law must be true or false"):
+        GPConfig.from_toml(path)
 
 
 def test_system_config_errors_are_one_line_exit_2(tmp_path, capsys):
@@ -152,12 +151,18 @@ def test_system_config_errors_are_one_line_exit_2(tmp_path, capsys):
 
     _, _, measurement = _chain(duration=1.0)
     measurement.to_csv(tmp_path / "data.csv")
-    (tmp_path / "run.toml").write_text("[system]\np_swap = 2\n")
+    (tmp_path / "run.toml").write_text("p_swap = 2\n")
     assert main(["fit", str(tmp_path / "data.csv"), "--time", "t", "--response", "x1",
                  "--response", "x2", "--input", "u", "--config", str(tmp_path / "run.toml"),
                  "--out", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
-    assert "p_swap must be a number in [0, 1]" in err and err.count("\n") == 1
+    assert "p_swap must be in [0, 1]" in err and err.count("\n") == 1
+    assert main(["fit", str(tmp_path / "data.csv"), "--time", "t", "--response", "x1",
+                 "--response", "x2", "--input", "u", "--functions", "add,sub,mul,sin",
+                 "--out", str(tmp_path / "run")]) == 2
+    err = capsys.readouterr().err
+    assert "functions is not supported with several responses" in err
+    assert err.count("\n") == 1 and not (tmp_path / "run").exists()
     assert not (tmp_path / "run").exists()
 
 
