@@ -170,6 +170,21 @@ class SystemWeakForm:
                                                   measurement.input_names), smooth[d].x_dot,
                                width) for d in range(len(names))]
         self._columns: dict[tuple[int, sp.Expr], np.ndarray] = {}
+        self._velocities = {sp.Symbol(f"{n}_dot"): d for d, n in enumerate(names)}
+
+    def exact_column(self, equation: int, feature: sp.Expr) -> np.ndarray:
+        """:meth:`column`, but a feature linear in the velocities (x_i', x_i' − x_j')
+        integrated by parts against the measured positions (∫ψ·x' = −∫ψ'·x), as one
+        coordinate's weak form does: no velocity estimate blurs a damping term's column."""
+        symbols = feature.free_symbols
+        if not symbols or not symbols <= set(self._velocities):
+            return self.column(equation, feature)
+        linear = sp.Poly(feature, *self._velocities)
+        if linear.total_degree() != 1 or linear.coeff_monomial(1):
+            return self.column(equation, feature)
+        position = sum(float(linear.coeff_monomial(v)) * self.measurement.responses[:, d]
+                       for v, d in self._velocities.items())
+        return -self._weak[equation]._integrate(position, 1)
 
     def column(self, equation: int, feature: sp.Expr) -> np.ndarray:
         """∫ψ_k·feature for every window of ``equation``'s coordinate (cached)."""
@@ -193,11 +208,13 @@ class SystemWeakForm:
         """(x_d, x_d') at the first sample, from the smoothed record."""
         return self._states[d]
 
-    def _mass_normalised(self, d: int, state, forcing) -> tuple[np.ndarray, np.ndarray]:
+    def _mass_normalised(self, d: int, state, forcing, *, exact: bool = False
+                         ) -> tuple[np.ndarray, np.ndarray]:
         """(columns, target) of equation ``d`` with mass 1: ``state`` and ``forcing``
-        features against −∫ψ''·x_d."""
+        features against −∫ψ''·x_d (``exact``: state columns by :meth:`exact_column`)."""
         target = -self._weak[d].acceleration()
-        columns = [self.column(d, f) for f in state] + [-self.column(d, f) for f in forcing]
+        column = self.exact_column if exact else self.column
+        columns = [column(d, f) for f in state] + [-self.column(d, f) for f in forcing]
         return (np.stack(columns, axis=1) if columns else np.zeros((target.size, 0))), target
 
     def residual(self, d: int, state, forcing) -> float:
@@ -214,15 +231,15 @@ class SystemWeakForm:
     def held_out(self, structure) -> np.ndarray:
         """Held-out weak-form residual of a system, one number per window: per equation the
         blocked cross-validation residual of its mass-normalised least squares
-        (:func:`gpjax._diagnose_fits.blocked_cv_residual`) relative to the RMS of its
-        inertia column, combined over the equations as a root sum of squares, so the
+        (:func:`gpjax._diagnose_fits.blocked_cv_residual`; damping columns by parts,
+        :meth:`exact_column`) relative to the RMS of its inertia column, combined over the equations as a root sum of squares, so the
         square that :func:`gpjax._diagnose_acceptance.predictive_test` compares is the
         sum of the equations' squares. Mass-normalised, so the equations' own
         normalisation (an input or the mass) does not change it; couplings are not tied
         (each equation is predicted by its own least squares)."""
         total = np.zeros(self.rows(0))
         for d, (state, forcing) in enumerate(structure):
-            matrix, target = self._mass_normalised(d, state, forcing)
+            matrix, target = self._mass_normalised(d, state, forcing, exact=True)
             residual = blocked_cv_residual(matrix, target, self._weak[d])
             total += (residual * self._weak[d].kernel_area / np.sqrt(np.mean(target ** 2))) ** 2
         return np.sqrt(total)

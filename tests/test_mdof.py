@@ -294,6 +294,7 @@ def test_system_gp_finds_the_two_mass_chain():
     assert second.state[X2 - X1] == pytest.approx(c["kc"] / c["m2"], rel=0.02)
 
 
+@pytest.mark.slow  # ~35 s: a 5-second record with noise; the fast round trip runs the path
 def test_the_initial_state_is_fitted_to_the_measured_responses():
     """``gpjax simulate``'s initial state: eq. 13's estimate at the record's edge, refined by
     Gauss–Newton steps on the simulated responses, lands nearer the true state, and the

@@ -210,7 +210,8 @@ def test_the_coulomb_level_is_refined_from_the_excess_fitted_v_s():
     assert 1.0 / fitted[0] == pytest.approx(0.5, rel=0.1)
 
 
-@pytest.mark.slow  # the CI slow step keeps it; the fast tier stays within 5 min
+@pytest.mark.slow
+@pytest.mark.handrun  # 5-14 min: the hand-run tier (README, Tests)
 def test_a_stand_in_walks_to_the_law_once_its_simpler_neighbours_are_converged():
     """Saturating spring, held-out seed 7: from the run's best-fitting stand-in,
     k·x + k3·x³ + k2·x·|x| + K·tanh(9.55·x), the walk stopped at a stand-in while simpler
@@ -233,7 +234,8 @@ def test_a_stand_in_walks_to_the_law_once_its_simpler_neighbours_are_converged()
         assert state[law] / chosen.coefficients.mass == pytest.approx(20.0, rel=0.02)
 
 
-@pytest.mark.slow  # the CI slow step keeps it; the fast tier stays within 5 min
+@pytest.mark.slow
+@pytest.mark.handrun  # 5-14 min: the hand-run tier (README, Tests)
 def test_a_simpler_end_that_simulates_worse_does_not_replace_the_law():
     """Coulomb + viscous, suite seed 1: the linear model's walk ends at the smooth
     k·x + K·tanh(a·x'), which the held-out equation error cannot tell from the truth (the

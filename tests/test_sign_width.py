@@ -62,7 +62,8 @@ def test_narrowing_rewrites_the_smoothed_signs_only_and_holds_them(record):
     assert narrowed_coefficients(fitted, wide, NARROWING) is None
 
 
-@pytest.mark.slow  # up to three narrowings of the reported model: ~3 min on 2 cores
+@pytest.mark.slow
+@pytest.mark.handrun  # 5-14 min: the hand-run tier (README, Tests)
 def test_constants_converge_as_the_sign_narrows(record):
     """The true Stribeck law fitted at the default width (suite seed 2: v_s 10 % low, the
     smoothing's creep absorbed), then the estimator's convergence loop: the width shrinks
