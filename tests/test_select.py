@@ -211,7 +211,7 @@ def test_the_coulomb_level_is_refined_from_the_excess_fitted_v_s():
 
 
 @pytest.mark.slow
-@pytest.mark.handrun  # 5-14 min: the hand-run tier (README, Tests)
+@pytest.mark.handrun  # 5-14 min: the hand-run tier (README, Quick start)
 def test_a_stand_in_walks_to_the_law_once_its_simpler_neighbours_are_converged():
     """Saturating spring, held-out seed 7: from the run's best-fitting stand-in,
     k·x + k3·x³ + k2·x·|x| + K·tanh(9.55·x), the walk stopped at a stand-in while simpler
@@ -235,7 +235,7 @@ def test_a_stand_in_walks_to_the_law_once_its_simpler_neighbours_are_converged()
 
 
 @pytest.mark.slow
-@pytest.mark.handrun  # 5-14 min: the hand-run tier (README, Tests)
+@pytest.mark.handrun  # 5-14 min: the hand-run tier (README, Quick start)
 def test_a_simpler_end_that_simulates_worse_does_not_replace_the_law():
     """Coulomb + viscous, suite seed 1: the linear model's walk ends at the smooth
     k·x + K·tanh(a·x'), which the held-out equation error cannot tell from the truth (the

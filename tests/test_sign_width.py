@@ -63,7 +63,7 @@ def test_narrowing_rewrites_the_smoothed_signs_only_and_holds_them(record):
 
 
 @pytest.mark.slow
-@pytest.mark.handrun  # 5-14 min: the hand-run tier (README, Tests)
+@pytest.mark.handrun  # 5-14 min: the hand-run tier (README, Quick start)
 def test_constants_converge_as_the_sign_narrows(record):
     """The true Stribeck law fitted at the default width (suite seed 2: v_s 10 % low, the
     smoothing's creep absorbed), then the estimator's convergence loop: the width shrinks

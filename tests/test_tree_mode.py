@@ -121,7 +121,7 @@ def test_tree_mode_recovers_eq14_from_an_interval_that_excludes_the_truth():
 
 
 @pytest.mark.slow
-@pytest.mark.handrun  # 5-14 min: the hand-run tier (README, Tests)
+@pytest.mark.handrun  # 5-14 min: the hand-run tier (README, Quick start)
 def test_tree_mode_is_bit_reproducible_and_resumes_after_sigkill(tmp_path):
     csv = tmp_path / "data.csv"
     EXAMPLE.measurement.to_csv(csv)
