@@ -18,7 +18,7 @@ __version__ = "0.1.0"
 _EXPORTS = {
     "GPConfig": "_config", "Identifier": "_estimator",
     "Measurement": "_data", "load_csv": "_data", "Migration": "_island_settings",
-    "fit_many": "_fit_many",
+    "fit_many": "_fit_many", "refit": "_refit",
     "Model": "_model", "Symbols": "_canonical", "check_structure": "_canonical",
     "Diagnosis": "_diagnose", "diagnose": "_diagnose", "write_report": "_diagnose_report",
     "Effect": "_effects", "Parameter": "_effects", "Terms": "_effects",

@@ -194,16 +194,20 @@ def _store(path: Path, compiled) -> None:
 
 
 class CompileFigures:
-    """Mixin: the compile figures of an object whose program is ``_run``."""
+    """Mixin: the compile figures of an object whose programs are its :class:`Program`
+    attributes (``_run`` and any other)."""
 
     _run: Program
+
+    def _programs(self) -> list[Program]:
+        return [p for p in vars(self).values() if isinstance(p, Program)]
 
     @property
     def compile_seconds(self) -> float:
         """Seconds spent compiling or loading the object's programs (not running them)."""
-        return self._run.compile_seconds
+        return sum(p.compile_seconds for p in self._programs())
 
     @property
     def compile_count(self) -> int:
         """Programs compiled or loaded (one per argument signature)."""
-        return self._run.compile_count
+        return sum(p.compile_count for p in self._programs())

@@ -283,6 +283,19 @@ class FlatLayout:
     def inner_column(self, slot: int) -> int:
         return self.n_coordinates * (1 + self.n_state + self.n_forcing) + slot
 
+    def part(self, column: int) -> tuple[str, int, int]:
+        """What flat ``column`` holds: (``"mass"``, equation, 0), (``"state"``, equation,
+        column), (``"forcing"``, equation, column), (``"inner"``, 0, slot) or (``"y0"``,
+        coordinate, 0 for x0 or 1 for x0')."""
+        d = self.n_coordinates
+        bounds = [("mass", d, 1), ("state", d, self.n_state), ("forcing", d, self.n_forcing),
+                  ("inner", 1, self.n_inner), ("y0", d, 2)]
+        for name, count, size in bounds:
+            if column < count * size:
+                return name, column // size, column % size
+            column -= count * size
+        raise IndexError(f"column {column} is past the layout's width {self.width}")
+
     def pack(self, population: Population) -> np.ndarray:
         """(P, width) from a population (forcing columns zero-padded to ``n_forcing``)."""
         count = len(population)

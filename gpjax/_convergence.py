@@ -23,6 +23,7 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Callable
 
 import numpy as np
 
@@ -125,3 +126,20 @@ def check_model(model, measurement: Measurement, *,
                                                                   else math.inf)
     return Convergence(model.substeps, rms_rk4, rms_reference, difference, ratio,
                        tolerance, measurement.n_samples), returned
+
+
+def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int | None,
+                  tolerance: float):
+    """(model, checks): ``fit_at(steps, previous)`` (``previous``: the last fit, ``None``
+    at first) at the record's initial step count, checked against the reference solve and
+    fitted again at :func:`next_substeps` until the check passes or the steps reach
+    :data:`MAX_SUBSTEPS`; with ``substeps`` given, that count, checked once."""
+    steps = substeps or initial_substeps(measurement)
+    checks, model = [], None
+    while True:
+        model = fit_at(steps, model)
+        check, _ = check_model(model, measurement, tolerance=tolerance)
+        checks.append(check)
+        if substeps or check.converged or steps >= MAX_SUBSTEPS:
+            return model, checks
+        steps = next_substeps(check)

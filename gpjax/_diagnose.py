@@ -90,6 +90,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import types
+
+import numpy as np
 
 from . import _progress
 from ._canonical import Symbols
@@ -98,7 +101,7 @@ from ._convergence import (MAX_SUBSTEPS, Convergence, check_model, initial_subst
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._diagnose_acceptance import accepted
 from ._diagnose_evidence import (Candidate, charge, input_lines, rank_by_output_error,
-                                 rank_effects, score_statistics)
+                                 rank_effects, score_statistics, sensitivities)
 from ._diagnose_fits import (Fit, FitProblem, Structure, consensus_refits, drifts,
                              fit_structures)
 from ._diagnose_pairs import (Pair, fit_and_test_pairs, joint_parameters, pair_criterion,
@@ -107,7 +110,9 @@ from ._diagnose_noise import input_lines_only, noise_floor
 from ._diagnose_residual import FAR_ABOVE, describe_residual
 from ._effects import Effect, effects
 from ._errors import ModelFileError, UserInputError
+from ._coefficients import to_population
 from ._model import Model
+from ._uncertainty import Uncertainty, model_names, sandwich_covariance
 
 
 @dataclasses.dataclass
@@ -130,6 +135,8 @@ class Diagnosis:
         noise: the final and the starting residual's noise floor (:func:`noise_floor`).
         unexplained: where the final residual stays far above its noise floor, its
             description (:func:`describe_residual`), else ``None``.
+        uncertainty: the final model's standard errors and 95 % intervals on the whole
+            record (:mod:`gpjax._uncertainty`; simulation mode only, else ``None``).
     """
 
     mode: str
@@ -145,6 +152,7 @@ class Diagnosis:
     convergence: dict | None = None
     noise: dict | None = None
     unexplained: dict | None = None
+    uncertainty: Uncertainty | None = None
 
     @property
     def before(self) -> Fit:
@@ -163,6 +171,7 @@ class Diagnosis:
     def model(self) -> Model:
         """The final model, with its integration check (:attr:`convergence`)."""
         model = self._as_model(self.after, {"diagnosis": self.effects_added, "mode": self.mode})
+        model = dataclasses.replace(model, uncertainty=self.uncertainty)
         if self.convergence is None:
             return model
         return dataclasses.replace(model, convergence=self.convergence, metrics=model.metrics | {
@@ -419,8 +428,25 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         check, _ = check_model(result.model(), measurement, tolerance=convergence_tolerance)
         if check.converged or not automatic or substeps >= MAX_SUBSTEPS:
             result.convergence = check.to_json()
+            result.uncertainty = _uncertainty(result, whole)
             return result
         substeps = next_substeps(check)
+
+
+def _uncertainty(result: Diagnosis, whole: FitProblem) -> Uncertainty:
+    """The final fit's constants' intervals on the whole record, from the sensitivities
+    the score test uses (the fit's free parameters)."""
+    fit = result.after
+    jacobian, base, _ = sensitivities(whole, fit)
+    covariance, dof = sandwich_covariance(fit.simulated - whole.measurement.response,
+                                          jacobian[:, base])
+    evaluator = whole.simulator_for([fit.structure]).full
+    free = types.SimpleNamespace(columns=np.array(base), layout=evaluator.layout)
+    flat = evaluator.layout.pack(to_population([fit.coefficients], evaluator))[0]
+    return Uncertainty(names=tuple(model_names(free, result.model(), fit.coefficients,
+                                               evaluator)),
+                       values=flat[base], covariance=covariance, dof=dof,
+                       n_samples=whole.measurement.n_samples)
 
 
 def _integration(fit: Fit, problem: FitProblem, tolerance: float) -> Convergence:

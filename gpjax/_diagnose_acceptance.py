@@ -63,19 +63,36 @@ BATCHES = (10, 30)
 def long_run_variance(d: np.ndarray) -> tuple[float, int]:
     """(Newey–West long-run variance of ``d``, its bandwidth L) with Andrews' AR(1)
     plug-in bandwidth (module docstring)."""
-    n = d.size
-    centred = d - np.mean(d)
-    gamma0 = float(centred @ centred) / n
-    if n < 3 or gamma0 == 0.0:
+    variance, bandwidth = long_run_covariance(np.asarray(d, dtype=float)[:, None])
+    return float(variance[0, 0]), bandwidth
+
+
+def long_run_covariance(g: np.ndarray) -> tuple[np.ndarray, int]:
+    """(Newey–West long-run covariance (k, k) of the rows of ``g`` (n, k), its bandwidth
+    L): Bartlett weights 1 − l/(L + 1), Andrews' (1991) AR(1) plug-in bandwidth with each
+    column weighted equally, α̂ = Σ 4ρ²σ⁴/((1 − ρ)⁶(1 + ρ)²) / Σ σ⁴/(1 − ρ)⁴ (σ² the AR(1)
+    innovation variance; one column: the module docstring's α̂). Columns are centred."""
+    n, k = g.shape
+    centred = g - np.mean(g, axis=0)
+    gamma0 = centred.T @ centred / n
+    variances = np.diag(gamma0)
+    if n < 3 or not np.any(variances > 0):
         return gamma0, 0
-    rho = float(np.clip(centred[1:] @ centred[:-1] / (n * gamma0), -0.99, 0.99))
-    alpha = 4 * rho ** 2 / ((1 - rho) ** 2 * (1 + rho) ** 2)
+    live = variances > 0
+    rho = np.clip(np.sum(centred[1:, live] * centred[:-1, live], axis=0)
+                  / (n * variances[live]), -0.99, 0.99)
+    sigma4 = (variances[live] * (1 - rho ** 2)) ** 2
+    alpha = (np.sum(4 * rho ** 2 * sigma4 / ((1 - rho) ** 6 * (1 + rho) ** 2))
+             / np.sum(sigma4 / (1 - rho) ** 4))
     bandwidth = int(min(n - 1, math.ceil(1.1447 * (alpha * n) ** (1 / 3))))
-    variance = gamma0
+    covariance = gamma0.copy()
     for lag in range(1, bandwidth + 1):
         weight = 1.0 - lag / (bandwidth + 1)
-        variance += 2 * weight * float(centred[lag:] @ centred[:-lag]) / n
-    return max(variance, 0.0), bandwidth
+        gamma = centred[lag:].T @ centred[:-lag] / n
+        covariance += weight * (gamma + gamma.T)
+    if k == 1:
+        covariance = np.maximum(covariance, 0.0)
+    return covariance, bandwidth
 
 
 def predictive_test(current: np.ndarray, candidate: np.ndarray) -> dict:

@@ -199,7 +199,7 @@ def _gauss_newton(problem: FitProblem, fit: Fit):
     Gauss–Newton step from ``fit`` predicts with them added (their coefficients from 0,
     the fit's own parameters free): least squares of the residual measured − simulated on
     the estimation part, applied to the held-out part."""
-    jacobian, base, columns = _sensitivities(problem, fit)
+    jacobian, base, columns = sensitivities(problem, fit)
     residual = problem.measurement.response - fit.simulated
     n = problem.n_train
 
@@ -213,7 +213,7 @@ def _gauss_newton(problem: FitProblem, fit: Fit):
     return predicted
 
 
-def _sensitivities(problem: FitProblem, fit: Fit):
+def sensitivities(problem: FitProblem, fit: Fit):
     """(Jacobian of the simulated response over the record at ``fit``, its columns of the
     fit's free parameters — mass where the first input's gain is held at 1, the
     coefficients, the initial state — and a function: terms -> their coefficients'
@@ -245,7 +245,7 @@ def score_statistics(problem: FitProblem, current: Fit, candidates: list[Candida
     candidate's refit (``results``, same order) residual."""
     problem.simulator_for([current.structure] + [current.structure.plus(c.terms)
                                                  for c in candidates])
-    jacobian, base, columns = _sensitivities(problem, current)
+    jacobian, base, columns = sensitivities(problem, current)
     n, measured = problem.n_train, problem.measurement.response
     residual = (measured - current.simulated)[:n]
     return [score_test(residual, jacobian[:n, base],

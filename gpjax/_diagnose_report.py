@@ -53,6 +53,7 @@ def report_markdown(diagnosis: Diagnosis) -> str:
              f"{d.settings['input_interpolation']} interpolation.", "",
              f"Starting model: `{d.before.model(d.symbols, {}).sympy()}`", "",
              f"Final model: `{d.model().sympy()}`", "",
+             *_interval_lines(d),
              f"Effects added: {', '.join(d.effects_added) or 'none'}", "",
              f"RMS in {unit}; f = f_time + f_freq (eqs. 7–9); spectral error = f_freq.", "",
              f"Whole record (the starting and the final structure refitted on all of it once "
@@ -88,6 +89,28 @@ def report_markdown(diagnosis: Diagnosis) -> str:
     lines += ["", "Figures: residual_time.png, residual_spectrum.png, measured_vs_simulated.png.",
               ""]
     return "\n".join(lines)
+
+
+def _interval_lines(d: Diagnosis) -> list[str]:
+    """The final model's constants with half their 95 % interval; those whose interval
+    holds 0 are named (the record does not tell them from zero)."""
+    band = d.uncertainty
+    if band is None:
+        return ["Constants' intervals: not computed (equation-error mode fits no simulated "
+                "response).", ""]
+    cells, zero = [], []
+    for name, value in zip(band.names, band.values):
+        low, high = band.interval(name)
+        cells.append(f"{name} = {value:.6g} ± {band.half_width(name):.2g}")
+        if low <= 0 <= high and not name.endswith("(0)"):
+            zero.append(name)
+    lines = ["Constants (± half the 95 % interval, output error on the whole record): "
+             + ", ".join(cells) + ".", ""]
+    if zero:
+        lines += [f"**Not distinguishable from zero** (the interval holds 0): "
+                  f"{', '.join(zero)}.", ""]
+    return lines + [f"{a} and {b} are correlated, ρ = {rho:+.2f}." for a, b, rho in
+                    band.correlated()] + ([""] if band.correlated() else [])
 
 
 def _noise_lines(d: Diagnosis) -> list[str]:

@@ -30,11 +30,12 @@ from ._fitness import Fitness, Record
 from ._model import Model
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
 from ._select import pareto_front, select
+from ._uncertainty import fitted_uncertainty
 from ._sign_width import MAX_NARROWINGS, NARROWING, check_width, narrowed, narrowed_steps
 
 CHECKPOINT = "checkpoint.json"
 #: Columns of history.csv and equations.csv that hold text, not numbers.
-TEXT_COLUMNS = ("equation", "best_key")
+TEXT_COLUMNS = ("equation", "best_key", "constants")
 
 
 class Identifier:
@@ -161,6 +162,7 @@ class Identifier:
         converging = time.perf_counter()
         fits = [fitness]  # the search's, then each refit's (every one compiles its own)
         fitness = self._converge(fitness, seed, state, fits)
+        self._set_uncertainty(fitness)
         writing = time.perf_counter()
         if out is not None:
             self._write(out, fitness)
@@ -169,7 +171,7 @@ class Identifier:
         self.timings_ = {"total_s": ended - began,
                          "search_s": selecting - began,
                          "selection_s": converging - selecting,
-                         "convergence_s": writing - converging,
+                         "convergence_s": writing - converging,  # and the uncertainty
                          "writing_s": ended - writing,
                          "compile_s": sum(f.evaluator.compile_seconds + f.refiner.compile_seconds
                                           for f in fits),
@@ -292,6 +294,16 @@ class Identifier:
                           f"steps per sample (tolerance {tolerance:.1%}): {why}; its friction "
                           f"constants depend on the smoothing", stacklevel=3)
         return fitness
+
+    def _set_uncertainty(self, fitness: Fitness) -> None:
+        """Give the reported model (and its row of the equations table) the standard
+        errors of its constants at the converged steps (:mod:`gpjax._uncertainty`)."""
+        _progress.stage("standard errors of the reported constants")
+        row = [r.key for r in self._front].index(self._chosen.key)
+        self.model_ = dataclasses.replace(self.model_, uncertainty=fitted_uncertainty(
+            fitness, self._chosen, self.model_))
+        self._equation_models[row] = self.model_
+        self.equations_[row] = _row(self._chosen, self.model_, self._chosen)
 
     def _select(self, fitness: Fitness, seed: int, state: RunState) -> None:
         valid = [r for r in fitness.records.values() if r.valid and r.status == OK]
@@ -421,9 +433,10 @@ class Identifier:
         """The reported equation, or row ``index`` of ``equations_``, with its constants."""
         return self._equation_model(index).sympy()
 
-    def latex(self, index: int | None = None) -> str:
-        """LaTeX of the reported equation, or of row ``index`` of ``equations_``."""
-        return self._equation_model(index).latex()
+    def latex(self, index: int | None = None, *, numeric: bool = False) -> str:
+        """LaTeX of the reported equation, or of row ``index`` of ``equations_``;
+        ``numeric``: with the constants' values (± half of the 95 % interval where known)."""
+        return self._equation_model(index).latex(numeric=numeric)
 
     def __str__(self) -> str:
         if self.model_ is None:
@@ -445,6 +458,13 @@ class Identifier:
                 lines.append(f"  smoothed sign tanh(z/ε), ε = {width['fraction']:.3g}·RMS z: "
                              f"{NARROWING}× narrower changes the response by "
                              f"{width['ratio']:.2%} of the RMS residual ({verdict})")
+        band = self.model_.uncertainty
+        if band is not None:
+            lines.append("  ±: half of each constant's 95 % interval (output error, "
+                         "frequency-domain sandwich)" + "".join(
+                             f"; {a}, {b} correlated ρ = {r:+.2f}" for a, b, r in band.correlated()))
+            if band.reconstruction_warning():
+                lines.append(f"  {band.reconstruction_warning()}")
         if self.equations_:
             lines.append("  complexity  objective     equation")
             for row in self.equations_:
@@ -531,7 +551,8 @@ def _projection(width) -> str:
 def _row(record: Record, model: Model, chosen: Record) -> dict:
     return {"complexity": record.n_constants, "objective": record.objective, "rms": record.rms,
             "f_time": record.f_time, "f_freq": record.f_freq,
-            "equation": str(model.sympy()), "selected": record.key == chosen.key}
+            "equation": str(model.sympy()), "selected": record.key == chosen.key,
+            "constants": ", ".join(f"{k} = {v}" for k, v in model.constant_texts().items())}
 
 
 def _read_csv(path: Path) -> list[dict]:

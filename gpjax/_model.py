@@ -18,6 +18,7 @@ import functools
 import json
 import keyword
 import math
+import re
 from collections import OrderedDict
 from pathlib import Path
 
@@ -33,6 +34,7 @@ from ._evaluator import PopulationEvaluator, split_state_features
 from ._objective import default_n_bins
 from ._expressions import parse_expression
 from ._reference import ReferenceSolver, measurement_scale, reference_response
+from ._uncertainty import Uncertainty
 from ._weak_form import estimate_initial_conditions
 
 FORMAT = "gpjax-model"
@@ -62,6 +64,9 @@ class Model:
         convergence: the check of that integration against the reference solve
             (:meth:`gpjax._convergence.Convergence.to_json`), or ``None`` if not checked
             (file: ``simulation.convergence``).
+        uncertainty: standard errors, 95 % intervals and correlations of the constants
+            and initial state (:mod:`gpjax._uncertainty`), or ``None`` (file:
+            ``uncertainty``).
     """
 
     symbols: Symbols
@@ -75,6 +80,7 @@ class Model:
     input_interpolation: str = "linear"
     substeps: int = 1
     convergence: dict | None = None
+    uncertainty: Uncertainty | None = None
 
     @classmethod
     def from_coefficients(cls, symbols: Symbols, coefficients: Coefficients,
@@ -172,15 +178,30 @@ class Model:
         """The equation with numeric constants."""
         return self.equation(numeric=True)
 
-    def latex(self) -> str:
-        """LaTeX of :meth:`equation`; the derivatives print as \\dot{x} and \\ddot{x}."""
+    def latex(self, *, numeric: bool = False) -> str:
+        """LaTeX of :meth:`equation`; the derivatives print as \\dot{x} and \\ddot{x}.
+        ``numeric``: the constants' values, as (value \\pm half of the 95 % interval)
+        where the uncertainty is known."""
         s = self.symbols
         base = sp.latex(s.x)
-        return sp.latex(self.equation(), symbol_names={
-            s.x: base, s.x_dot: rf"\dot{{{base}}}", s.x_ddot: rf"\ddot{{{base}}}"})
+        names = {s.x: base, s.x_dot: rf"\dot{{{base}}}", s.x_ddot: rf"\ddot{{{base}}}"}
+        if numeric:
+            names |= {sp.Symbol(name): _latex_value(text)
+                      for name, text in self.constant_texts(latex=True).items()}
+        return sp.latex(self.equation(), symbol_names=names)
+
+    def constant_texts(self, *, latex: bool = False) -> dict[str, str]:
+        """Name -> the constant's value as text, with ± half of its 95 % interval where
+        the uncertainty is known (``latex``: ``\\pm`` and no exponent ``e``)."""
+        texts = {}
+        for name, value in self.constants().items():
+            half = self.uncertainty.half_width(name) if self.uncertainty else None
+            text = f"{value:.6g}" if half is None else f"{value:.6g} ± {half:.2g}"
+            texts[name] = text.replace("±", r"\pm") if latex else text
+        return texts
 
     def __str__(self) -> str:
-        constants = ", ".join(f"{k} = {v:.6g}" for k, v in self.constants().items())
+        constants = ", ".join(f"{k} = {v}" for k, v in self.constant_texts().items())
         return f"{self.equation()}   with {constants}"
 
     # --- simulation ---------------------------------------------------------------------
@@ -269,6 +290,7 @@ class Model:
                            "reference_solver": ReferenceSolver().to_json(),
                            **({"convergence": self.convergence} if self.convergence else {})},
             "provenance": self.provenance,
+            **({"uncertainty": self.uncertainty.to_json()} if self.uncertainty else {}),
         }
 
     def save(self, path: str | Path) -> None:
@@ -358,13 +380,21 @@ class Model:
             fail(f'"simulation.integrator" must be {{"method": "rk4", "substeps": 1 … '
                  f'{MAX_SUBSTEPS}}}, got {integrator!r}')
         convergence = simulation.get("convergence")
+        uncertainty = data.get("uncertainty")
+        if uncertainty is not None:
+            try:
+                uncertainty = Uncertainty.from_json(uncertainty)
+            except (KeyError, TypeError, ValueError, AttributeError):
+                fail('"uncertainty" is malformed; delete it (it is derived) or rewrite it as '
+                     'gpjax writes it')
         return cls(symbols=symbols, mass=mass, state=state, forcing=forcing,
                    initial_conditions=initial,
                    metrics={k: v for k, v in metrics.items() if isinstance(v, (int, float))},
                    provenance=provenance if isinstance(provenance, dict) else {},
                    parametric=parametric, input_interpolation=interpolation,
                    substeps=substeps,
-                   convergence=convergence if isinstance(convergence, dict) else None)
+                   convergence=convergence if isinstance(convergence, dict) else None,
+                   uncertainty=uncertainty)
 
     @classmethod
     def load(cls, path: str | Path) -> "Model":
@@ -378,6 +408,15 @@ class Model:
             raise ModelFileError(f"model file {path} holds a number or nesting too large to read; "
                                  "write numbers as ordinary floats") from None
         return cls.from_json(data, source=str(path))
+
+
+def _latex_value(text: str) -> str:
+    """A constant's text as LaTeX: ``1.2e-05`` as ``1.2 \\cdot 10^{-5}``, in parentheses
+    when it carries a ``\\pm``."""
+    def power(match):
+        return rf"{match.group(1)} \cdot 10^{{{int(match.group(2))}}}"
+    out = re.sub(r"([0-9.]+)e([+-]?[0-9]+)", power, text)
+    return f"({out})" if r"\pm" in out or out.startswith("-") else out
 
 
 def _parse(text: str, names: set[str], source: str) -> sp.Expr:

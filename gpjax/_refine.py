@@ -62,6 +62,28 @@ class Refinement:
     steps: np.ndarray
 
 
+@dataclasses.dataclass(frozen=True)
+class Sensitivity:
+    """One model's simulated response and its derivatives by its free constants.
+
+    Attributes:
+        response: (N,) or (N, D): x at the record's samples.
+        jacobian: (N, k) or (N, D, k): ∂x/∂constant, per unit of each constant (a tied
+            constant, :mod:`gpjax._system_couplings`, moves with its source).
+        columns: (k,) the constants' indices in ``layout``'s flat vector.
+        values: (k,) their values.
+        layout: the flat layout ``columns`` index.
+        tied: the model's ties (as :meth:`Refiner.refine` takes them) or ``None``.
+    """
+
+    response: np.ndarray
+    jacobian: np.ndarray
+    columns: np.ndarray
+    values: np.ndarray
+    layout: object
+    tied: object = None
+
+
 def refine_batch(batch: int, *, n_samples: int, substeps: int, max_free: int) -> int:
     """``batch`` capped so stages × ``max_free`` × models ≤ ``STAGE_ELEMENTS_PER_CALL``."""
     stages = 2 * (n_samples - 1) * substeps + 1
@@ -119,6 +141,7 @@ class Refiner(CompileFigures):
         self.batch = refine_batch(batch, n_samples=padded, substeps=evaluator.substeps,
                                   max_free=max_free)
         self.max_free = max_free
+        self._sensitivity: Program | None = None  # compiled on first use (sensitivity)
         responses = evaluator.measurement.responses
         self._state_scale = np.stack([np.std(responses, axis=0), np.std(np.diff(
             responses, axis=0), axis=0) / evaluator.measurement.dt], axis=1).ravel() + 1e-300
@@ -173,10 +196,12 @@ class Refiner(CompileFigures):
                           succeeded=np.concatenate([p.succeeded for p in parts])[back],
                           steps=np.concatenate([p.steps for p in parts])[back])
 
-    def _refine(self, population: Population, fixed_forcing: np.ndarray,
-                plain: bool, held_inner: np.ndarray, ties=None) -> Refinement:
-        """:meth:`refine` of models that all use no family (``plain``: on the evaluator's
-        :attr:`~PopulationEvaluator.plain_layout`) or all on its full layout."""
+    def _moves(self, population: Population, fixed_forcing: np.ndarray, plain: bool,
+               held_inner: np.ndarray, ties=None):
+        """(layout, flat start (P, W), moves) of ``population``'s free constants, as
+        :meth:`_refine_one` and :meth:`sensitivity` take them: ``moves`` = (index,
+        index_scale[, mirror, mirror_sign]), one row per model of :meth:`width` columns
+        (:func:`_moved`); padding columns have scale 0."""
         ev = self.evaluator
         count = len(population)
         layout = ev.plain_layout if plain else ev.layout
@@ -219,6 +244,14 @@ class Refiner(CompileFigures):
                 j = np.flatnonzero(index[i] == abs(follows[i, b]) - 1)
                 mirror[i, j], mirror_sign[i, j] = b, np.sign(follows[i, b])
             moves += [mirror, mirror_sign]
+        return layout, start, moves
+
+    def _refine(self, population: Population, fixed_forcing: np.ndarray,
+                plain: bool, held_inner: np.ndarray, ties=None) -> Refinement:
+        """:meth:`refine` of models that all use no family (``plain``: on the evaluator's
+        :attr:`~PopulationEvaluator.plain_layout`) or all on its full layout."""
+        ev = self.evaluator
+        layout, start, moves = self._moves(population, fixed_forcing, plain, held_inner, ties)
         outputs = []
         basis = jnp.asarray(ev.forcing_basis)
         for size, chunk in padded_chunks((start, *moves), (1, self.batch)):
@@ -233,6 +266,45 @@ class Refiner(CompileFigures):
                 [refined.state, population.state[..., layout.n_state:]], axis=-1),
                 inner=population.inner)
         return Refinement(population=refined, succeeded=ok.astype(bool), steps=steps)
+
+    def sensitivity(self, population: Population, fixed_forcing: np.ndarray,
+                    held_inner: np.ndarray | None = None, *, ties=None,
+                    forcing_basis: np.ndarray | None = None) -> Sensitivity:
+        """The simulated response of a population of one model at its constants, and its
+        derivatives by the constants :meth:`refine` would move (the variational equations
+        over the whole record, one augmented solve); arguments as :meth:`refine`'s,
+        ``forcing_basis`` another reconstruction of the inputs
+        (:meth:`~PopulationEvaluator.forcing_basis_as`). One compiled program per
+        :meth:`width`."""
+        ev = self.evaluator
+        ev.check_forcing_bank(population)
+        if len(population) != 1:
+            raise ValueError(f"sensitivity takes a population of one, got {len(population)}")
+        if held_inner is None:
+            held_inner = np.zeros(population.inner.shape, dtype=bool)
+        if ties is not None and not any(ties):
+            ties = None
+        plain = bool(ev.plain_rows(population)[0])
+        layout, start, moves = self._moves(population, fixed_forcing, plain, held_inner, ties)
+        if self._sensitivity is None:
+            ev_weak, n_stage = weakref.proxy(ev), ev.stage_rows(self.horizon_samples[-1])
+
+            def jacobian(start, moves, forcing_basis, record):  # ev weakly: see _response
+                with ev_weak.tracing(record):
+                    return ev_weak.constant_jacobian(start, _directions(start, moves),
+                                                     forcing_basis[:n_stage])
+            self._sensitivity = Program(jacobian, name="sensitivity", key=fingerprint(
+                ev.time_key, self.horizon_samples[-1]))
+        x, jacobian = jax.block_until_ready(self._sensitivity(
+            start[0], tuple(m[0] for m in moves),
+            jnp.asarray(ev.forcing_basis if forcing_basis is None else forcing_basis),
+            ev.time_record))
+        n = ev.measurement.n_samples
+        used = moves[1][0] != 0
+        jacobian = np.asarray(jacobian)[:n, ..., used] / moves[1][0][used]
+        return Sensitivity(response=np.asarray(x)[:n], jacobian=jacobian,
+                           columns=moves[0][0][used], values=start[0][moves[0][0][used]],
+                           layout=layout, tied=None if ties is None else ties[0])
 
     def _refine_one(self, start, moves, forcing_basis, record, limits):
         ev = self.evaluator
@@ -324,13 +396,7 @@ class Refiner(CompileFigures):
             delta, start, moves, forcing_basis, record = primals
             # Row j of the directions: constant index[j] moved by index_scale[j] (and its
             # tied one by ±index_scale[j]).
-            columns = jnp.arange(start.size)[None, :]
-            index, index_scale = moves[:2]
-            directions = (index[:, None] == columns) * index_scale[:, None]
-            if len(moves) > 2:
-                directions = directions + (moves[2][:, None] == columns) * (
-                    moves[3] * index_scale)[:, None]
-            x, jacobian = augmented(_moved(start, moves, delta), directions,
+            x, jacobian = augmented(_moved(start, moves, delta), _directions(start, moves),
                                     forcing_basis, record)
             return x, jacobian @ tangents[0]
 
@@ -351,6 +417,18 @@ def _split_over(devices, fn, count, x_rank: int = 2):
                          out_specs=(PartitionSpec(*[None] * (x_rank - 1), "population"),
                                     PartitionSpec(*[None] * x_rank, "population")),
                          check_vma=False)
+
+
+def _directions(start, moves):
+    """(width, W): row j moves constant ``index[j]`` by ``index_scale[j]`` (and its tied
+    one by ±``index_scale[j]``) in the flat vector ``start`` (:func:`_moved`)."""
+    columns = jnp.arange(start.size)[None, :]
+    index, index_scale = moves[:2]
+    directions = (index[:, None] == columns) * index_scale[:, None]
+    if len(moves) > 2:
+        directions = directions + (moves[2][:, None] == columns) * (
+            moves[3] * index_scale)[:, None]
+    return directions
 
 
 def _moved(start, moves, delta):

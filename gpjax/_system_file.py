@@ -28,8 +28,9 @@ FORMAT = "gpjax-system"
 
 
 def system_to_json(model: SystemModel, metrics: dict | None = None,
-                   convergence: dict | None = None) -> dict:
-    """The system file's content (module docstring)."""
+                   convergence: dict | None = None, uncertainty: dict | None = None) -> dict:
+    """The system file's content (module docstring); ``uncertainty``: the constants'
+    intervals (:meth:`gpjax._uncertainty.Uncertainty.to_json`), written for reading."""
     return {
         "format": FORMAT, "version": 1,
         "equations": [str(e) for e in model.sympy()],
@@ -51,6 +52,7 @@ def system_to_json(model: SystemModel, metrics: dict | None = None,
                        "max_degree": model.max_degree,
                        "reference_solver": ReferenceSolver().to_json(),
                        **({"convergence": convergence} if convergence else {})},
+        **({"uncertainty": uncertainty} if uncertainty else {}),
     }
 
 

@@ -29,12 +29,13 @@ from . import _progress
 from ._canonical import Symbols
 from ._coefficients import (Coefficients, Population, from_system_population,
                             to_system_population)
-from ._convergence import MAX_SUBSTEPS, check_model, initial_substeps, next_substeps
+from ._convergence import fit_converged
 from ._data import Measurement
 from ._diagnose_fits import blocked_cv_residual
 from ._evaluator import PopulationEvaluator, Scores
 from ._reference import ReferenceSolver, reference_system_response
 from ._refine import Refiner
+from ._uncertainty import Uncertainty, system_names, uncertainty_of
 from ._system_couplings import couple, coupled_least_squares, fixed_columns, tie_columns
 from ._weak_form import WeakForm, smoothed_derivatives
 
@@ -282,12 +283,15 @@ def measurement_of(measurement: Measurement, coordinate: int) -> Measurement:
 
 @dataclasses.dataclass(frozen=True)
 class SystemFit:
-    """:func:`fit_system`'s result: the model, its scores at the fitted step count, and
-    every convergence check made (the last one passed unless ``substeps`` hit the cap)."""
+    """:func:`fit_system`'s result: the model, its scores at the fitted step count, every
+    convergence check made (the last one passed unless ``substeps`` hit the cap), and the
+    constants' standard errors and 95 % intervals (:mod:`gpjax._uncertainty`; names
+    ``"x2: x2_dot"``, ``"x2: m"``, ``"x2(0)"``)."""
 
     model: SystemModel
     scores: Scores
     checks: tuple
+    uncertainty: Uncertainty | None = None
 
 
 def fit_system(measurement: Measurement, structure: Structure, *, max_degree: int = 3,
@@ -310,18 +314,21 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
     if third_law:
         structure, ties = couple(structure, measurement.response_names)
     start = start or weak_form_start(measurement, structure, ties)
-    steps = substeps or initial_substeps(measurement)
-    checks = []
-    while True:
+    last = {}
+
+    def fit_at(steps: int, previous: SystemModel | None) -> SystemModel:
         _progress.stage(f"fitting the system's constants at {steps} substeps, then its "
                         "convergence check")
-        model, scores = _refit(measurement, structure, start, steps, max_degree,
-                               input_interpolation, iterations, ties)
-        check, _ = check_model(model, measurement, tolerance=tolerance)
-        checks.append(check)
-        if substeps or check.converged or steps >= MAX_SUBSTEPS:
-            return SystemFit(model, scores, tuple(checks))
-        start, steps = list(model.equations), next_substeps(check)
+        model, last["scores"], last["refit"] = _refit(
+            measurement, structure, list(previous.equations) if previous else start, steps,
+            max_degree, input_interpolation, iterations, ties)
+        return model
+
+    model, checks = fit_converged(fit_at, measurement, substeps=substeps, tolerance=tolerance)
+    refiner, population, fixed, tied = last["refit"]
+    uncertainty = uncertainty_of(refiner, population, fixed, ties=tied, names=lambda s: system_names(
+        s, model.equations, model.coordinates, refiner.evaluator))
+    return SystemFit(model, last["scores"], tuple(checks), uncertainty)
 
 
 def _refit(measurement, structure, start, steps, max_degree, interpolation, iterations, ties):
@@ -335,10 +342,11 @@ def _refit(measurement, structure, start, steps, max_degree, interpolation, iter
         raise ValueError("the least-squares start of the system is not finite")
     free = sum(1 + len(s) + len(f) + 2 for s, f in structure)
     refiner = Refiner(evaluator, iterations=iterations, max_free=free + free % 2, batch=1)
-    refined = refiner.refine(population, fixed, ties=[tie_columns(ties, evaluator)]).population
+    tied = [tie_columns(ties, evaluator)]
+    refined = refiner.refine(population, fixed, ties=tied).population
     equations = from_system_population(refined, evaluator, [start])[0]
     model = dataclasses.replace(model, equations=tuple(equations))
     scores = evaluator.score(to_system_population([equations], evaluator))
     if not math.isfinite(float(scores.objective[0])):
         raise ValueError("the refined system diverged")
-    return model, scores
+    return model, scores, (refiner, refined, fixed, tied)

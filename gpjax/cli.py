@@ -308,11 +308,23 @@ def _fit_system(args) -> int:
                 metrics={"rms": {k: v["rms"] for k, v in residuals.items()},
                          "objective": float(result.fit.scores.objective[0]),
                          "residuals": residuals},
-                convergence=check.to_json())
+                convergence=check.to_json(),
+                **({"uncertainty": result.fit.uncertainty.to_json()}
+                   if result.fit.uncertainty else {}))
     print(f"System of {measurement.n_coordinates} equations (GP over systems, "
           f"{len(result.history)} generations{', third law' if config.third_law else ''}):")
     for equation in model.sympy():
         print(f"  {equation}")
+    band = result.fit.uncertainty
+    if band is not None:
+        print("Constants with half of their 95 % interval (output error, frequency-domain "
+              "sandwich):")
+        for name, value in zip(band.names, band.values):
+            print(f"  {name} = {value:.6g} ± {band.half_width(name):.2g}")
+        for a, b, rho in band.correlated():
+            print(f"  {a} and {b} are correlated, ρ = {rho:+.2f}")
+        if band.reconstruction_warning():
+            print(f"  {band.reconstruction_warning()}")
     print("Residuals per coordinate (reference solve):")
     for name, statistics in residuals.items():
         print(summary_line(name, statistics))

@@ -114,10 +114,14 @@ def _check_recovers(name: str, seed: int, strength: float):
     limit = max(1.5 * NOISE, case.truth_rms())
     assert result.after.metrics["rms"] <= limit, (result.after.metrics, limit)
     assert result.steps[0]["rms_before"] > 3 * NOISE  # the effect was visible
+    band = result.model().uncertainty  # the final constants' intervals, finite
+    assert band is not None and "m" in band.names
+    assert all(np.isfinite(se) for se in band.standard_errors.values())
     return result
 
 
-@pytest.mark.slow  # 10–26 s: the CI slow step keeps it; the fast tier stays within 5 min
+@pytest.mark.slow
+@pytest.mark.handrun  # minutes on 2 cores: the hand-run tier (README, Quick start)
 def test_mesh_stiffness_variation_is_found_and_closes_the_residual():
     result = _check_recovers("mesh_stiffness_variation", seed=1, strength=1.0)
     step = result.steps[0]
@@ -241,6 +245,9 @@ def test_cli_diagnose_writes_the_report(tmp_path):
         assert key in report["steps"][0]
     again = Model.from_json(report["model"])
     assert any("tanh" in feature for feature in again.state)
+    # a drifting record is diagnosed by equation error: no simulated response, no intervals
+    assert report["mode"] == "equation_error" and again.uncertainty is None
+    assert "intervals: not computed" in (tmp_path / "report" / "report.md").read_text()
     for name in ("report.md", "model.json", "residual_time.png", "residual_spectrum.png",
                  "measured_vs_simulated.png"):
         assert (tmp_path / "report" / name).stat().st_size > 0

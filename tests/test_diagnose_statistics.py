@@ -209,6 +209,7 @@ def test_effect_outside_the_library_adds_only_its_nearest_or_says_none_fits(name
 
 
 @pytest.mark.slow
+@pytest.mark.handrun  # minutes on 2 cores: the hand-run tier (README, Quick start)
 @pytest.mark.parametrize("torque_noise", [1.0, 4.0, 10.0])
 @pytest.mark.parametrize("name", ["control", "cubic_stiffness"])
 def test_held_out_sweep_subset(name, torque_noise):

@@ -154,7 +154,8 @@ def test_each_worker_builds_its_island_once(reference):
     assert all(t["worker"] == first[t["island"]] for t in tasks)
 
 
-@pytest.mark.slow  # a long run: CI's slow step (fast tier <= 5 min)
+@pytest.mark.slow
+@pytest.mark.handrun  # minutes on 2 cores: the hand-run tier (README, Quick start)
 def test_resume_of_an_interrupted_island_run_gives_the_same_model(cluster, tmp_path):
     config = GPConfig.paper(**SMALL | {"generations": 6})
     options = dict(seed=3, islands=2, scheduler=cluster[0].scheduler_address,

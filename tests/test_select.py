@@ -42,7 +42,8 @@ def _sin(a: float, b: float) -> sp.Expr:
     return sp.sin(sp.Float(a) * X + sp.Float(b))
 
 
-@pytest.mark.slow  # ~14 s: the fast tier stays within 5 minutes on 2 cores
+@pytest.mark.slow
+@pytest.mark.handrun  # minutes on 2 cores: the hand-run tier (README, Quick start)
 def test_duffing_cubic_over_a_cancelling_sine():
     """Duffing (k·x + k3·x³): from the physics suite's stand-in k·x + K·sin(a·x + b) with
     cancelling k ≈ −K ≈ 2500 (7 fitted constants), the walk reaches k·x + k3·x³ (5)."""
@@ -54,7 +55,8 @@ def test_duffing_cubic_over_a_cancelling_sine():
     assert chosen.coefficients.state[X ** 3] == pytest.approx(400.0, rel=0.02)
 
 
-@pytest.mark.slow  # 10–26 s: the CI slow step keeps it; the fast tier stays within 5 min
+@pytest.mark.slow
+@pytest.mark.handrun  # minutes on 2 cores: the hand-run tier (README, Quick start)
 def test_pendulum_keeps_the_sine():
     """Pendulum (k·sin x): sin(a·x + b) stays a sine (its constants snapped to a = 1, b = 0)
     and is not traded for the Taylor pair k·x + k3·x³, which the test rejects."""
@@ -92,7 +94,8 @@ def test_selection_alpha_is_validated(alpha):
         GPConfig(selection_alpha=alpha)
 
 
-@pytest.mark.slow  # the CI slow step keeps it; the fast tier stays within 5 min
+@pytest.mark.slow
+@pytest.mark.handrun  # minutes on 2 cores: the hand-run tier (README, Quick start)
 @pytest.mark.parametrize("system, start, function, scale, k", [
     # two free exp members with nearly opposite scales (6 fitted constants) tie into one
     # sinh (4)
@@ -281,7 +284,8 @@ def test_the_test_sees_a_stribeck_excess_that_the_smoothed_velocity_hides():
     assert p_value(fitness.weak_form) > 0.05
 
 
-@pytest.mark.slow  # ~1 min: the CI slow step keeps it; the fast tier stays within 5 min
+@pytest.mark.slow
+@pytest.mark.handrun  # minutes on 2 cores: the hand-run tier (README, Quick start)
 def test_the_walk_keeps_a_viscous_term_beside_a_smooth_friction_law():
     """Smooth friction with m = 2 and a 12-tone input, 2 % noise (seed 0): at the smoothed
     measurement's velocity the held-out equation error cannot tell the truth from the truth

@@ -81,6 +81,7 @@ def test_diagnosis_adds_cubic_stiffness_first_and_reaches_the_target(silverbox_d
 
 
 @pytest.mark.slow
+@pytest.mark.handrun  # minutes on 2 cores: the hand-run tier (README, Quick start)
 def test_gpjax_fit_with_diagnosis_on_the_estimation_segment_is_converged_and_on_target(
         silverbox_dir, tmp_path):
     """The front door, as a user runs it: ``gpjax fit est.csv ... --diagnose`` with the

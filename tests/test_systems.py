@@ -224,6 +224,7 @@ def test_physics_suite_runs_only_the_methods_asked_for():
 
 
 @pytest.mark.slow
+@pytest.mark.handrun  # minutes on 2 cores: the hand-run tier (README, Quick start)
 def test_physics_suite_runs_end_to_end(tmp_path):
     out = tmp_path / "suite.json"
     assert _physics_suite().main(["--systems", "duffing", "--seeds", "1", "--population",
