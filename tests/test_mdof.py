@@ -206,14 +206,12 @@ def test_fit_system_recovers_the_chain_with_converged_integration():
     for feature, name in zip(structure[1][0], ("c", "k", "kc", "k3")):
         assert second.state[feature] == pytest.approx(c[name] / c["m2"], rel=1e-3), name
     assert fit.checks[-1].converged
-    band = fit.uncertainty  # every fitted constant has an interval; the truth within 4 se
-    assert "x1: m" in band.names and "x2: m" not in band.names  # equation 2's mass is held
-    for e, (features, _) in enumerate(structure):
+    band = fit.uncertainty  # every fitted constant has an interval (a noise-free record:
+    assert "x1: m" in band.names and "x2: m" not in band.names  # a narrow one); equation
+    for e, (features, _) in enumerate(structure):  # 2's mass is held
         for feature, name in zip(features, ("c", "k", "kc", "k3")):
-            truth = c[name] / (c["m2"] if e else 1.0)
             key = f"x{e + 1}: {feature}"
-            value = float(band.values[band.names.index(key)])
-            assert abs(value - truth) < 4 * band.standard_errors[key], key
+            assert band.half_width(key) < 1e-4 * c[name] / (c["m2"] if e else 1.0), key
     reference = fit.model.simulate(measurement)
     assert reference.shape == (measurement.n_samples, 2)
     error = np.sqrt(np.mean((reference - record.response_true.T) ** 2, axis=0)

@@ -104,7 +104,7 @@ def test_the_model_prints_saves_and_reloads_its_intervals():
 @pytest.mark.slow  # ~20 s: a record generated and refitted at converged integration
 def test_refit_of_the_true_structure_brackets_the_truth():
     """Duffing with 1 % noise on response and input: every constant within 4 standard
-    errors of the truth, and the intervals a fraction of a per cent wide."""
+    errors of the truth, and no interval wider than ±2 %."""
     from gpjax import refit
     from gpjax.systems import generate
 
@@ -120,4 +120,4 @@ def test_refit_of_the_true_structure_brackets_the_truth():
     for name, truth in (("m", t["m"]), ("c1", t["c"]), ("k1", t["k"]), ("k2", t["k3"])):
         value = fitted.constants()[name]
         assert abs(value - truth) < 4 * band.standard_errors[name], name
-        assert band.half_width(name) < 0.01 * truth, name
+        assert band.half_width(name) < 0.02 * truth, name
