@@ -13,14 +13,16 @@ ROOT = Path(__file__).resolve().parent.parent
 
 
 def provenance() -> dict:
-    """The git revision (``+dirty`` with uncommitted changes), the command line, the UTC
-    date and the machine (platform, CPU count, Python)."""
+    """The git revision (``+dirty`` with uncommitted changes to anything but the
+    benchmarks' own JSON results), the command line, the UTC date and the machine
+    (platform, CPU count, Python)."""
     def git(*args: str) -> str:
         return subprocess.run(["git", "-C", str(ROOT), *args], capture_output=True,
                               text=True).stdout.strip()
 
     revision = git("rev-parse", "--short", "HEAD") or "unknown"
-    if git("status", "--porcelain", "--untracked-files=no"):
+    if git("status", "--porcelain", "--untracked-files=no", "--", ".",
+           ":(exclude)benchmarks/*.json"):
         revision += "+dirty"
     return {"revision": revision,
             "command": " ".join(["python", *sys.argv]),
