@@ -12,6 +12,9 @@ import pytest
 from gpjax import GPConfig, Identifier, Measurement, Model, UserInputError
 from gpjax.gear import load_bundled_example
 
+# The demo fit (~35 s) and its checks: CI's slow step, so the fast tier stays within 5 min.
+pytestmark = pytest.mark.slow
+
 
 @pytest.fixture(scope="module")
 def demo_fit(tmp_path_factory):
@@ -81,7 +84,6 @@ def _cli(*args, cwd):
                           capture_output=True, text=True, timeout=300)
 
 
-@pytest.mark.slow  # a CLI run: CI's slow step (fast tier <= 5 min on 2 cores)
 def test_gpjax_simulate_writes_the_reference_response(demo_fit, tmp_path):
     identifier, measurement, _ = demo_fit
     identifier.model_.save(tmp_path / "model.json")

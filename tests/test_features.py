@@ -130,6 +130,7 @@ def test_inner_constants_are_data_and_come_back_refined(pendulum):
 STRIBECK = sp.exp(-(4.0 * V) ** 2) * sp.tanh(30.0 * V)
 
 
+@pytest.mark.slow  # 20-30 s: CI's slow step; the fast tier stays within 5 min on 2 cores
 def test_variational_sensitivities_to_inner_constants_match_autodiff(pendulum):
     """The variational Jacobian in the inner constants of sin(a·x + b) and of a Stribeck
     member equals forward-mode autodiff through the solve (both families in one call, so

@@ -8,12 +8,15 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 from gpjax import Identifier, _progress
 from gpjax.gear import generate_gear_example
 
 LINE = re.compile(r"^\d\d:\d\d:\d\d gpjax: (.*)$")
 
 
+@pytest.mark.slow  # 20-30 s: CI's slow step; the fast tier stays within 5 min on 2 cores
 def test_a_piped_fit_logs_each_generation_and_stage_on_stderr(tmp_path):
     generate_gear_example(revolutions=0.35, seed=2).measurement.to_csv(tmp_path / "data.csv")
     (tmp_path / "c.toml").write_text("population = 24\ngenerations = 2\nepsilon = 0.0\n"

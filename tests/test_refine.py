@@ -114,6 +114,7 @@ def test_refiner_jacobian_equals_autodiff_of_the_simulated_response(refiner):
     assert np.all(np.asarray(custom[:, -1]) == 0.0)
 
 
+@pytest.mark.slow  # 20-30 s: CI's slow step; the fast tier stays within 5 min on 2 cores
 def test_variational_and_autodiff_refinement_agree(refiner):
     """The same Levenberg–Marquardt run with the Jacobian from the variational equations
     and from forward-mode autodiff through diffrax reaches the same constants."""
