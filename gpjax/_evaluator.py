@@ -285,11 +285,13 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         steps = (samples - 1) * self.substeps
         return 3 * steps if self.split_stages else 2 * steps + 1
 
-    def _at_stages(self, values: np.ndarray) -> np.ndarray:
-        """An input's samples (N,) reconstructed at every forcing row (:meth:`stage_rows`)."""
+    def _at_stages(self, values: np.ndarray, interpolation: str | None = None) -> np.ndarray:
+        """An input's samples (N,) reconstructed at every forcing row (:meth:`stage_rows`),
+        by ``interpolation`` (default the evaluator's; not ``"hold"`` on shared rows)."""
         if self.split_stages:  # every stage of a step sees the value held over that step
             return np.repeat(between_samples(values, self.substeps, "hold")[:-1], 3)
-        return between_samples(values, 2 * self.substeps, self.input_interpolation)
+        return between_samples(values, 2 * self.substeps,
+                               interpolation or self.input_interpolation)
 
     # --- evaluation ---------------------------------------------------------------------
     def empty(self, count: int) -> Population:

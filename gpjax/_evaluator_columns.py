@@ -174,15 +174,14 @@ class Columns:
             ValueError: a ``"hold"`` evaluator or ``interpolation`` (their forcing rows are
                 laid out otherwise).
         """
-        from ._data import between_samples
         from ._record import padded_rows
 
         if self.split_stages or interpolation == "hold":
             raise ValueError("a held input has its own forcing rows; compare linear and "
                              "bandlimited reconstructions only")
         rows = self._forcing_basis.shape[0]
-        inputs = {name: padded_rows(between_samples(values, 2 * self.substeps, interpolation),
-                                    rows) for name, values in self.measurement.inputs.items()}
+        inputs = {name: padded_rows(self._at_stages(values, interpolation), rows)
+                  for name, values in self.measurement.inputs.items()}
         basis = np.zeros_like(self._forcing_basis)
         for column, feature in enumerate(self._forcing_features):
             basis[:, column] = self.forcing_values(feature, self.stage_times, inputs)
