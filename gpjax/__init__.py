@@ -19,6 +19,7 @@ _EXPORTS = {
     "GPConfig": "_config", "Identifier": "_estimator",
     "Measurement": "_data", "load_csv": "_data", "Migration": "_island_settings",
     "fit_many": "_fit_many", "refit": "_refit",
+    "Band": "_band", "prediction_band": "_band",
     "Model": "_model", "Symbols": "_canonical", "check_structure": "_canonical",
     "Diagnosis": "_diagnose", "diagnose": "_diagnose", "write_report": "_diagnose_report",
     "Effect": "_effects", "Parameter": "_effects", "Terms": "_effects",

@@ -245,9 +245,16 @@ class Model:
                                   scale=measurement_scale(measurement))[0]
 
     def simulate_inputs(self, time: np.ndarray, inputs: dict[str, np.ndarray],
-                        initial_conditions: tuple[float, float]) -> np.ndarray:
+                        initial_conditions: tuple[float, float], *,
+                        scale: tuple[float, float] | None = None) -> np.ndarray:
         """The response (N,) to ``inputs`` (name -> (N,)) at uniform sample ``time`` (s)
         from ``initial_conditions`` (x, x'), by the reference solve; NaN if it fails.
+
+        ``scale``: typical sizes of x and x' (the solver's absolute tolerance applies to
+        x/scale; :func:`gpjax._reference.measurement_scale` of a measured response). Default:
+        the spread of a first solve scaled by the initial state, solved again at that
+        spread where it is more than 10x away (a record started at rest has no scale of its
+        own).
 
         Raises:
             ModelFileError: an input of the model is missing.
@@ -256,11 +263,23 @@ class Model:
         if missing:
             raise ModelFileError(f"input {missing[0]!r} of the model is not given; pass every "
                                  f"input of {list(self.symbols.inputs)}")
-        scale = (abs(initial_conditions[0]), abs(initial_conditions[1]))
-        return reference_response(self, np.asarray(time, dtype=np.float64),
-                                  {u: np.asarray(inputs[u], dtype=np.float64)
-                                   for u in self.symbols.inputs},
-                                  initial_conditions, scale=scale)[0]
+        time = np.asarray(time, dtype=np.float64)
+        inputs = {u: np.asarray(inputs[u], dtype=np.float64) for u in self.symbols.inputs}
+
+        def solve(scale):
+            return reference_response(self, time, inputs, initial_conditions, scale=scale)[0]
+
+        if scale is not None:
+            return solve(scale)
+        used = np.array([abs(initial_conditions[0]), abs(initial_conditions[1])])
+        response = solve(tuple(used))
+        if not np.all(np.isfinite(response)) or response.size < 2:
+            return response
+        spread = np.array([np.std(response), np.std(np.diff(response)) / (time[1] - time[0])])
+        used = np.where(used > 0, used, 1.0)
+        if np.all(spread > 0) and np.any(np.abs(np.log10(spread / used)) > 1):
+            response = solve(tuple(spread))
+        return response
 
     # --- JSON ---------------------------------------------------------------------------
     def to_json(self) -> dict:
@@ -462,15 +481,15 @@ EVALUATOR_CACHE_SIZE = 8
 
 
 def _evaluator(measurement: Measurement, symbols: Symbols, **settings) -> PopulationEvaluator:
-    """A one-model RK4 evaluator on ``measurement`` with ``settings``, reused across calls
-    with the same data and settings (its compiled simulation with it)."""
+    """An RK4 evaluator on ``measurement`` with ``settings`` (default: one model per
+    call), reused across calls with the same data and settings (its compiled simulation
+    with it)."""
     key = (measurement.fingerprint(), symbols, tuple(sorted(settings.items())))
     if key in _EVALUATORS:
         _EVALUATORS.move_to_end(key)
         return _EVALUATORS[key]
-    evaluator = PopulationEvaluator(measurement, symbols, batch=1,
-                                    n_bins=min(default_n_bins(measurement.response), 256),
-                                    **settings)
+    evaluator = PopulationEvaluator(measurement, symbols, **{
+        "batch": 1, "n_bins": min(default_n_bins(measurement.response), 256), **settings})
     _EVALUATORS[key] = evaluator
     while len(_EVALUATORS) > EVALUATOR_CACHE_SIZE:
         _EVALUATORS.popitem(last=False)

@@ -7,26 +7,34 @@ covariance is the sandwich
     Cov θ̂ = A⁻¹ S A⁻¹,   A = Σ_t J_tᵀW²J_t,   S = Var(Σ_t g_t),   g_t = J_tᵀW²r_t,
 
 J_t = ∂x_t/∂θ from the variational equations at the converged step count
-(:meth:`gpjax._refine.Refiner.sensitivity`), r_t the residual. S is estimated by batch
-means: the record is cut into B = 20 contiguous batches (Schmeiser 1982: 10 to 30), the
-score summed over each, S = B/(B − 1)·Σ_b (s_b − s̄)(s_b − s̄)ᵀ; intervals are
-θ̂ ± t₀.₉₇₅(B − 1)·se, the t quantile counting the estimate's own B − 1 degrees of freedom.
+(:meth:`gpjax._refine.Refiner.sensitivity`), r_t the residual.
 
-Why batch means. The residual of a simulated response is autocorrelated, and not simply:
-noise on the measured input passes through the dynamics and rings near the resonance, a
-small narrow-band part under the white response noise. It sits in the band where the
-sensitivities live, so it dominates the constants' error, yet it barely moves the
-residual's lag-1 autocorrelation: a Newey–West covariance with Andrews' AR(1) bandwidth
-chose 4–8 lags on the Duffing records and gave intervals 2–3× too narrow (z-scores of
-the truth of ±3–6). Batch sums are independent once a batch outlasts the correlation,
-whatever its spectrum, and need no stationarity of J_t. One effective sample size from the
-residual alone ignores how each constant's sensitivity lines up with the correlation; a
-block bootstrap would refit the model hundreds of times where this needs one Jacobian.
+S is estimated in the frequency domain. The residual and the Jacobian are taken to the
+real orthonormal Fourier basis (Parseval keeps A and the score unchanged); each rfft bin f
+(its cosine and sine parts, all coordinates) is one cluster, whose scores are nearly
+independent of the other bins' for any stationary residual, whatever its spectrum. S is the
+cluster-robust sum over bins with each bin's leverage removed, CR3 (the jackknife form,
+MacKinnon & White 1985): s_f = X_fᵀ(I − H_f)⁻¹u_f, H_f = X_f A⁻¹X_fᵀ. Intervals are
+θ̂ ± t₀.₉₇₅(ν)·se, ν each constant's Satterthwaite degrees of freedom: its variance is a sum
+over bins of scaled χ²₁ terms, ν = (Σ_f a_f)²/Σ_f a_f², with each bin's observed share a_f.
+
+Why this estimator. The residual of a simulated response is autocorrelated, and not
+simply: noise on the measured input passes through the dynamics and rings near the
+resonance, a small narrow-band part under the white response noise. It sits in the band
+where the sensitivities live, so it dominates the constants' error, and the fit absorbs
+about half of it there. A Newey–West covariance with Andrews' AR(1) bandwidth chose 4–8
+lags on Duffing records and gave intervals 2–3× too narrow (z-scores of the truth of
+±3–6); batch means (20 batches) still gave sd(z) of 1.3–2.3. Bins in which the constants'
+sensitivities are concentrated have high leverage; removing it puts back the part of the
+residual the fit absorbed. A few bins carry most of a constant's information when its
+sensitivity is narrow-band, and then ν is small and the t quantile widens the interval
+accordingly. A block bootstrap would refit the model hundreds of times where this needs one
+Jacobian.
 
 What the interval does not count: the input's reconstruction between samples (linear
-interpolation of a band-limited input is a systematic error that biases the constants by
-about 2 standard errors on the Duffing records; ``input_interpolation = "bandlimited"``
-removes it) and a smoothed sign's width (:mod:`gpjax._sign_width`); inner constants of a
+interpolation of a band-limited input is a systematic error that moved the constants by
+one to two standard errors on Duffing records; each such fit records the shift,
+``reconstruction_shift``, and ``input_interpolation = "bandlimited"`` removes it) and a smoothed sign's width (:mod:`gpjax._sign_width`); inner constants of a
 family (a sin's frequency, a tanh's width) get the same linearised interval, poor where the
 objective is far from quadratic in them. ``benchmarks/coverage.py`` measures how often the
 intervals cover the truth.
@@ -273,6 +281,15 @@ def _gauss_newton_shift(change: np.ndarray, jacobian: np.ndarray,
 def model_names(sensitivity, model, coefficients, columns) -> list[str]:
     """The name in ``model`` (a :class:`gpjax.Model` of ``coefficients`` on the evaluator
     ``columns``) of each constant of ``sensitivity``."""
+    names = constant_columns(sensitivity.layout, model, coefficients, columns)
+    return [names[int(column)] for column in sensitivity.columns]
+
+
+def constant_columns(layout, model, coefficients, columns) -> dict[int, str]:
+    """Flat column of ``layout`` -> the name in ``model`` (a :class:`gpjax.Model` of
+    ``coefficients`` on the evaluator ``columns``) of the constant it holds, for every
+    column that holds one: ``m``, the state and forcing constants' names, ``k2.θ1`` for a
+    family's inner constant, ``x(0)`` and ``x'(0)``."""
     by_feature = {feature: name for name, (part, feature) in model.constant_names().items()
                   if part != "mass"}
     features = list(coefficients.state)
@@ -284,13 +301,14 @@ def model_names(sensitivity, model, coefficients, columns) -> list[str]:
     forcing_at = {columns.forcing_index(f): by_feature.get(str(f), str(f))
                   for f in coefficients.forcing}
     response = model.symbols.response
-    names = []
-    for column in sensitivity.columns:
-        part, _, index = sensitivity.layout.part(int(column))
-        names.append({"mass": lambda i: "m", "state": state_at.__getitem__,
-                      "forcing": forcing_at.__getitem__, "inner": inner_at.__getitem__,
-                      "y0": lambda i: f"{response}(0)" if i == 0 else f"{response}'(0)"
-                      }[part](index))
+    names = {}
+    for column in range(layout.width):
+        part, _, index = layout.part(column)
+        name = {"mass": lambda i: "m", "state": state_at.get, "forcing": forcing_at.get,
+                "inner": inner_at.get,
+                "y0": lambda i: f"{response}(0)" if i == 0 else f"{response}'(0)"}[part](index)
+        if name is not None:
+            names[column] = name
     return names
 
 

@@ -87,6 +87,12 @@ def _parser() -> argparse.ArgumentParser:
                           help="response and its derivative at the first sample (default: "
                           "the state that best reproduces the data's response column(s): "
                           "eq. 13's estimate refined by Gauss-Newton steps)")
+    simulate.add_argument("--band", action="store_true",
+                          help="add the 95%% band of the response from the constants' "
+                          "uncertainty, from draws of the constants (columns "
+                          "<response>_low, <response>_high)")
+    simulate.add_argument("--seed", type=_non_negative, default=0,
+                          help="seed of --band's draws (default 0)")
     return parser
 
 
@@ -95,7 +101,7 @@ def _fit_options(parser, *, out: str) -> None:
     _response_option(parser)
     parser.add_argument("--input", action="append", default=[], dest="inputs",
                         help="name of an input column (repeat for several)")
-    parser.add_argument("--config", help="TOML file of settings (see README)")
+    parser.add_argument("--config", help="TOML file of settings (docs/configuration.md)")
     parser.add_argument("--population", type=int, help="individuals per generation")
     parser.add_argument("--generations", type=int, help="maximum generations")
     parser.add_argument("--functions", type=_names,
@@ -382,8 +388,10 @@ def _run_diagnosis(args, measurement, model, out: Path) -> None:
 def _simulate(args) -> int:
     import numpy as np
 
+    from ._band import prediction_band
     from ._data import Measurement, check_time, read_columns
     from ._model import fitted_initial_state
+    from ._reference import measurement_scale
     from ._report import write_text_atomic
     from ._system_file import load_model
     from ._system_fit import SystemModel
@@ -398,27 +406,42 @@ def _simulate(args) -> int:
     names = model.symbols
     data = read_columns(args.data, [names.time, *names.inputs], optional=(names.response,))
     check_time(data[names.time])
+    time, inputs = data[names.time], {u: data[u] for u in names.inputs}
     if names.response in data:
-        measurement = Measurement(time=data[names.time], response=data[names.response],
-                                  inputs={u: data[u] for u in names.inputs},
+        measurement = Measurement(time=time, response=data[names.response], inputs=inputs,
                                   time_name=names.time, response_name=names.response)
-        response = model.simulate(measurement, initial_conditions=tuple(
-            args.initial or fitted_initial_state(model, measurement,
-                                                 estimate_initial_conditions(measurement))))
+        initial = tuple(args.initial or fitted_initial_state(
+            model, measurement, estimate_initial_conditions(measurement)))
+        scale = measurement_scale(measurement)
     elif args.initial is None:
         raise UserInputError(f"{args.data} has no column {names.response!r} to estimate the "
                              "initial state from; give --initial X0 V0")
     else:
-        response = model.simulate_inputs(data[names.time], {u: data[u] for u in names.inputs},
-                                         tuple(args.initial))
+        initial, scale = tuple(args.initial), None
+    if args.band:
+        band = prediction_band(model, time, inputs, initial, scale=scale, seed=args.seed)
+        columns = [band.response, band.low, band.high]
+        header = [names.time, names.response, f"{names.response}_low",
+                  f"{names.response}_high"]
+    else:
+        columns = [model.simulate_inputs(time, inputs, initial, scale=scale)]
+        header = [names.time, names.response]
+    response = columns[0]
     if not np.all(np.isfinite(response)):
         raise UserInputError("the model diverged on this input (the reference solve failed); "
                              "check the input's units and the initial state")
-    lines = [f"{names.time},{names.response}"] + [
-        f"{t!r},{x!r}" for t, x in zip(map(float, data[names.time]), map(float, response))]
+    lines = [",".join(header)] + [",".join(map(repr, map(float, row)))
+                                  for row in zip(time, *columns)]
     write_text_atomic(out, "\n".join(lines) + "\n")
     print(f"Simulated {model.sympy()} on {len(response)} samples (reference solve); "
           f"wrote {out}")
+    if args.band:
+        print(f"  {band.level:.0%} band from {band.draws} draws of the constants "
+              f"({', '.join(band.constants)}; seed {args.seed}; initial state held)")
+        if band.diverged:
+            print(f"  caution: {band.diverged} of {band.draws} draws diverged on this input; "
+                  "the band is that of the others, and the model may diverge within its "
+                  "intervals")
     return 0
 
 
@@ -434,6 +457,9 @@ def _simulate_system(args, model, out: Path) -> int:
     if args.initial is not None:
         raise UserInputError("a system's initial states are estimated from its response "
                              "columns in the data; drop --initial")
+    if args.band:
+        raise UserInputError("--band takes a one-coordinate model; a system file lists its "
+                             "constants' intervals but has no band yet; drop --band")
     data = read_columns(args.data, [model.time_name, *model.coordinates, *model.input_names])
     measurement = Measurement(time=data[model.time_name],
                               responses=[data[n] for n in model.coordinates],

@@ -121,3 +121,59 @@ def test_refit_of_the_true_structure_brackets_the_truth():
         value = fitted.constants()[name]
         assert abs(value - truth) < 4 * band.standard_errors[name], name
         assert band.half_width(name) < 0.02 * truth, name
+
+
+def _oscillator_with_intervals(se_k: float) -> Model:
+    """x'' + 2x' + 4x = u with a standard error ``se_k`` on k1 only (c1 nearly exact)."""
+    import dataclasses
+
+    model = Model(symbols=Symbols(response="x", time="t", inputs=("u",)), mass=1.0,
+                  state={"x_dot": 2.0, "x": 4.0}, forcing={"u": 1.0})
+    return dataclasses.replace(model, uncertainty=Uncertainty(
+        names=("c1", "k1"), values=np.array([2.0, 4.0]),
+        covariance=np.diag([1e-12, se_k ** 2]), dof=np.array([1e6, 1e6]), n_samples=1000))
+
+
+def test_prediction_band_of_a_step_response_is_that_of_one_over_k():
+    """At rest under a unit step, x → 1/k1: the band's edges are 1/(k1 ± 1.96 se)."""
+    from gpjax import prediction_band
+
+    model = _oscillator_with_intervals(0.04)
+    t = np.arange(2000) * 0.01
+    band = prediction_band(model, t, {"u": np.ones_like(t)}, (0.0, 0.0), draws=2000, seed=3)
+    assert band.diverged == 0 and band.constants == ("c1", "k1")
+    assert band.response[-1] == pytest.approx(0.25, rel=1e-6)
+    expected = 1 / (4 + 1.96 * 0.04), 1 / (4 - 1.96 * 0.04)
+    half = (expected[1] - expected[0]) / 2
+    assert abs(band.low[-1] - expected[0]) < 0.05 * half
+    assert abs(band.high[-1] - expected[1]) < 0.05 * half
+    assert band.low[0] == band.high[0] == 0.0  # the initial state is held
+    again = prediction_band(model, t, {"u": np.ones_like(t)}, (0.0, 0.0), draws=2000, seed=3)
+    np.testing.assert_array_equal(again.high, band.high)
+
+
+def test_gpjax_simulate_band_writes_edges_and_refuses_a_model_without_intervals(tmp_path):
+    import dataclasses
+    import subprocess
+    import sys
+
+    model = _oscillator_with_intervals(0.04)
+    model.save(tmp_path / "model.json")
+    dataclasses.replace(model, uncertainty=None).save(tmp_path / "bare.json")
+    t = np.arange(1000) * 0.01
+    (tmp_path / "in.csv").write_text("t,u\n" + "".join(f"{float(x)!r},1.0\n" for x in t))
+
+    def cli(*args):
+        return subprocess.run([sys.executable, "-m", "gpjax", "simulate", *args],
+                              cwd=tmp_path, capture_output=True, text=True, timeout=300)
+
+    done = cli("model.json", "in.csv", "--out", "band.csv", "--initial", "0", "0", "--band")
+    assert done.returncode == 0, done.stderr
+    lines = (tmp_path / "band.csv").read_text().splitlines()
+    assert lines[0] == "t,x,x_low,x_high" and len(lines) == 1001
+    table = np.loadtxt(tmp_path / "band.csv", delimiter=",", skiprows=1)
+    assert np.all(table[:, 2] <= table[:, 1]) and np.all(table[:, 1] <= table[:, 3])
+    assert table[-1, 3] - table[-1, 2] > 1e-3
+    refused = cli("bare.json", "in.csv", "--out", "bare.csv", "--initial", "0", "0", "--band")
+    assert refused.returncode == 2 and not (tmp_path / "bare.csv").exists()
+    assert refused.stderr.count("\n") == 1 and "uncertainty" in refused.stderr
