@@ -218,6 +218,19 @@ def coverage_table() -> str:
     return "\n".join(lines) + "\n\n" + _stamp(data)
 
 
+def band_coverage() -> str:
+    """benchmarks/band_coverage.json: pointwise coverage of the 95 % prediction band."""
+    data = _load("benchmarks/band_coverage.json")
+    rows = [[s["system"], s["seeds"], _pct(s["mean_coverage"], 1),
+             _pct(s["seeds_at_least_90"], 0), f"{s['median_half_width_over_std']:.4f}",
+             s["diverged_draws"], f"{s['median_band_seconds']:.1f}",
+             ", ".join(s["revisions"])] for s in data["summary"]]
+    return (_table(["system", "seeds", "mean pointwise coverage", "seeds covering ≥ 90 %",
+                    "median half-width / std of response", "diverged draws",
+                    "seconds per band (median)", "revision"], rows, "lrrrrrrl")
+            + "\n\n" + _stamp(data))
+
+
 # ---------------------------------------------------------------- diagnosis
 
 
@@ -503,6 +516,7 @@ def select_cost() -> str:
 
 TABLES = {
     "coverage": coverage_table,
+    "band-coverage": band_coverage,
     "physics-suite": suite_table("benchmarks/physics_suite.json"),
     "physics-floor": suite_floor,
     "physics-held-out": suite_table("benchmarks/physics_suite_held_out.json",

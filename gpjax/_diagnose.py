@@ -100,6 +100,7 @@ from ._convergence import (MAX_SUBSTEPS, Convergence, check_model, initial_subst
                            next_substeps)
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._diagnose_acceptance import accepted
+from ._diagnose_ambiguity import indistinguishable, separating_input
 from ._diagnose_evidence import (Candidate, charge, input_lines, rank_by_output_error,
                                  rank_effects, score_statistics, sensitivities)
 from ._diagnose_fits import (Fit, FitProblem, Structure, consensus_refits, drifts,
@@ -395,8 +396,11 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             break
         best = passing[0] if chosen_mode == "simulation" else min(passing,
                                                                    key=penalised.__getitem__)
-        steps.append(_step(shortlisted[best], ranked, current, results[best], chosen_mode)
-                     | {"test": tests[best]})
+        step = _step(shortlisted[best], ranked, current, results[best], chosen_mode)
+        steps.append(step | {"test": tests[best]} | _ambiguity(
+            problem, symbols, shortlisted, results, passing, best, alpha=alpha,
+            simulate=chosen_mode == "simulation",
+            settings={"input_interpolation": input_interpolation, "substeps": substeps}))
         structure, current = results[best].structure, results[best]
         chosen.append(shortlisted[best])
         fits.append(current)
@@ -447,6 +451,26 @@ def _uncertainty(result: Diagnosis, whole: FitProblem) -> Uncertainty:
                                                evaluator)),
                        values=flat[base], covariance=covariance, dof=dof,
                        n_samples=whole.measurement.n_samples)
+
+
+def _ambiguity(problem: FitProblem, symbols: Symbols, shortlisted: list[Candidate],
+               results: list[Fit], passing: list[int], best: int, *, alpha: float,
+               simulate: bool, settings: dict) -> dict:
+    """The passing candidates this record cannot separate from the accepted one and, in
+    simulation mode, the input change that would (:mod:`gpjax._diagnose_ambiguity`); empty
+    when the accepted effect predicts better than every other."""
+    tied = indistinguishable(results, passing, best, alpha=alpha)
+    if not tied:
+        return {}
+    out = {"indistinguishable": [{"effect": shortlisted[i].effect.name, "p_value": p,
+                                  "rms_holdout": results[i].metrics.get("rms_holdout")}
+                                 for i, p in tied]}
+    if simulate:
+        models = [results[i].model(symbols, {}, **settings) for i in [best] + [i for i, _ in tied]]
+        noise = float(np.sqrt(np.mean(results[best].holdout ** 2)))
+        out["separating_input"] = separating_input(models, problem.measurement.time,
+                                                   problem.measurement.inputs, noise)
+    return out
 
 
 def _integration(fit: Fit, problem: FitProblem, tolerance: float) -> Convergence:

@@ -77,6 +77,7 @@ def report_markdown(diagnosis: Diagnosis) -> str:
                      f"{_number(s['objective_before'])} | {_number(s['objective_after'])} | "
                      f"{_number(s['spectral_error_before'])} | {_number(s['spectral_error_after'])} "
                      f"| {_number(s['rms_holdout_before'])} | {_number(s['rms_holdout_after'])} |")
+    lines += _ambiguity_lines(d)
     for caution in sign_cautions(d):
         lines += ["", f"**Caution:** {caution}"]
     lines += _stop_lines(d) + _unexplained_lines(d)
@@ -89,6 +90,28 @@ def report_markdown(diagnosis: Diagnosis) -> str:
     lines += ["", "Figures: residual_time.png, residual_spectrum.png, measured_vs_simulated.png.",
               ""]
     return "\n".join(lines)
+
+
+def _ambiguity_lines(d: Diagnosis) -> list[str]:
+    """Per step with effects the record cannot separate from it: the set, and the input
+    change that would separate them (:mod:`gpjax._diagnose_ambiguity`)."""
+    lines = []
+    for s in d.steps:
+        tied = s.get("indistinguishable")
+        if not tied:
+            continue
+        others = ", ".join(f"{t['effect']} (p = {_number(t['p_value'])})" for t in tied)
+        lines += ["", f"**Cannot be told apart on this record:** {s['effect']} (accepted) and "
+                      f"{others} predict the held-out segment equally well; this record cannot "
+                      "separate them."]
+        proposal = s.get("separating_input")
+        if proposal and proposal["change"]:
+            gaps = proposal["separation"]
+            lines.append(f"A record with the input changed by **{proposal['change']}** would: "
+                         f"their responses would differ by {_number(gaps[proposal['change']])}× "
+                         f"the accepted model's held-out RMS residual, against "
+                         f"{_number(gaps['this record'])}× on this record's input.")
+    return lines
 
 
 def _interval_lines(d: Diagnosis) -> list[str]:

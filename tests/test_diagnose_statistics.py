@@ -250,3 +250,73 @@ def test_missing_force_shares_of_a_library_effect_and_a_control():
     assert shares["cubic_stiffness"] == pytest.approx(1.0, abs=1e-9)
     assert max(v for k, v in shares.items() if k != "cubic_stiffness") < 0.9
     assert undeclared_effect_case("control", seed=0).missing_force_shares() == {}
+
+
+def test_effects_the_held_out_test_cannot_separate_are_named_as_a_set():
+    import types
+
+    from gpjax._diagnose_ambiguity import indistinguishable
+
+    rng = np.random.default_rng(4)
+    e = rng.normal(size=2000)
+    fits = [types.SimpleNamespace(holdout=h) for h in
+            (e, rng.normal(size=2000), 1.5 * e + 0.5 * rng.normal(size=2000))]
+    tied = indistinguishable(fits, [0, 1, 2], 0, alpha=0.05)
+    assert [i for i, _ in tied] == [1] and tied[0][1] >= 0.05
+
+
+def test_the_separating_input_is_simulated_not_assumed():
+    """A linear model and the same with a small cubic spring agree on a small input; the
+    cubic's part of the response grows as the amplitude cubed, so amplitude × 1.5 separates
+    them about 1.5³ times more than the record itself."""
+    from gpjax import Model, Symbols
+    from gpjax._diagnose_ambiguity import separating_input
+
+    symbols = Symbols(response="x", time="t", inputs=("u",))
+    linear = Model(symbols=symbols, mass=1.0, state={"x_dot": 2.0, "x": 4.0},
+                   forcing={"u": 1.0}, initial_conditions=(0.0, 0.0))
+    cubic = Model(symbols=symbols, mass=1.0, state={"x_dot": 2.0, "x": 4.0, "x**3": 0.4},
+                  forcing={"u": 1.0}, initial_conditions=(0.0, 0.0))
+    t = np.arange(3000) * 0.01
+    u = 0.5 * np.sin(1.3 * t) + 0.3 * np.sin(3.1 * t)
+    proposal = separating_input([linear, cubic], t, {"u": u}, noise=1e-4)
+    gaps = proposal["separation"]
+    assert gaps["amplitude x1.5"] / gaps["this record"] == pytest.approx(1.5 ** 3, rel=0.1)
+    assert proposal["change"] != "this record"
+    assert gaps[proposal["change"]] == max(v for k, v in gaps.items() if k != "this record")
+
+
+def test_a_tied_step_records_the_set_and_the_report_names_it():
+    """The diagnosis' glue: tied candidates become the step's ``indistinguishable`` list
+    and ``separating_input``; the report prints the set and the proposed change."""
+    import types
+
+    from gpjax._diagnose import _ambiguity
+    from gpjax._diagnose_report import _ambiguity_lines
+
+    symbols = Symbols(response="x", time="t", inputs=("u",))
+    t = np.arange(2000) * 0.01
+    u = 0.5 * np.sin(1.3 * t)
+    states = ({"x_dot": 2.0, "x": 4.0}, {"x_dot": 2.0, "x": 4.0, "x**3": 0.4})
+    rng = np.random.default_rng(0)
+
+    def fit(state):
+        model = Model(symbols=symbols, mass=1.0, state=state, forcing={"u": 1.0},
+                      initial_conditions=(0.0, 0.0))
+        return types.SimpleNamespace(holdout=rng.normal(size=500), metrics={"rms_holdout": 1.0},
+                                     model=lambda symbols, provenance, **settings: model)
+
+    results = [fit(s) for s in states]
+    shortlisted = [types.SimpleNamespace(effect=types.SimpleNamespace(name=n))
+                   for n in ("static_offset", "cubic_stiffness")]
+    problem = types.SimpleNamespace(measurement=Measurement(time=t, response=np.sin(t),
+                                                            inputs={"u": u}))
+    out = _ambiguity(problem, symbols, shortlisted, results, [0, 1], 0, alpha=0.05,
+                     simulate=True, settings={})
+    assert [e["effect"] for e in out["indistinguishable"]] == ["cubic_stiffness"]
+    assert out["separating_input"]["change"] in ("amplitude x1.5", "static level +1 std",
+                                                 "half speed (lower band)")
+    lines = "\n".join(_ambiguity_lines(types.SimpleNamespace(
+        steps=[{"effect": "static_offset"} | out])))
+    assert "Cannot be told apart on this record:** static_offset (accepted) and " \
+           "cubic_stiffness" in lines and out["separating_input"]["change"] in lines
