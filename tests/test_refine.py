@@ -218,10 +218,15 @@ def test_a_dropped_diffrax_evaluator_is_freed(monkeypatch):
     """The same for the ``"diffrax"`` integrator: its vector field is a static argument of
     ``diffeqsolve``, which JAX's caches keep."""
     monkeypatch.setenv("GPJAX_COMPILATION_CACHE", "off")
-    evaluator = PopulationEvaluator(_tiny_record(), S, max_degree=1, batch=1,
-                                    integrator="diffrax")
-    evaluator.simulate(_models(evaluator, np.full(1, 0.1), np.random.default_rng(1)))
-    alive = weakref.ref(evaluator)
-    del evaluator
+
+    def simulated() -> weakref.ref:
+        # In a frame of its own: equinox's error_if reads every frame's f_locals while
+        # tracing, and that snapshot would hold the evaluator as long as its frame lives.
+        evaluator = PopulationEvaluator(_tiny_record(), S, max_degree=1, batch=1,
+                                        integrator="diffrax")
+        evaluator.simulate(_models(evaluator, np.full(1, 0.1), np.random.default_rng(1)))
+        return weakref.ref(evaluator)
+
+    alive = simulated()
     gc.collect()
     assert alive() is None
