@@ -72,6 +72,8 @@ class Uncertainty:
             each constant would move were the inputs reconstructed band-limited instead
             (one Gauss–Newton step), or ``None``: a systematic error the interval does not
             count.
+        profile: name -> (low, high), the profile 95 % interval of a family's inner
+            constant (:mod:`gpjax._profile`), which :meth:`interval` then gives.
     """
 
     names: tuple[str, ...]
@@ -80,6 +82,7 @@ class Uncertainty:
     dof: np.ndarray
     n_samples: int
     reconstruction_shift: np.ndarray | None = None
+    profile: dict[str, tuple[float, float]] = dataclasses.field(default_factory=dict)
 
     def quantile(self, name: str) -> float:
         """t₀.₉₇₅ with ``name``'s degrees of freedom: half its interval in standard errors."""
@@ -90,14 +93,21 @@ class Uncertainty:
         return dict(zip(self.names, np.sqrt(np.diag(self.covariance)).tolist()))
 
     def interval(self, name: str) -> tuple[float, float]:
-        """95 % interval of constant ``name`` (KeyError if it has none)."""
+        """95 % interval of constant ``name``: its profile interval if it has one, else
+        value ± t·se (KeyError if it has none)."""
+        if name in self.profile:
+            return self.profile[name]
         value = float(self.values[self.names.index(name)])
         half = self.quantile(name) * self.standard_errors[name]
         return value - half, value + half
 
     def half_width(self, name: str) -> float | None:
-        """Half the 95 % interval of ``name``, or ``None`` if it has none."""
-        return self.quantile(name) * self.standard_errors[name] if name in self.names else None
+        """Half the 95 % interval of ``name`` (of a profile interval: half its length), or
+        ``None`` if it has none."""
+        if name not in self.names:
+            return None
+        low, high = self.interval(name)
+        return (high - low) / 2
 
     def __eq__(self, other) -> bool:
         return (isinstance(other, Uncertainty) and self.names == other.names
@@ -106,6 +116,7 @@ class Uncertainty:
                     (self.values, other.values), (self.covariance, other.covariance),
                     (self.dof, other.dof))) and (
                         (self.reconstruction_shift is None) == (other.reconstruction_shift is None))
+                and self.profile == other.profile
                 and (self.reconstruction_shift is None or np.array_equal(
                     self.reconstruction_shift, other.reconstruction_shift)))
 
@@ -144,12 +155,14 @@ class Uncertainty:
         rho = self.correlation
         return {"level": 0.95,
                 "method": "sandwich: Gauss-Newton bread, frequency-domain CR3 meat, "
-                          "t quantile with Satterthwaite degrees of freedom",
+                          "t quantile with Satterthwaite degrees of freedom; inner "
+                          "constants of a family: profile intervals at the sandwich's scale",
                 "samples": self.n_samples,
                 "constants": {n: {"value": float(v), "se": _finite(se[n]),
                                   "dof": float(f),
-                                  "low": _finite(v - self.quantile(n) * se[n]),
-                                  "high": _finite(v + self.quantile(n) * se[n])}
+                                  "interval": "profile" if n in self.profile else "wald",
+                                  "low": _finite(self.interval(n)[0]),
+                                  "high": _finite(self.interval(n)[1])}
                               for n, v, f in zip(self.names, self.values, self.dof)},
                 **({} if self.reconstruction_shift is None else {
                     "bandlimited_input_shift": dict(zip(self.names, map(
@@ -171,7 +184,10 @@ class Uncertainty:
                    dof=np.array([float(data["constants"][n]["dof"]) for n in names]),
                    n_samples=int(data["samples"]),
                    reconstruction_shift=None if "bandlimited_input_shift" not in data else
-                   np.array([float(data["bandlimited_input_shift"][n]) for n in names]))
+                   np.array([float(data["bandlimited_input_shift"][n]) for n in names]),
+                   profile={n: (float(c["low"]), float(c["high"]))
+                            for n, c in data["constants"].items()
+                            if c.get("interval") == "profile"})
 
 
 def _finite(x: float) -> float | None:
@@ -254,16 +270,50 @@ def uncertainty_of(refiner, population, fixed_forcing, held_inner=None, *, names
                                        else measured)
     weights = 1.0 / np.asarray(evaluator.time_record.noise_scale)
     covariance, dof = sandwich_covariance(residual, sensitivity.jacobian, weights)
+    named = tuple(names(sensitivity))
+    profile = {} if ties is not None else _profiles(
+        refiner, population, fixed_forcing, held_inner, sensitivity, named, covariance, dof,
+        weights)
     shift = None
     if evaluator.input_interpolation == "linear":
         other = refiner.sensitivity(population, fixed_forcing, held_inner, ties=ties,
                                     forcing_basis=evaluator.forcing_basis_as("bandlimited"))
         shift = _gauss_newton_shift(other.response - sensitivity.response,
                                     sensitivity.jacobian, weights)
-    return Uncertainty(names=tuple(names(sensitivity)),
-                       values=np.asarray(sensitivity.values, dtype=float),
+    return Uncertainty(names=named, values=np.asarray(sensitivity.values, dtype=float),
                        covariance=covariance, dof=dof, n_samples=int(measured.shape[0]),
-                       reconstruction_shift=shift)
+                       reconstruction_shift=shift, profile=profile)
+
+
+def _profiles(refiner, population, fixed_forcing, held_inner, sensitivity, names,
+              covariance, dof, weights) -> dict[str, tuple[float, float]]:
+    """The profile intervals (:mod:`gpjax._profile`) of the inner constants among
+    ``sensitivity``'s constants ``names``, at the sandwich's ``covariance`` and ``dof``."""
+    from ._profile import profile_bounds
+
+    n, k = sensitivity.response.shape[0], sensitivity.jacobian.shape[-1]
+    w = np.asarray(weights, dtype=float).reshape(-1)
+    scaled = (sensitivity.jacobian.reshape(n, w.size, k) * w[None, :, None]).reshape(-1, k)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        naive = np.sqrt(np.diag(np.linalg.pinv(scaled.T @ scaled)))
+    se = np.sqrt(np.diag(covariance))
+    inner = {}
+    for i, column in enumerate(sensitivity.columns):
+        part, _, slot = sensitivity.layout.part(int(column))
+        if part == "inner" and np.isfinite(se[i]) and se[i] > 0 and naive[i] > 0:
+            inner[names[i]] = {"slot": slot, "value": float(sensitivity.values[i]),
+                               "se": float(se[i]), "naive_se": float(naive[i]),
+                               "quantile": float(stats.t.ppf(0.975, max(dof[i], 1.0)))}
+    measured = refiner.evaluator.measurement.responses
+
+    def objective(models):
+        paths = np.asarray(refiner.evaluator.simulate(models)[0])  # (P, N) or (P, D, N)
+        paths = paths.reshape(paths.shape[0], -1, paths.shape[-1])
+        gap = (paths - measured.T[None]) * w[None, :, None]
+        return np.sum(gap ** 2, axis=(1, 2))
+
+    return profile_bounds(refiner, population, fixed_forcing, held_inner, inner=inner,
+                          objective=objective)
 
 
 def _gauss_newton_shift(change: np.ndarray, jacobian: np.ndarray,

@@ -177,3 +177,36 @@ def test_gpjax_simulate_band_writes_edges_and_refuses_a_model_without_intervals(
     refused = cli("bare.json", "in.csv", "--out", "bare.csv", "--initial", "0", "0", "--band")
     assert refused.returncode == 2 and not (tmp_path / "bare.csv").exists()
     assert refused.stderr.count("\n") == 1 and "uncertainty" in refused.stderr
+
+
+def test_profile_interval_follows_an_asymmetric_objective_at_the_sandwich_scale():
+    """S(θ) rises 4× faster below θ̂ than above: the profile interval is θ̂ + (−t/2, +t)·s
+    where the sandwich se equals the Gauss–Newton one, and twice as wide where the sandwich
+    se is twice it (the magnitude adjustment); the file keeps it."""
+    import dataclasses
+    import types
+
+    from gpjax._coefficients import Population
+    from gpjax._profile import profile_bounds
+
+    start = Population(mass=np.ones(1), state=np.zeros((1, 1)), forcing=np.zeros((1, 1)),
+                       y0=np.zeros((1, 2)), inner=np.array([[2.0]]))
+    refiner = types.SimpleNamespace(refine=lambda population, fixed, held: types.SimpleNamespace(
+        population=population))  # nothing else to refit
+
+    def objective(population):
+        d = population.inner[:, 0] - 2.0
+        return np.where(d < 0, 4.0, 1.0) * d ** 2 / 0.01 ** 2  # s0 = 0.01
+
+    for se, factor in ((0.01, 1.0), (0.02, 2.0)):
+        (low, high), = profile_bounds(refiner, start, np.array([-1]), None, inner={
+            "k.θ1": {"slot": 0, "value": 2.0, "se": se, "naive_se": 0.01, "quantile": 1.96}},
+            objective=objective).values()
+        assert low == pytest.approx(2.0 - factor * 0.98 * 0.01, rel=1e-3)
+        assert high == pytest.approx(2.0 + factor * 1.96 * 0.01, rel=1e-3)
+    u = Uncertainty(("k.θ1",), np.array([2.0]), np.array([[0.02 ** 2]]), np.array([50.0]), 100,
+                    profile={"k.θ1": (low, high)})
+    assert u.interval("k.θ1") == (low, high)
+    assert u.half_width("k.θ1") == pytest.approx((high - low) / 2)
+    back = Uncertainty.from_json(json.loads(json.dumps(u.to_json())))
+    assert back == u and dataclasses.replace(back, profile={}) != u
