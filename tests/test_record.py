@@ -71,6 +71,7 @@ def test_the_padding_changes_no_score(fit_initial_conditions):
     assert np.all(scores.status == reference_scores.status)
 
 
+@pytest.mark.slow  # 13-21 s: the fast tier stays within 5 minutes on 2 cores
 def test_the_padding_changes_no_refined_constant():
     """Levenberg–Marquardt on the padded record reaches the unpadded record's constants,
     through the same continuation (each horizon fits the same samples of the record)."""

@@ -96,6 +96,7 @@ def test_fit_with_other_names_and_torque_recovers_eq14_structure(tmp_path):
     assert constants["k2"] == pytest.approx(truth["K2"], rel=0.02)
 
 
+@pytest.mark.slow  # 13-21 s: the fast tier stays within 5 minutes on 2 cores
 def test_loader_and_reload_of_a_run(tmp_path):
     example = _short_example(seed=0)
     example.measurement.to_csv(tmp_path / "d.csv")

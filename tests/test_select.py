@@ -167,6 +167,7 @@ def test_a_stribeck_excess_alone_gets_its_coulomb_level():
         assert not [m for m in neighbours(fitness, model) if set(m.state) > set(state)]
 
 
+@pytest.mark.slow  # 13-21 s: the fast tier stays within 5 minutes on 2 cores
 def test_a_held_sign_scale_is_no_assumed_constant():
     """sign(x') (tanh(x'/ε), ε held) has no constant, like x'·|x'|: the two models are
     equally complex, so neither is a simpler neighbour of the other (``stribeck_resolved``,

@@ -60,6 +60,7 @@ def test_coupled_least_squares_ties_the_coupling_and_identifies_the_second_mass(
     assert second.state[X2] == pytest.approx(c["k"], rel=0.01)
 
 
+@pytest.mark.slow  # 13-21 s: the fast tier stays within 5 minutes on 2 cores
 def test_fit_system_with_the_third_law_keeps_the_tie_and_recovers_the_chain():
     from gpjax.engine import fit_system
 

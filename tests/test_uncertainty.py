@@ -152,6 +152,7 @@ def test_prediction_band_of_a_step_response_is_that_of_one_over_k():
     np.testing.assert_array_equal(again.high, band.high)
 
 
+@pytest.mark.slow  # 13-21 s: the fast tier stays within 5 minutes on 2 cores
 def test_gpjax_simulate_band_writes_edges_and_refuses_a_model_without_intervals(tmp_path):
     import dataclasses
     import subprocess
