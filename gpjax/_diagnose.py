@@ -40,9 +40,10 @@ Each round:
 5. **Acceptance at level ``alpha``** (default 0.05; :mod:`gpjax._diagnose_acceptance`):
    a Diebold–Mariano test that the candidate predicts the held-out segment better than the
    current model (loss differential of squared residuals, batch means longer than
-   Andrews' bandwidth, Wilcoxon signed-rank, one-sided) and, in simulation mode, a score
-   test on the estimation part that the candidate's coefficients are not zero
-   (prewhitened HAC); both must pass (an intersection–union test), each Bonferroni over
+   Andrews' bandwidth, Wilcoxon signed-rank, one-sided) and a score test on the
+   estimation part that the candidate's coefficients are not zero (prewhitened HAC; on the
+   simulated response's sensitivities in simulation mode, on the weak-form columns in
+   equation-error mode); both must pass (an intersection–union test), each Bonferroni over
    the candidates of the round: a correct model gains a spurious term with probability at
    most ``alpha``. The best-ranked passing candidate is added (equation-error mode: the
    passing one with the lowest charged held-out error; there the round also tests the
@@ -102,7 +103,8 @@ from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._diagnose_acceptance import accepted
 from ._diagnose_ambiguity import indistinguishable, separating_input
 from ._diagnose_evidence import (Candidate, charge, input_lines, rank_by_output_error,
-                                 rank_effects, score_statistics, sensitivities)
+                                 equation_error_scores, rank_effects, score_statistics,
+                                 sensitivities)
 from ._diagnose_fits import (Fit, FitProblem, Structure, consensus_refits, drifts,
                              fit_structures)
 from ._diagnose_pairs import (Pair, fit_and_test_pairs, joint_parameters, pair_criterion,
@@ -201,8 +203,8 @@ class Diagnosis:
 
 _TEST = ("a one-sided Diebold-Mariano test (squared-error loss, batch means longer than "
          "Andrews' AR(1) bandwidth, Wilcoxon signed-rank) that it predicts the held-out segment better "
-         "than the current model and, in simulation mode, a score test (prewhitened HAC) "
-         "that its coefficients are not zero on the estimation part, both required "
+         "than the current model and a score test (prewhitened HAC) that its "
+         "coefficients are not zero on the estimation part, both required "
          "(p = the larger), Bonferroni over the candidates of the round, at level alpha")
 CRITERION = {
     "simulation": "effects ranked by held-out output error charged (1 - min_gain)^-p, "
@@ -365,6 +367,8 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         scores = None
         if chosen_mode == "simulation" and results and math.isfinite(current.criterion):
             scores = score_statistics(problem, current, shortlisted, results)
+        elif chosen_mode == "equation_error" and results:
+            scores = equation_error_scores(problem, current, results)
         # one Bonferroni family: the singles and the pairs of the round (_diagnose_pairs)
         family = len(results) + len(pairs)
         tests = accepted(current.holdout, [r.holdout for r in results], alpha=alpha,

@@ -44,8 +44,11 @@ force as noise: ``input_gain`` at 4× the torque noise was missed that way). Req
 (an intersection–union test, Berger 1982) keeps the level α whenever either test holds it
 — the score test for coefficients, the held-out test for the nonlinear parameters found on
 the estimation part, which make the score statistic's null distribution non-standard —
-and it can only remove acceptances. Equation-error mode keeps the blocked cross-validation
-alone: every window is held out once, there is no single extrapolated tail.
+and it can only remove acceptances. Equation-error mode tests its held-out windows by
+blocked cross-validation (every window held out once, no single extrapolated tail) and
+requires the same score test on the estimation part's weak form
+(:func:`gpjax._diagnose_evidence.equation_error_scores`): an effect whose coefficients are
+not distinguishable from zero is not added in either mode.
 """
 
 from __future__ import annotations

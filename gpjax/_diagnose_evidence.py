@@ -20,7 +20,7 @@ from ._diagnose_acceptance import score_test
 from ._diagnose_fits import Fit, FitProblem, Structure
 from ._effects import Context, Effect, Terms
 from ._objective import amplitude_spectrum
-from ._weak_form import WeakForm, design
+from ._weak_form import WeakForm, design, scaled_lstsq
 
 #: Strongest spectral lines of each input offered to frequency-dependent effects.
 INPUT_LINES = 6
@@ -252,6 +252,27 @@ def score_statistics(problem: FitProblem, current: Fit, candidates: list[Candida
                        jacobian[:n, [c for c in columns(c.terms) if c not in base]],
                        noise=(measured - fit.simulated)[:n])
             for c, fit in zip(candidates, results)]
+
+
+def equation_error_scores(problem: FitProblem, current: Fit, results: list[Fit]) -> list[dict]:
+    """Per candidate fit (equation-error mode), the same robust score test as
+    :func:`score_statistics` that the coefficients its effect adds are zero, on the
+    estimation part's weak form: the current structure's weak-form least-squares residual,
+    its design columns as the base, the added features' columns as the extra ones, the
+    variance from the candidate's own least-squares residual."""
+    weak = problem.weak
+    base, target, _ = design(weak, current.structure.lhs, current.structure.forcing)
+    residual = target - base @ scaled_lstsq(base, target)
+    out = []
+    for fit in results:
+        full, _, _ = design(weak, fit.structure.lhs, fit.structure.forcing)
+        added = ([weak.column(f) for f in fit.structure.lhs if f not in current.structure.lhs]
+                 + [weak.column(g) for g in fit.structure.forcing
+                    if g not in current.structure.forcing])
+        extra = np.stack(added, axis=1) if added else np.zeros((target.size, 0))
+        out.append(score_test(residual, base, extra,
+                              noise=target - full @ scaled_lstsq(full, target)))
+    return out
 
 
 def charge(candidate: Candidate, min_gain: float) -> float:

@@ -15,9 +15,10 @@ parameters searched jointly (:func:`joint_parameters`).
 How a pair is accepted, at the same level. The singles and the pairs of a round are one
 Bonferroni family (m = their number). A pair must predict the held-out windows better
 than the current model *and* better than each of its members alone (the same
-Diebold–Mariano test, each Bonferroni-adjusted): each member adds to the other, so a
-strong effect cannot carry a spurious partner in. Requiring all three (an
-intersection–union test) keeps the level. Among the passing singles and pairs the one
+Diebold–Mariano test, each Bonferroni-adjusted), and its added coefficients must pass the
+score test against each of the three too (:func:`gpjax._diagnose_evidence.equation_error_scores`):
+each member adds to the other, so a strong effect cannot carry a spurious partner in.
+Requiring all of them (an intersection–union test) keeps the level. Among the passing singles and pairs the one
 with the lowest charged held-out error is added; a pair enters as two steps.
 """
 
@@ -30,7 +31,8 @@ import numpy as np
 from scipy.optimize import minimize
 
 from ._diagnose_acceptance import predictive_test
-from ._diagnose_evidence import Candidate, charge, explained_fraction
+from ._diagnose_evidence import (Candidate, charge, equation_error_scores,
+                                 explained_fraction)
 from ._diagnose_fits import Fit, FitProblem, Structure, fit_structures
 from ._effects import Context, Terms
 from ._weak_form import WeakForm, least_squares_residual
@@ -124,12 +126,15 @@ def fit_and_test_pairs(problem: FitProblem, structure: Structure, current: Fit, 
     fits = fit_structures(problem, "equation_error", structures) if structures else []
     for k, pair in enumerate(pairs):
         pair.fit, pair.alone = fits[3 * k], (fits[3 * k + 1], fits[3 * k + 2])
-        tests = [predictive_test(base.holdout, pair.fit.holdout)
-                 for base in (current, *pair.alone)]
-        p = min(1.0, family * max(t["p_value"] for t in tests))
+        bases = (current, *pair.alone)
+        tests = [predictive_test(base.holdout, pair.fit.holdout) for base in bases]
+        scores = [equation_error_scores(problem, base, [pair.fit])[0] for base in bases]
+        p = min(1.0, family * max(t["p_value"] for t in tests + scores))
         pair.test = tests[0] | {"p_adjusted": p, "passed": bool(p < alpha),
-                                "p_against_members": [min(1.0, family * t["p_value"])
-                                                      for t in tests[1:]]}
+                                "p_against_members": [min(1.0, family * max(
+                                    t["p_value"], score["p_value"]))
+                                    for t, score in zip(tests[1:], scores[1:])],
+                                "score": scores[0]}
 
 
 def pair_criterion(pair: Pair, min_gain: float) -> float:
