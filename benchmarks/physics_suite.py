@@ -24,6 +24,7 @@ they reach and gpjax misses is gpjax's.
     python benchmarks/physics_suite.py --seeds 5 --population 500 --generations 10 \\
         --peers pysindy,pyoperon --json benchmarks/physics_suite.json
     python benchmarks/physics_suite.py --rescore part1.json part2.json --json all.json
+    python benchmarks/physics_suite.py ... --json benchmarks/physics_suite.json --resume  # in chunks
     python benchmarks/physics_suite.py --first-seed 5 --seeds 3 --noise 0.03 --json held_out.json
     python benchmarks/physics_suite.py --methods truth,truth-refit --json refit.json
 
@@ -59,6 +60,7 @@ from gpjax._scoring import TOLERANCE  # noqa: E402
 from gpjax.systems import (PHYSICS_SUITE, compare_structure, cramer_rao,  # noqa: E402
                            generate, simulate_equations, nrms, truth_refit)
 from _peers import PEERS, fit_peer, versions  # noqa: E402
+from _provenance import provenance  # noqa: E402
 
 QUICK = {"systems": "duffing,coulomb_viscous", "seeds": 1, "population": 100,
          "generations": 3}
@@ -89,6 +91,12 @@ def main(argv: list[str] | None = None) -> int:
     if unknown:
         raise SystemExit(f"unknown method {unknown[0]!r}; use one of {','.join(METHODS)}")
     rows = []
+    if args.resume:
+        if not (args.json and Path(args.json).is_file()):
+            raise SystemExit("--resume needs --json FILE from an earlier run of this command")
+        rows = json.loads(Path(args.json).read_text(encoding="utf-8"))["rows"]
+    done = {(r["system"], r["seed"], r.get("noise", 0.01), r["method"]) for r in rows}
+    revision = provenance()["revision"]
     for name in systems:
         for seed in range(args.first_seed, args.first_seed + args.seeds):
             data = generate(name, seed=seed, noise=args.noise, input_noise=args.noise,
@@ -101,12 +109,15 @@ def main(argv: list[str] | None = None) -> int:
             methods += [(peer, lambda peer=peer: fit_peer(peer, data.fit.measurement(),
                                                            seed=seed)) for peer in peers]
             for method, fit in methods:
-                row = _row(data, method, fit)
+                if (name, seed, args.noise, method) in done:
+                    continue
+                row = _row(data, method, fit) | {"revision": revision}
                 rows.append(row)
                 print(f"{name} seed {seed} {method}: structure {row['structure']} "
                       f"NRMS {row['nrms']} {row['seconds']:.1f} s {row['error'] or ''}",
                       flush=True)
-    _write(args, rows, systems, vars(args))
+                _write(args, rows, systems, vars(args), quiet=True)  # resumable from here
+    _write(args, rows, list(dict.fromkeys(r["system"] for r in rows)), vars(args))
     return 0
 
 
@@ -163,12 +174,15 @@ def _scales(data) -> dict:
             sp.Symbol("x_dot"): float(np.std(data.fit.velocity_true))}
 
 
-def _write(args, rows: list[dict], systems: list[str], settings: dict) -> None:
+def _write(args, rows: list[dict], systems: list[str], settings: dict, *,
+           quiet: bool = False) -> None:
+    """Print the table (unless ``quiet``) and write every row, with the run's revision,
+    command, date and machine, to ``--json``."""
     table = _table(rows, systems)
-    print(table)
+    if not quiet:
+        print(table)
     if args.json:
-        payload = {"command": " ".join([Path(sys.executable).name, *sys.argv]),
-                   "settings": settings, "peers": versions(),
+        payload = {**provenance(), "settings": settings, "peers": versions(),
                    "scorer": "scipy DOP853 rtol 1e-10 atol 1e-12 (Filippov sticking for "
                              "sign laws); true input samples joined by a cubic spline; true "
                              "initial state; NRMS = RMS(error)/RMS(true) on the extrapolation "
@@ -199,7 +213,11 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--methods", default=",".join(METHODS),
                         help=f"comma-separated, from {','.join(METHODS)} (default all)")
     parser.add_argument("--peers", default="", help=f"comma-separated, from {','.join(PEERS)}")
-    parser.add_argument("--json", help="write every row and the command to this file")
+    parser.add_argument("--json", help="write every row and the command to this file "
+                        "(rewritten after every row)")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the rows --json already holds and run only the missing "
+                        "ones (a long suite in chunks)")
     parser.add_argument("--rescore", nargs="+", metavar="JSON",
                         help="merge these runs' rows and decide structure and constants again")
     parser.add_argument("--refit-failed", action="store_true",

@@ -119,18 +119,19 @@ def _suite_rows(data: dict, methods: list[str] | None = None) -> list[list]:
                         f"{sum(r['constants'] for r in chosen)}/{n}",
                         "diverged/failed" if isinf(nrms) else _pct(nrms),
                         f"{_median([r['seconds'] for r in chosen]):.1f}",
-                        sum(r["error"] is not None for r in chosen)])
+                        sum(r["error"] is not None for r in chosen),
+                        ", ".join(sorted({r.get("revision", "not recorded") for r in chosen}))])
     return out
 
 
 SUITE_HEADER = ["system", "method", "seeds", "structure right", "constants within 2 %",
-                "median extrap. NRMS", "median s", "failed"]
+                "median extrap. NRMS", "median s", "failed", "revision"]
 
 
 def suite_table(path: str, methods: list[str] | None = None):
     def render() -> str:
         data = _load(path)
-        return (_table(SUITE_HEADER, _suite_rows(data, methods), "lllrrrrr") + "\n\n"
+        return (_table(SUITE_HEADER, _suite_rows(data, methods), "lllrrrrrl") + "\n\n"
                 + _totals(data, methods) + "\n\n" + _stamp(data))
     return render
 

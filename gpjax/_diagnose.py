@@ -116,6 +116,7 @@ from ._errors import ModelFileError, UserInputError
 from ._coefficients import to_population
 from ._model import Model
 from ._uncertainty import Uncertainty, model_names, sandwich_covariance
+from ._weak_form import design, scaled_lstsq
 
 
 @dataclasses.dataclass
@@ -432,6 +433,7 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         result.noise = _noise(result, problem)
         result.unexplained = _unexplained(result, problem, alpha)
         if chosen_mode != "simulation":
+            result.uncertainty = _equation_error_uncertainty(result)
             return result
         check, _ = check_model(result.model(), measurement, tolerance=convergence_tolerance)
         if check.converged or not automatic or substeps >= MAX_SUBSTEPS:
@@ -475,6 +477,26 @@ def _ambiguity(problem: FitProblem, symbols: Symbols, shortlisted: list[Candidat
         out["separating_input"] = separating_input(models, problem.measurement.time,
                                                    problem.measurement.inputs, noise)
     return out
+
+
+def _equation_error_uncertainty(result: Diagnosis) -> Uncertainty | None:
+    """The final equation-error fit's constants' intervals: the sandwich covariance
+    (:mod:`gpjax._uncertainty`) of the weak-form least squares it solved, over its sequence
+    of windows; ``None`` where that fit is not finite. The interval does not count the bias
+    that noise in the smoothed derivatives puts into the weak-form regressors."""
+    fit = result.after
+    s = fit.structure
+    matrix, target, normalise = design(fit.weak, s.lhs, s.forcing)
+    solution = scaled_lstsq(matrix, target)
+    if not np.all(np.isfinite(solution)):
+        return None
+    covariance, dof = sandwich_covariance(target - matrix @ solution, matrix)
+    by_feature = {feature: name for name, (part, feature)
+                  in result.model().constant_names().items() if part != "mass"}
+    names = (["m"] if normalise else []) + [by_feature[str(f)] for f in s.lhs] + [
+        by_feature[str(g)] for g in s.forcing if not (normalise and g == fit.weak.u0)]
+    return Uncertainty(names=tuple(names), values=solution, covariance=covariance, dof=dof,
+                       n_samples=result.measurement.n_samples)
 
 
 def _integration(fit: Fit, problem: FitProblem, tolerance: float) -> Convergence:

@@ -80,6 +80,7 @@ class Fit:
     criterion: float
     force: np.ndarray | None = None
     holdout: np.ndarray | None = None
+    weak: WeakForm | None = None  # the weak form an equation-error fit solved
 
     def model(self, symbols: Symbols, provenance: dict, *,
               input_interpolation: str = "linear", substeps: int = 1) -> Model:
@@ -173,7 +174,7 @@ class FitProblem:
             coefficients = structure.coefficients(dict(zip(structure.lhs, lhs)),
                                                   dict(zip(structure.forcing, forcing)),
                                                   mass=mass, y0=self.y0)
-            fit = Fit(structure, coefficients, None, {}, 0.0)
+            fit = Fit(structure, coefficients, None, {}, 0.0, weak=self.weak)
             matrix, target, _ = design(self.weak_full, structure.lhs, structure.forcing)
             # window residual / ∫ψ: the generalised force averaged over each window
             windowed = (target - matrix @ solution) / self.weak_full.kernel_area

@@ -119,15 +119,17 @@ def _interval_lines(d: Diagnosis) -> list[str]:
     holds 0 are named (the record does not tell them from zero)."""
     band = d.uncertainty
     if band is None:
-        return ["Constants' intervals: not computed (equation-error mode fits no simulated "
-                "response).", ""]
+        return ["Constants' intervals: not computed (the final fit is not finite).", ""]
+    basis = ("output error on the whole record" if d.mode == "simulation" else
+             "weak-form equation error on the whole record; noise in the smoothed derivatives "
+             "biases these constants and the interval does not count it")
     cells, zero = [], []
     for name, value in zip(band.names, band.values):
         low, high = band.interval(name)
         cells.append(f"{name} = {value:.6g} ± {band.half_width(name):.2g}")
         if low <= 0 <= high and not name.endswith("(0)"):
             zero.append(name)
-    lines = ["Constants (± half the 95 % interval, output error on the whole record): "
+    lines = [f"Constants (± half the 95 % interval, {basis}): "
              + ", ".join(cells) + ".", ""]
     if zero:
         lines += [f"**Not distinguishable from zero** (the interval holds 0): "

@@ -374,7 +374,17 @@ def _run_diagnosis(args, measurement, model, out: Path) -> None:
     write_report(result, out)
     before, after = result.before.metrics, result.after.metrics
     print(f"Diagnosis ({result.mode}): effects added: {', '.join(result.effects_added) or 'none'}")
-    print(f"  RMS {before['rms']:.4g} -> {after['rms']:.4g}; model: {result.model().sympy()}")
+    model = result.model()
+    print(f"  RMS {before['rms']:.4g} -> {after['rms']:.4g}; model: {model.sympy()}")
+    print("  constants (± half the 95 % interval): " + ", ".join(
+        f"{name} = {text}" for name, text in model.constant_texts().items()))
+    for step in result.steps:
+        tied = [t["effect"] for t in step.get("indistinguishable", [])]
+        if tied:
+            change = (step.get("separating_input") or {}).get("change")
+            print(f"  cannot be told apart on this record: {step['effect']} and "
+                  f"{', '.join(tied)}" + (f"; a record with the input changed by {change} "
+                                           "would separate them" if change else ""))
     if result.convergence:
         c = result.convergence
         print(f"  RMS by the reference solve (diffrax Dopri8) {c['rms_reference']:.4g}; RK4 at "

@@ -195,6 +195,12 @@ def test_drifting_system_is_diagnosed_on_the_equation_error():
     assert result.after.metrics["rms"] < 0.2 * result.before.metrics["rms"]
     assert result.steps[0]["sign_as_meant"] is True
     assert "Caution" not in report_markdown(result)
+    # equation-error intervals: the weak-form least squares' sandwich, holding the truth
+    band = result.uncertainty
+    assert band.names == ("m", "c1")
+    assert band.interval("m")[0] < 2.0 < band.interval("m")[1]
+    assert band.interval("c1")[0] < 0.6 < band.interval("c1")[1]
+    assert "weak-form equation error on the whole record" in report_markdown(result)
 
 
 @pytest.mark.slow  # ~14 s: the fast tier stays within 5 minutes on 2 cores
@@ -245,9 +251,9 @@ def test_cli_diagnose_writes_the_report(tmp_path):
         assert key in report["steps"][0]
     again = Model.from_json(report["model"])
     assert any("tanh" in feature for feature in again.state)
-    # a drifting record is diagnosed by equation error: no simulated response, no intervals
-    assert report["mode"] == "equation_error" and again.uncertainty is None
-    assert "intervals: not computed" in (tmp_path / "report" / "report.md").read_text()
+    # a drifting record is diagnosed by equation error: its intervals are the weak form's
+    assert report["mode"] == "equation_error" and again.uncertainty.names == ("m", "c1")
+    assert "weak-form equation error" in (tmp_path / "report" / "report.md").read_text()
     for name in ("report.md", "model.json", "residual_time.png", "residual_spectrum.png",
                  "measured_vs_simulated.png"):
         assert (tmp_path / "report" / name).stat().st_size > 0
