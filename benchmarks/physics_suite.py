@@ -106,8 +106,9 @@ def main(argv: list[str] | None = None) -> int:
                        ("gpjax", lambda: _gpjax(data, args, seed, local_search=None)),
                        ("gpjax-no-local-search", lambda: _gpjax(data, args, seed, local_search=0))]
             methods = [(m, fit) for m, fit in methods if m in chosen]
-            methods += [(peer, lambda peer=peer: fit_peer(peer, data.fit.measurement(),
-                                                           seed=seed)) for peer in peers]
+            methods += [(peer, lambda peer=peer, name=name, seed=seed: fit_peer(
+                peer, data.fit.measurement(), seed=seed,
+                seconds=_budget(rows, name, seed, args))) for peer in peers]
             for method, fit in methods:
                 if (name, seed, args.noise, method) in done:
                     continue
@@ -119,6 +120,14 @@ def main(argv: list[str] | None = None) -> int:
                 _write(args, rows, systems, vars(args), quiet=True)  # resumable from here
     _write(args, rows, list(dict.fromkeys(r["system"] for r in rows)), vars(args))
     return 0
+
+
+def _budget(rows: list[dict], system: str, seed: int, args) -> float:
+    """A peer's time budget on a record: gpjax's seconds on it (its row of this run or of
+    the resumed file), else ``--peer-seconds``."""
+    spent = [r["seconds"] for r in rows if (r["system"], r["seed"], r["method"]) ==
+             (system, seed, "gpjax") and r.get("noise", 0.01) == args.noise]
+    return spent[-1] if spent else args.peer_seconds
 
 
 def _rescore(args) -> int:
@@ -213,6 +222,9 @@ def _parser() -> argparse.ArgumentParser:
     parser.add_argument("--methods", default=",".join(METHODS),
                         help=f"comma-separated, from {','.join(METHODS)} (default all)")
     parser.add_argument("--peers", default="", help=f"comma-separated, from {','.join(PEERS)}")
+    parser.add_argument("--peer-seconds", type=float, default=120.0,
+                        help="a peer's time budget where gpjax did not run on the record "
+                        "(otherwise gpjax's seconds there)")
     parser.add_argument("--json", help="write every row and the command to this file "
                         "(rewritten after every row)")
     parser.add_argument("--resume", action="store_true",
