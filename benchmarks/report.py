@@ -148,6 +148,29 @@ def _totals(data: dict, methods: list[str] | None = None) -> str:
     return "Totals: " + "; ".join(parts) + "."
 
 
+def peers_table() -> str:
+    """benchmarks/physics_suite_peers.json: the suite table, then the systems where a peer
+    beats gpjax (lower median extrapolation NRMS, or the structure found more often)."""
+    path = "benchmarks/physics_suite_peers.json"
+    data = _load(path)
+    rows = data["rows"]
+    losses = []
+    for system in dict.fromkeys(r["system"] for r in rows):
+        def score(method):
+            chosen = [r for r in rows if r["system"] == system and r["method"] == method]
+            if not chosen:
+                return None
+            return (sum(r["structure"] for r in chosen) / len(chosen),
+                    -_median([r["nrms"] if r["nrms"] is not None else inf for r in chosen]))
+        ours = score("gpjax")
+        better = [m for m in ("pysindy", "pyoperon") if ours and score(m) and score(m) > ours]
+        if better:
+            losses.append(f"{system} (to {', '.join(better)})")
+    verdict = ("gpjax loses on: " + "; ".join(losses) + "." if losses else
+               "gpjax loses no row of this table.")
+    return suite_table(path)() .replace(_stamp(data), verdict + "\n\n" + _stamp(data))
+
+
 def suite_floor() -> str:
     """The Cramér–Rao identifiability floor per system (truth rows of physics_suite.json)."""
     data = _load("benchmarks/physics_suite.json")
@@ -520,6 +543,7 @@ TABLES = {
     "band-coverage": band_coverage,
     "physics-suite": suite_table("benchmarks/physics_suite.json"),
     "physics-floor": suite_floor,
+    "physics-peers": peers_table,
     "physics-held-out": suite_table("benchmarks/physics_suite_held_out.json",
                                     ["gpjax", "gpjax-no-local-search"]),
     "physics-noise": suite_table("benchmarks/physics_suite_noise.json",
