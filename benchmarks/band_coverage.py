@@ -9,7 +9,9 @@ extrapolation record (another input realisation, 20 % larger), from the initial 
 true model fits on that record. The truth is the true model's reference response to the
 same measured input from the same state: what the band claims to hold at each sample with
 probability 0.95, the constants being the only unknowns. Per seed: the fraction of samples
-inside the band, and the band's median half-width over the response's standard deviation.
+inside the band, and the band's median half-width over the response's standard deviation;
+a fit with a constant the record cannot bound (no finite standard error) has no band, and
+is counted as such.
 Rows are written after every seed; ``--resume`` skips the seeds the JSON already holds.
 """
 
@@ -26,7 +28,7 @@ import numpy as np
 from _provenance import provenance
 from coverage import _one_coordinate
 
-from gpjax import prediction_band, refit
+from gpjax import UserInputError, prediction_band, refit
 from gpjax.systems import generate
 
 SYSTEMS = ("duffing", "pendulum")
@@ -46,7 +48,12 @@ def run_seed(system: str, seed: int) -> dict:
     scale = measurement_scale(record)
     true = truth.simulate_inputs(record.time, record.inputs, start, scale=scale)
     began = time.perf_counter()
-    band = prediction_band(fitted, record.time, record.inputs, start, scale=scale, seed=seed)
+    try:
+        band = prediction_band(fitted, record.time, record.inputs, start, scale=scale,
+                               seed=seed)
+    except UserInputError as refused:  # a constant without a finite standard error
+        return {"system": system, "seed": seed, "revision": provenance()["revision"],
+                "no_band": str(refused)}
     seconds = time.perf_counter() - began
     inside = (band.low <= true) & (true <= band.high)
     return {"system": system, "seed": seed, "revision": provenance()["revision"],
@@ -62,10 +69,14 @@ def summary(rows: list[dict]) -> list[dict]:
     at least 90 %, the median relative half-width and the median seconds per band."""
     out = []
     for system in sorted({r["system"] for r in rows}):
-        group = [r for r in rows if r["system"] == system]
+        every = [r for r in rows if r["system"] == system]
+        group = [r for r in every if "no_band" not in r] or [{
+            "coverage": float("nan"), "median_half_width_over_std": float("nan"),
+            "diverged": 0, "band_seconds": float("nan"), "revision": every[0]["revision"]}]
         coverage = [r["coverage"] for r in group]
-        out.append({"system": system, "seeds": len(group),
-                    "revisions": sorted({r["revision"] for r in group}),
+        out.append({"system": system, "seeds": len(every),
+                    "without_band": sum("no_band" in r for r in every),
+                    "revisions": sorted({r["revision"] for r in every}),
                     "mean_coverage": float(np.mean(coverage)),
                     "seeds_at_least_90": float(np.mean(np.array(coverage) >= 0.9)),
                     "median_half_width_over_std": float(np.median(
@@ -92,8 +103,9 @@ def main() -> None:
                 continue
             row = run_seed(system, seed)
             rows.append(row)
-            print(f"{system} seed {seed}: coverage {row['coverage']:.3f}, half-width "
-                  f"{row['median_half_width_over_std']:.4f} std, {row['band_seconds']:.1f} s",
+            print(f"{system} seed {seed}: " + (f"no band ({row['no_band']})" if "no_band" in row
+                  else f"coverage {row['coverage']:.3f}, half-width "
+                  f"{row['median_half_width_over_std']:.4f} std, {row['band_seconds']:.1f} s"),
                   flush=True)
             path.write_text(json.dumps({**provenance(), "rows": rows,
                                         "summary": summary(rows)}, indent=1) + "\n")

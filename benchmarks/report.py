@@ -245,13 +245,14 @@ def coverage_table() -> str:
 def band_coverage() -> str:
     """benchmarks/band_coverage.json: pointwise coverage of the 95 % prediction band."""
     data = _load("benchmarks/band_coverage.json")
-    rows = [[s["system"], s["seeds"], _pct(s["mean_coverage"], 1),
+    rows = [[s["system"], s["seeds"], s.get("without_band", 0), _pct(s["mean_coverage"], 1),
              _pct(s["seeds_at_least_90"], 0), f"{s['median_half_width_over_std']:.4f}",
              s["diverged_draws"], f"{s['median_band_seconds']:.1f}",
              ", ".join(s["revisions"])] for s in data["summary"]]
-    return (_table(["system", "seeds", "mean pointwise coverage", "seeds covering ≥ 90 %",
+    return (_table(["system", "seeds", "without a band", "mean pointwise coverage",
+                    "seeds covering ≥ 90 %",
                     "median half-width / std of response", "diverged draws",
-                    "seconds per band (median)", "revision"], rows, "lrrrrrrl")
+                    "seconds per band (median)", "revision"], rows, "lrrrrrrrl")
             + "\n\n" + _stamp(data))
 
 

@@ -54,6 +54,10 @@ HIGH_CORRELATION = 0.9
 #: Reciprocal condition of the column-normalised A below which the constants are not
 #: identifiable from the record (their standard errors are reported as infinite).
 RANK_TOLERANCE = 1e-12
+#: A frequency bin's leverage within this of 1 in some direction (rounding: I − H_f is
+#: singular) fits that direction alone, and a constant loading on it by more than
+#: :data:`LOADING` (in units of its √[A⁻¹]ₖₖ) has no estimable variance.
+SATURATED, LOADING = 1e-13, 1e-9
 
 
 @dataclasses.dataclass(frozen=True)
@@ -222,16 +226,29 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
         return np.diag(np.full(k, np.inf)), np.ones(k)
     inverse = np.linalg.inv(unit) / np.outer(norm, norm)
     # Each bin's leverage H_f = X_f A⁻¹ X_fᵀ; its residual inflated by (I − H_f)⁻¹ (CR3).
+    # A direction with leverage 1 is fitted by that bin alone (a static offset by the zero
+    # bin): its residual is 0 and the jackknife cannot estimate its variance, so the
+    # constants that load on it get none (infinite).
     leverage = np.einsum("fmk,kl,fnl->fmn", x, inverse, x)
-    inflated = np.linalg.solve(np.eye(2 * d) - leverage, u[..., None])[..., 0]
+    eigenvalues, vectors = np.linalg.eigh((leverage + np.swapaxes(leverage, 1, 2)) / 2)
+    saturated = eigenvalues > 1.0 - SATURATED
+    shrink = np.where(saturated, 0.0, 1.0 / np.where(saturated, 1.0, 1.0 - eigenvalues))
+    inflated = np.einsum("fmn,fn->fm", vectors,
+                         shrink * np.einsum("fnm,fn->fm", vectors, u))
     per_bin = np.einsum("fmk,fm->fk", x, inflated) @ inverse       # (F, k): A⁻¹X_fᵀũ_f
+    loading = np.abs(np.einsum("fmk,fmn->fnk", x, vectors) @ inverse)[saturated]  # (S, k)
+    unknown = np.any(loading > LOADING * np.sqrt(np.diag(inverse)), axis=0)
     covariance = per_bin.T @ per_bin
     # Satterthwaite: a constant's variance is Σ_f a_f, a_f the square of one normal
     # combination of bin f (a scaled χ²₁), so its degrees of freedom are
     # (Σ E a)²/Σ (E a)², here with each bin's observed share for E a (module docstring).
     share = per_bin ** 2
-    dof = share.sum(axis=0) ** 2 / np.sum(share ** 2, axis=0)
-    return (covariance + covariance.T) / 2, dof
+    with np.errstate(invalid="ignore", divide="ignore"):
+        dof = np.nan_to_num(share.sum(axis=0) ** 2 / np.sum(share ** 2, axis=0), nan=1.0)
+    covariance = (covariance + covariance.T) / 2
+    covariance[unknown, :] = covariance[:, unknown] = 0.0
+    covariance[unknown, unknown] = np.inf
+    return covariance, np.where(unknown, 1.0, dof)
 
 
 def _orthonormal_fourier(a: np.ndarray) -> np.ndarray:
