@@ -243,12 +243,17 @@ def coverage_table() -> str:
 
 
 def band_coverage() -> str:
-    """benchmarks/band_coverage.json: pointwise coverage of the 95 % prediction band."""
+    """benchmarks/band_coverage.json: pointwise coverage of the 95 % prediction band ("–"
+    where no fit of a system had a band)."""
     data = _load("benchmarks/band_coverage.json")
-    rows = [[s["system"], s["seeds"], s.get("without_band", 0), _pct(s["mean_coverage"], 1),
-             _pct(s["seeds_at_least_90"], 0), f"{s['median_half_width_over_std']:.4f}",
-             s["diverged_draws"], f"{s['median_band_seconds']:.1f}",
-             ", ".join(s["revisions"])] for s in data["summary"]]
+    rows = []
+    for s in data["summary"]:
+        banded = s.get("without_band", 0) < s["seeds"]
+        cells = [_pct(s["mean_coverage"], 1), _pct(s["seeds_at_least_90"], 0),
+                 f"{s['median_half_width_over_std']:.4f}", s["diverged_draws"],
+                 f"{s['median_band_seconds']:.1f}"]
+        rows.append([s["system"], s["seeds"], s.get("without_band", 0),
+                     *(cells if banded else ["–"] * len(cells)), ", ".join(s["revisions"])])
     return (_table(["system", "seeds", "without a band", "mean pointwise coverage",
                     "seeds covering ≥ 90 %",
                     "median half-width / std of response", "diverged draws",

@@ -87,7 +87,8 @@ def prediction_band(model, time: np.ndarray, inputs: dict[str, np.ndarray],
     unknown = [n for n, s in zip(names, se) if not np.isfinite(s)]
     if unknown:
         raise UserInputError(f"constant {unknown[0]!r} has no finite standard error (its "
-                             "record could not identify it), so the model has no band")
+                             "record cannot bound it: docs/limitations.md), so the model has "
+                             "no band")
     flat = np.repeat(evaluator.layout.pack(base), draws + 1, axis=0)
     flat[1:, [columns[n] for n in names]] += _draws(
         uncertainty.correlation[np.ix_(index, index)], uncertainty.dof[index], draws,

@@ -28,7 +28,10 @@ lags on Duffing records and gave intervals 2–3× too narrow (z-scores of the t
 sensitivities are concentrated have high leverage; removing it puts back the part of the
 residual the fit absorbed. A few bins carry most of a constant's information when its
 sensitivity is narrow-band, and then ν is small and the t quantile widens the interval
-accordingly. A block bootstrap would refit the model hundreds of times where this needs one
+accordingly. Where a bin's leverage is 1 in some direction (a constant fitted by that bin
+alone, such as a sine's phase by the zero bin, which acts as a static offset), the fit
+leaves no residual there to measure: the constants loading on that direction get an
+infinite variance (no interval) rather than a ratio of rounding errors. A block bootstrap would refit the model hundreds of times where this needs one
 Jacobian.
 
 What the interval does not count: the input's reconstruction between samples (linear
