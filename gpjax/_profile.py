@@ -31,11 +31,12 @@ POINTS, REACH = 4, 2.0
 
 def profile_bounds(refiner, population: Population, fixed_forcing: np.ndarray,
                    held_inner: np.ndarray | None, *, inner: dict[str, dict],
-                   objective) -> dict[str, tuple[float, float]]:
+                   objective, fitted: float) -> dict[str, tuple[float, float]]:
     """The profile 95 % interval (low, high) of each inner constant of the population of
     one ``population`` (module docstring). ``inner``: name -> {"slot": its inner slot,
     "value": θ̂, "se": sandwich standard error s, "naive_se": Gauss–Newton s₀, "quantile":
-    t₀.₉₇₅(ν)}; ``objective(population) -> (P,)`` the output error S of each model;
+    t₀.₉₇₅(ν)}; ``objective(population) -> (P,)`` the output error S of each model,
+    ``fitted`` S at the fit;
     ``fixed_forcing`` and ``held_inner`` as :meth:`gpjax._refine.Refiner.refine` takes them."""
     if not inner:
         return {}
@@ -50,7 +51,6 @@ def profile_bounds(refiner, population: Population, fixed_forcing: np.ndarray,
         masks.append(mask)
     fixed = np.repeat(np.asarray(fixed_forcing), len(legs), axis=0)
     current = Population.concatenate([population] * len(legs))
-    best = objective(population)[0]
     excess = np.empty((len(legs), steps.size))
     for j, step in enumerate(steps):  # continuation: each point starts from the last
         values = current.inner.copy()
@@ -58,7 +58,7 @@ def profile_bounds(refiner, population: Population, fixed_forcing: np.ndarray,
             values[row, c["slot"]] = c["value"] + side * step * c["quantile"] * c["se"]
         current = refiner.refine(dataclasses.replace(current, inner=values), fixed,
                                  np.concatenate(masks)).population
-        excess[:, j] = np.nan_to_num(objective(current) - best, nan=np.inf)
+        excess[:, j] = np.nan_to_num(objective(current) - fitted, nan=np.inf)
     bounds = {}
     for k, (name, c) in enumerate(inner.items()):
         ends = []

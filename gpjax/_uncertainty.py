@@ -93,7 +93,7 @@ class Uncertainty:
 
     def quantile(self, name: str) -> float:
         """t₀.₉₇₅ with ``name``'s degrees of freedom: half its interval in standard errors."""
-        return float(stats.t.ppf(0.975, max(float(self.dof[self.names.index(name)]), 1.0)))
+        return t_quantile(float(self.dof[self.names.index(name)]))
 
     @property
     def standard_errors(self) -> dict[str, float]:
@@ -311,9 +311,7 @@ def _profiles(refiner, population, fixed_forcing, held_inner, sensitivity, names
     ``sensitivity``'s constants ``names``, at the sandwich's ``covariance`` and ``dof``."""
     from ._profile import profile_bounds
 
-    n, k = sensitivity.response.shape[0], sensitivity.jacobian.shape[-1]
-    w = np.asarray(weights, dtype=float).reshape(-1)
-    scaled = (sensitivity.jacobian.reshape(n, w.size, k) * w[None, :, None]).reshape(-1, k)
+    scaled = _weighted_rows(sensitivity.jacobian, weights)
     with np.errstate(divide="ignore", invalid="ignore"):
         naive = np.sqrt(np.diag(np.linalg.pinv(scaled.T @ scaled)))
     se = np.sqrt(np.diag(covariance))
@@ -323,29 +321,43 @@ def _profiles(refiner, population, fixed_forcing, held_inner, sensitivity, names
         if part == "inner" and np.isfinite(se[i]) and se[i] > 0 and naive[i] > 0:
             inner[names[i]] = {"slot": slot, "value": float(sensitivity.values[i]),
                                "se": float(se[i]), "naive_se": float(naive[i]),
-                               "quantile": float(stats.t.ppf(0.975, max(dof[i], 1.0)))}
-    measured = refiner.evaluator.measurement.responses
+                               "quantile": t_quantile(dof[i])}
+    measured = refiner.evaluator.measurement.responses.reshape(sensitivity.response.shape)
 
     def objective(models):
         paths = np.asarray(refiner.evaluator.simulate(models)[0])  # (P, N) or (P, D, N)
-        paths = paths.reshape(paths.shape[0], -1, paths.shape[-1])
-        gap = (paths - measured.T[None]) * w[None, :, None]
-        return np.sum(gap ** 2, axis=(1, 2))
+        paths = paths.reshape(paths.shape[0], -1, paths.shape[-1])  # each as (N,) or (N, D):
+        return np.array([np.sum(_weighted_rows(path.T.reshape(measured.shape) - measured,
+                                               weights) ** 2) for path in paths])
 
+    fitted = float(np.sum(_weighted_rows(sensitivity.response - measured, weights) ** 2))
     return profile_bounds(refiner, population, fixed_forcing, held_inner, inner=inner,
-                          objective=objective)
+                          objective=objective, fitted=fitted)
+
+
+def t_quantile(dof: float) -> float:
+    """t₀.₉₇₅ with ``dof`` degrees of freedom (at least 1): half a 95 % interval in
+    standard errors."""
+    return float(stats.t.ppf(0.975, max(float(dof), 1.0)))
+
+
+def _weighted_rows(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
+    """A response-shaped array (N,) or (N, D), or its Jacobian (N, k) or (N, D, k), as rows
+    (N·D,) or (N·D, k) scaled by the per-coordinate ``weights`` (D,)."""
+    w = np.asarray(weights, dtype=float).reshape(-1)
+    n = values.shape[0]
+    if values.size == n * w.size:
+        return (values.reshape(n, w.size) * w).reshape(-1)
+    k = values.shape[-1]
+    return (values.reshape(n, w.size, k) * w[None, :, None]).reshape(-1, k)
 
 
 def _gauss_newton_shift(change: np.ndarray, jacobian: np.ndarray,
                         weights: np.ndarray) -> np.ndarray:
     """(k,) the constants' move that offsets a change (N,) or (N, D) of the simulated
     response to first order: −(weighted least squares of ``change`` on ``jacobian``)."""
-    n, k = change.shape[0], jacobian.shape[-1]
-    d = change.size // n
-    w = np.asarray(weights, dtype=float).reshape(-1)
-    a = (jacobian.reshape(n, d, k) * w[None, :, None]).reshape(n * d, k)
-    b = (change.reshape(n, d) * w).reshape(-1)
-    return -np.linalg.lstsq(a, b, rcond=None)[0]
+    return -np.linalg.lstsq(_weighted_rows(jacobian, weights), _weighted_rows(change, weights),
+                            rcond=None)[0]
 
 
 def model_names(sensitivity, model, coefficients, columns) -> list[str]:

@@ -202,7 +202,7 @@ def test_profile_interval_follows_an_asymmetric_objective_at_the_sandwich_scale(
     for se, factor in ((0.01, 1.0), (0.02, 2.0)):
         (low, high), = profile_bounds(refiner, start, np.array([-1]), None, inner={
             "k.θ1": {"slot": 0, "value": 2.0, "se": se, "naive_se": 0.01, "quantile": 1.96}},
-            objective=objective).values()
+            objective=objective, fitted=0.0).values()
         assert low == pytest.approx(2.0 - factor * 0.98 * 0.01, rel=1e-3)
         assert high == pytest.approx(2.0 + factor * 1.96 * 0.01, rel=1e-3)
     u = Uncertainty(("k.θ1",), np.array([2.0]), np.array([[0.02 ** 2]]), np.array([50.0]), 100,
