@@ -37,7 +37,7 @@ def main() -> None:
     parser.add_argument("--json", help="write the results here")
     args = parser.parse_args()
     example, _ = load_bundled_example()
-    model = Model(symbols=Symbols("phi", "t", ("T",)), mass=PAPER_TRUTH["J"],
+    model = Model.single(symbols=Symbols("phi", "t", ("T",)), mass=PAPER_TRUTH["J"],
                   state={"phi": PAPER_TRUTH["K1"], "phi**2": PAPER_TRUTH["K2"]},
                   forcing={"T": 1.0}, substeps=3)
     rows = []

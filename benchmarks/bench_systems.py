@@ -102,7 +102,7 @@ def chains(seeds: int, search: bool, population: int, generations: int,
             seconds = time.perf_counter() - began
             truth = chain_truth(n, data.system.constants, third_law)
             found = [{"mass": e.mass, **{str(f): v for f, v in e.state.items()}}
-                     for e in model.equations]
+                     for e in model.system]
             structure_ok = all(set(f) == set(t) for f, t in zip(found, truth))
             errors = [abs(f.get(k, 0.0) / t[k] - 1) for f, t in zip(found, truth) for k in t]
             record = data.extrapolation
@@ -142,7 +142,7 @@ def gear(seed: int = 0) -> dict:
         row["generations_run"] = len(result.history)
         row["structure"] = [{"state": sorted(map(str, e.state)),
                              "forcing": sorted(map(str, e.forcing))}
-                            for e in result.model.equations]
+                            for e in result.model.system]
         out["line_of_action_search" + ("_third_law" if third_law else "")] = row
         print("  structure: " + "; ".join(str(e) for e in result.model.sympy()))
     out["truth"] = t
@@ -170,7 +170,7 @@ def _gear_angles(measurement, r1, r2, j1, j2, k_m, c_m):
     began = time.perf_counter()
     fit = fit_system(measurement, structure, input_interpolation="bandlimited")
     seconds = time.perf_counter() - began
-    first, second = fit.model.equations
+    first, second = fit.model.system
     found = {"J1": first.mass, "J2": second.mass,
              "k_m (eq. 21)": first.state[x1 - x2] / (r1 * r2),
              "k_m (eq. 22)": second.state[x2 - x1] / (r1 * r2),
@@ -221,16 +221,16 @@ def standard_errors(fit, measurement, held: tuple[str, ...]) -> dict:
 
     model = fit.model
     ev = model.evaluator(measurement)
-    population = to_system_population([list(model.equations)], ev)
+    population = to_system_population([list(model.system)], ev)
     layout = ev.layout  # after the forcing columns exist
     flat = layout.pack(population)[0]
     mirrors = {layout.state_column(cb, eb): (layout.state_column(ca, ea), sign)
                for ea, ca, eb, cb, sign in tie_columns(model.ties(), ev)}
     held = {layout.forcing_column(ev.forcing_index(f), e)
-            for e, equation in enumerate(model.equations) for f in equation.forcing
+            for e, equation in enumerate(model.system) for f in equation.forcing
             if str(f) in held}
     names, directions = [], []
-    for e, equation in enumerate(model.equations):
+    for e, equation in enumerate(model.system):
         columns = [(f"mass (eq. {e + 1})", layout.mass_column(e))]
         columns += [(f"{f} (eq. {e + 1})", layout.state_column(ev.equation_index(f, e), e))
                     for f in equation.state]
@@ -274,7 +274,7 @@ def _line_constants(fit, seconds, r1, r2, j1, j2, k_m, c_m):
     """Eq. 22 is (J2/r2)·s2'' + r2·k_m·(s2 − s1) + … = −T2 times its scale λ = |g_T2|
     (1 where T2's coefficient is held at −1; r1/r2 with the third law)."""
     x1, x2, v1, v2 = sp.symbols("s1 s2 s1_dot s2_dot")
-    first, second = fit.model.equations
+    first, second = fit.model.system
     scale = abs(second.forcing.get(sp.Symbol("T2"), -1.0)) or 1.0
     found = {"J1": first.mass * r1, "J2": second.mass * r2 / scale,
              "k_m (eq. 21)": first.state.get(x1 - x2, 0.0) / r1,

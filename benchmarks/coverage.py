@@ -42,9 +42,9 @@ def _one_coordinate(name: str, truth: dict, interpolation: str):
     state = {"duffing": {"x_dot": truth.get("c"), "x": truth.get("k"),
                          "x**3": truth.get("k3")},
              "pendulum": {"x_dot": truth.get("c"), "sin(x)": truth.get("k")}}[name]
-    model = Model(symbols=Symbols("x", "t", ("u",)), mass=truth["m"], state=state,
+    model = Model.single(Symbols("x", "t", ("u",)), mass=truth["m"], state=state,
                   forcing={"u": 1.0}, input_interpolation=interpolation)
-    names = {feature: name for name, (_, feature) in model.constant_names().items()}
+    names = {feature: name for name, (_, _, feature) in model.constant_names().items()}
     values = {"m": truth["m"], **{names[f]: v for f, v in state.items()}}
     if name == "pendulum":  # sin(θ1·x + θ2): frequency 1, phase 0
         values |= {f"{names['sin(x)']}.θ1": 1.0, f"{names['sin(x)']}.θ2": 0.0}

@@ -48,7 +48,7 @@ def run(seed: int, input_noise: float) -> dict:
     record = generate(system, seed=seed, noise=0.0, input_noise=input_noise).fit
     data = Measurement(time=record.time, response=record.response_measured[0],
                        inputs={"u": record.input_measured}, time_name="t", response_name="x")
-    start = Model(symbols=SYMBOLS, mass=1.0, state={"x_dot": 1.0}, forcing={"u": 1.0},
+    start = Model.single(SYMBOLS, mass=1.0, state={"x_dot": 1.0}, forcing={"u": 1.0},
                   input_interpolation="hold")
     began = time.perf_counter()
     result = diagnose(data, start)

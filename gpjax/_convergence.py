@@ -106,7 +106,7 @@ def check_model(model, measurement: Measurement, *,
     solve failed). A system's responses (N, D) are compared with coordinate d weighted
     by s_1/s_d as in the objective, so the figures are in the first response's units."""
     measurement = measurement.segment(0, min(measurement.n_samples, CHECK_SAMPLES))
-    y0 = model.initial_conditions
+    y0 = model.initial_states
     rk4 = model.simulate(measurement, initial_conditions=y0, solver="rk4")
     reference = model.simulate(measurement, initial_conditions=y0)
     ok = bool(np.all(np.isfinite(reference)))

@@ -139,6 +139,11 @@ class Measurement:
         digest.update(repr((self.time_name, names, self.input_names)).encode())
         return digest.hexdigest()
 
+    def coordinate(self, d: int) -> "Measurement":
+        """Coordinate ``d``'s response alone, with the same time and inputs."""
+        return Measurement(time=self.time, response=self.responses[:, d], inputs=self.inputs,
+                           time_name=self.time_name, response_name=self.response_names[d])
+
     def segment(self, start: int, stop: int) -> "Measurement":
         """Samples ``start:stop`` (Python slice semantics) as a new measurement."""
         return Measurement(

@@ -491,7 +491,7 @@ def _equation_error_uncertainty(result: Diagnosis) -> Uncertainty | None:
     if not np.all(np.isfinite(solution)):
         return None
     covariance, dof = sandwich_covariance(target - matrix @ solution, matrix)
-    by_feature = {feature: name for name, (part, feature)
+    by_feature = {feature: name for name, (_, part, feature)
                   in result.model().constant_names().items() if part != "mass"}
     names = (["m"] if normalise else []) + [by_feature[str(f)] for f in s.lhs] + [
         by_feature[str(g)] for g in s.forcing if not (normalise and g == fit.weak.u0)]

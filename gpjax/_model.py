@@ -1,233 +1,395 @@
-"""The identified model and its JSON file (``model.json``).
+"""The identified model: one Newton–Euler equation per measured coordinate (D ≥ 1).
 
-The file is plain JSON a person can write by hand. Only ``variables`` and ``canonical``
-are needed to load it; everything else (equation, LaTeX, named constants, metrics) is
-derived and written for reading. Feature strings are parsed by the whitelist parser in
-:mod:`gpjax._expressions`, never evaluated.
+Equation i reads ``m_i·x_i'' + Σ c·φ + Σ p·g(t)·h = Σ g·ψ(t, u)``: its state features φ
+depend on x_i alone, on x_i' alone (eqs. 5–6), or, with several coordinates, on a relative
+coordinate x_i − x_j or x_i' − x_j' alone (eqs. 21–22); its forcing features ψ on time and
+the inputs alone. ``parametric`` terms are *declared* time-varying terms g(t)·h(x_i) or
+g(t)·h(x_i') (an extension of eqs. 5–6, e.g. ``cos(1790.7*t)*phi`` for a mesh stiffness
+varying at the mesh frequency). A single coordinate is D = 1; its equation is also reached
+through the one-equation views (:attr:`Model.mass`, :attr:`Model.state`, …).
 
-Extension of eqs. 5–6: ``canonical.parametric`` (optional) lists *declared* time-varying
-terms, each a product g(t)·h(x) or g(t)·h(x') of a function of time alone and a function of
-the response (or its derivative) alone, e.g. ``cos(1790.7*t)*phi`` for a mesh stiffness
-that varies at the mesh frequency. Ordinary ``terms`` keep the rule of eqs. 5–6.
+The file (``model.json``) is read and written by :mod:`gpjax._model_file`.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import functools
-import json
-import keyword
 import math
 import re
 from collections import OrderedDict
 from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 import sympy as sp
 
-from ._canonical import Symbols, check_structure
-from ._coefficients import Coefficients, Population, to_population
-from ._convergence import MAX_SUBSTEPS
-from ._data import INPUT_INTERPOLATIONS, Measurement
-from ._errors import ModelFileError, read_user_file
+from ._canonical import Symbols
+from ._coefficients import Coefficients, Population, to_population, to_system_population
+from ._data import Measurement
+from ._errors import ModelFileError
 from ._evaluator import PopulationEvaluator, split_state_features
-from ._objective import default_n_bins
 from ._expressions import parse_expression
-from ._reference import ReferenceSolver, measurement_scale, reference_response
+from ._objective import default_n_bins
+from ._reference import reference_response
 from ._uncertainty import Uncertainty
 from ._weak_form import estimate_initial_conditions
 
-FORMAT = "gpjax-model"
-VERSION = 1
+
+@dataclasses.dataclass(frozen=True)
+class Equation:
+    """One coordinate's equation: feature text -> constant.
+
+    Attributes:
+        mass: inertia coefficient m (non-zero).
+        state: features of the coordinate (or of a relative coordinate) -> c.
+        forcing: features of time and inputs -> g ("1" is a constant force).
+        parametric: declared time-varying terms g(t)·h(x) or g(t)·h(x') -> p, on the
+            left-hand side like ``state``.
+    """
+
+    mass: float
+    state: dict[str, float]
+    forcing: dict[str, float]
+    parametric: dict[str, float] = dataclasses.field(default_factory=dict)
 
 
 @dataclasses.dataclass(frozen=True)
 class Model:
-    """``mass·x'' + Σ c·φ(x, x') = Σ g·ψ(t, u)`` with its names and initial conditions.
+    """D equations, one per coordinate, with their names and initial states.
 
     Attributes:
-        symbols: names of response, time and inputs.
-        mass: inertia coefficient m.
-        state: feature text -> coefficient c (features of x only or x' only).
-        forcing: feature text -> coefficient g (features of time/inputs; "1" is a constant).
-        initial_conditions: (x, x') at the first sample of the data the model was fitted to;
-            ``None`` means: estimate them from the data when simulating.
-        metrics: rms, f_time, f_freq, objective on the fitting data (may be empty).
+        coordinates: the response names, one per equation (D ≥ 1).
+        time: the time column's name.
+        inputs: the input columns' names.
+        equations: one :class:`Equation` per coordinate.
+        initial_states: (x_i, x_i') of every coordinate at the first sample of the data the
+            model was fitted to; ``None``: estimate them from the data when simulating.
+        metrics: rms, objective, … on the fitting data (may be empty).
         provenance: free-form facts about the run (seed, generations, tree, …).
-        parametric: feature text -> coefficient of declared time-varying terms g(t)·h(x)
-            or g(t)·h(x') (see the module docstring); on the left-hand side like ``state``.
         input_interpolation: how inputs are reconstructed between samples when simulating,
-            ``"linear"``, ``"bandlimited"`` or ``"hold"`` (:func:`gpjax._data.between_samples`);
-            the constants were fitted with it (file: ``simulation.input_interpolation``).
-        substeps: RK4 steps per sample interval the constants were fitted with (file:
-            ``simulation.integrator``).
+            ``"linear"``, ``"bandlimited"`` or ``"hold"`` (:func:`gpjax._data.between_samples`).
+        substeps: RK4 steps per sample interval the constants were fitted with.
         convergence: the check of that integration against the reference solve
-            (:meth:`gpjax._convergence.Convergence.to_json`), or ``None`` if not checked
-            (file: ``simulation.convergence``).
+            (:meth:`gpjax._convergence.Convergence.to_json`), or ``None``.
         uncertainty: standard errors, 95 % intervals and correlations of the constants
-            and initial state (:mod:`gpjax._uncertainty`), or ``None`` (file:
-            ``uncertainty``).
+            and initial states (:mod:`gpjax._uncertainty`), or ``None``.
+        third_law: every coupling term acts on both of its coordinates with opposite
+            signs, its constants tied (:mod:`gpjax._system_couplings`).
     """
 
-    symbols: Symbols
-    mass: float
-    state: dict[str, float]
-    forcing: dict[str, float]
-    initial_conditions: tuple[float, float] | None = None
-    metrics: dict[str, float] = dataclasses.field(default_factory=dict)
+    coordinates: tuple[str, ...]
+    time: str
+    inputs: tuple[str, ...]
+    equations: tuple[Equation, ...]
+    initial_states: tuple[tuple[float, float], ...] | None = None
+    metrics: dict = dataclasses.field(default_factory=dict)
     provenance: dict = dataclasses.field(default_factory=dict)
-    parametric: dict[str, float] = dataclasses.field(default_factory=dict)
     input_interpolation: str = "linear"
     substeps: int = 1
     convergence: dict | None = None
     uncertainty: Uncertainty | None = None
+    third_law: bool = False
+
+    # --- construction -------------------------------------------------------------------
+    @classmethod
+    def single(cls, symbols: Symbols, *, mass: float, state: dict[str, float],
+               forcing: dict[str, float], parametric: dict[str, float] | None = None,
+               initial_conditions: tuple[float, float] | None = None, **fields) -> "Model":
+        """The model of one coordinate (``symbols``: its response, time and inputs);
+        ``initial_conditions`` its (x, x'); ``fields`` as the constructor's."""
+        return cls(coordinates=(symbols.response,), time=symbols.time, inputs=symbols.inputs,
+                   equations=(Equation(mass, dict(state), dict(forcing), dict(parametric or {})),),
+                   initial_states=None if initial_conditions is None else (
+                       tuple(map(float, initial_conditions)),), **fields)
 
     @classmethod
     def from_coefficients(cls, symbols: Symbols, coefficients: Coefficients,
                           **fields) -> "Model":
-        """A model of ``coefficients`` (its time-varying left-hand-side terms become
-        ``parametric``; a finite ``y0`` the initial conditions); ``fields`` as the
-        constructor's. Its features are not parsed again."""
-        lhs = coefficients.state.items()
-        y0 = coefficients.y0
-        model = cls(symbols=symbols, mass=coefficients.mass,
-                    state={str(f): v for f, v in lhs if symbols.t not in f.free_symbols},
-                    forcing={str(f): v for f, v in coefficients.forcing.items()},
-                    parametric={str(f): v for f, v in lhs if symbols.t in f.free_symbols},
-                    initial_conditions=tuple(y0) if all(map(math.isfinite, y0)) else None,
+        """The one-coordinate model of ``coefficients`` (:meth:`from_equations`)."""
+        return cls.from_equations((symbols.response,), symbols.time, symbols.inputs,
+                                  [coefficients], **fields)
+
+    @classmethod
+    def from_equations(cls, coordinates: Sequence[str], time: str, inputs: Sequence[str],
+                       equations: Sequence[Coefficients], **fields) -> "Model":
+        """The model of one :class:`Coefficients` per coordinate (time-varying left-hand
+        terms become ``parametric``; finite ``y0`` of every equation the initial states);
+        ``fields`` as the constructor's. Its features are not parsed again."""
+        t = sp.Symbol(time)
+        out = []
+        for coefficients in equations:
+            lhs = coefficients.state.items()
+            out.append(Equation(coefficients.mass,
+                                {str(f): v for f, v in lhs if t not in f.free_symbols},
+                                {str(f): v for f, v in coefficients.forcing.items()},
+                                {str(f): v for f, v in lhs if t in f.free_symbols}))
+        y0 = [tuple(map(float, c.y0)) for c in equations]
+        model = cls(coordinates=tuple(coordinates), time=time, inputs=tuple(inputs),
+                    equations=tuple(out),
+                    initial_states=tuple(y0) if all(map(math.isfinite, np.ravel(y0))) else None,
                     **fields)
-        model.__dict__["_features"] = {str(f): f for f in (*coefficients.state,
-                                                           *coefficients.forcing)}
+        model.__dict__["_parsed"] = tuple({str(f): f for f in (*c.state, *c.forcing)}
+                                          for c in equations)
         return model
 
-    # --- symbolic views -----------------------------------------------------------------
-    @functools.cached_property
-    def _features(self) -> dict[str, sp.Expr]:
-        """Every feature text of the model parsed (once) by the whitelist parser."""
-        names = self.symbols.names()
-        return {text: parse_expression(text, names)
-                for text in (*self.state, *self.parametric, *self.forcing)}
+    # --- the coordinates ----------------------------------------------------------------
+    @property
+    def n_coordinates(self) -> int:
+        """D, the number of coordinates (equations)."""
+        return len(self.coordinates)
 
-    def _feature(self, text: str) -> sp.Expr:
-        return self._features[text]
+    def symbols_of(self, i: int) -> Symbols:
+        """The symbols of coordinate ``i``'s equation (its response, time, inputs)."""
+        return Symbols(self.coordinates[i], self.time, self.inputs)
+
+    def _one(self, what: str) -> int:
+        if self.n_coordinates != 1:
+            raise ValueError(f"{what} is that of a single coordinate; this model has "
+                             f"{self.n_coordinates} ({', '.join(self.coordinates)}): use "
+                             f"model.equations[i] or the methods' i argument")
+        return 0
+
+    @property
+    def symbols(self) -> Symbols:
+        """The one coordinate's symbols (raises ValueError for several coordinates)."""
+        return self.symbols_of(self._one("symbols"))
+
+    @property
+    def mass(self) -> float:
+        return self.equations[self._one("mass")].mass
+
+    @property
+    def state(self) -> dict[str, float]:
+        return self.equations[self._one("state")].state
+
+    @property
+    def forcing(self) -> dict[str, float]:
+        return self.equations[self._one("forcing")].forcing
+
+    @property
+    def parametric(self) -> dict[str, float]:
+        return self.equations[self._one("parametric")].parametric
+
+    @property
+    def initial_conditions(self) -> tuple[float, float] | None:
+        """The one coordinate's (x, x') at the first sample, or ``None``."""
+        self._one("initial_conditions")
+        return None if self.initial_states is None else self.initial_states[0]
+
+    # --- symbolic views -----------------------------------------------------------------
+    def names(self) -> set[str]:
+        """Every symbol name the equations may use."""
+        return {self.time, *self.inputs, *(n for c in self.coordinates
+                                           for n in (c, f"{c}_dot", f"{c}_ddot"))}
+
+    @functools.cached_property
+    def _parsed(self) -> tuple[dict[str, sp.Expr], ...]:
+        """Every equation's feature texts parsed (once) by the whitelist parser."""
+        names = self.names()
+        return tuple({text: parse_expression(text, names)
+                      for text in (*e.state, *e.parametric, *e.forcing)}
+                     for e in self.equations)
+
+    def _feature(self, text: str, i: int = 0) -> sp.Expr:
+        return self._parsed[i][text]
+
+    @functools.cached_property
+    def system(self) -> tuple[Coefficients, ...]:
+        """The constants keyed by sympy feature, one per coordinate; ``state`` holds the
+        parametric terms too, ``y0`` the initial state (NaN when not set)."""
+        out = []
+        for i, e in enumerate(self.equations):
+            y0 = self.initial_states[i] if self.initial_states else (math.nan, math.nan)
+            out.append(Coefficients(
+                mass=e.mass,
+                state={self._feature(t, i): v for t, v in (*e.state.items(),
+                                                         *e.parametric.items())},
+                forcing={self._feature(t, i): v for t, v in e.forcing.items()},
+                y0=tuple(y0)))
+        return tuple(out)
 
     @property
     def coefficients(self) -> Coefficients:
-        """The constants keyed by sympy feature; ``state`` holds the parametric terms too,
-        ``y0`` the initial conditions (NaN when not set)."""
-        return Coefficients(
-            mass=self.mass,
-            state={self._feature(t): v for t, v in (*self.state.items(),
-                                                     *self.parametric.items())},
-            forcing={self._feature(t): v for t, v in self.forcing.items()},
-            y0=self.initial_conditions or (math.nan, math.nan))
+        """The one coordinate's :class:`Coefficients` (:attr:`system`)."""
+        return self.system[self._one("coefficients")]
 
-    def constant_names(self) -> dict[str, tuple[str, str]]:
-        """Constant name -> (part, feature): m; k1, k2 … for x terms; c1 … for x' terms;
-        p1 … for parametric (time-varying) terms; g1 … for forcing terms other than the
-        normalised first input."""
-        names: dict[str, tuple[str, str]] = {"m": ("mass", "")}
-        x_dot = self.symbols.x_dot
-        k = c = g = 0
-        for feature in self.state:
-            if x_dot in self._feature(feature).free_symbols:
-                c += 1
-                names[f"c{c}"] = ("state", feature)
-            else:
-                k += 1
-                names[f"k{k}"] = ("state", feature)
-        for p, feature in enumerate(self.parametric, start=1):
-            names[f"p{p}"] = ("parametric", feature)
-        for feature in self.forcing:
-            if self._normaliser() == feature:
-                continue
-            g += 1
-            names[f"g{g}"] = ("forcing", feature)
+    def constant_names(self) -> dict[str, tuple[int, str, str]]:
+        """Constant name -> (equation, part, feature): per equation m; k1, k2 … for
+        position terms; c1 … for velocity terms; p1 … for parametric (time-varying) terms;
+        g1 … for forcing terms other than the normalising input (:meth:`normaliser`).
+        With several coordinates each name is prefixed by its coordinate, ``x2.k1``."""
+        names: dict[str, tuple[int, str, str]] = {}
+        for i, e in enumerate(self.equations):
+            prefix = f"{self.coordinates[i]}." if self.n_coordinates > 1 else ""
+            velocities = {sp.Symbol(f"{c}_dot") for c in self.coordinates}
+            names[f"{prefix}m"] = (i, "mass", "")
+            k = c = g = 0
+            for feature in e.state:
+                if self._feature(feature, i).free_symbols & velocities:
+                    c += 1
+                    names[f"{prefix}c{c}"] = (i, "state", feature)
+                else:
+                    k += 1
+                    names[f"{prefix}k{k}"] = (i, "state", feature)
+            for p, feature in enumerate(e.parametric, start=1):
+                names[f"{prefix}p{p}"] = (i, "parametric", feature)
+            for feature in e.forcing:
+                if self.normaliser(i) == feature:
+                    continue
+                g += 1
+                names[f"{prefix}g{g}"] = (i, "forcing", feature)
         return names
 
-    def _normaliser(self) -> str | None:
-        inputs = self.symbols.inputs
-        if inputs and self.forcing.get(inputs[0]) == 1.0:
-            return inputs[0]
-        return None
+    def normaliser(self, i: int = 0) -> str | None:
+        """The input that normalises equation ``i`` (the first of the model's inputs in
+        it, with coefficient ±1; not a named constant), or ``None``."""
+        forcing = self.equations[i].forcing
+        first = next((u for u in self.inputs if u in forcing), None)
+        return first if first is not None and abs(forcing[first]) == 1.0 else None
 
     def constants(self) -> dict[str, float]:
         values = {}
-        for name, (part, feature) in self.constant_names().items():
-            values[name] = self.mass if part == "mass" else getattr(self, part)[feature]
+        for name, (i, part, feature) in self.constant_names().items():
+            e = self.equations[i]
+            values[name] = e.mass if part == "mass" else getattr(e, part)[feature]
         return values
 
-    def equation(self, *, numeric: bool = False) -> sp.Eq:
-        """``Eq(lhs, rhs)`` with named constants, or with their values if ``numeric``."""
+    def _index(self, i: int | None) -> int:
+        return self._one("the equation") if i is None else range(self.n_coordinates)[i]
+
+    def equation(self, i: int | None = None, *, numeric: bool = False) -> sp.Eq:
+        """Coordinate ``i``'s ``Eq(lhs, rhs)`` with named constants, or with their values
+        if ``numeric`` (``i`` may be left out for a single coordinate)."""
+        i = self._index(i)
         values = self.constants()
+        symbols = self.symbols_of(i)
+
         def coefficient(name):
             return sp.Float(values[name]) if numeric else sp.Symbol(name)
-        lhs = coefficient("m") * self.symbols.x_ddot
-        rhs = sp.Integer(0)
-        for name, (part, feature) in self.constant_names().items():
-            if part in ("state", "parametric"):
-                lhs += coefficient(name) * self._feature(feature)
-            elif part == "forcing":
-                rhs += coefficient(name) * self._feature(feature)
-        normaliser = self._normaliser()
+        lhs, rhs = sp.Integer(0), sp.Integer(0)
+        for name, (e, part, feature) in self.constant_names().items():
+            if e != i:
+                continue
+            if part == "mass":
+                lhs += coefficient(name) * symbols.x_ddot
+            elif part in ("state", "parametric"):
+                lhs += coefficient(name) * self._feature(feature, i)
+            else:
+                rhs += coefficient(name) * self._feature(feature, i)
+        normaliser = self.normaliser(i)
         if normaliser is not None:
-            rhs += sp.Symbol(normaliser)
+            rhs += int(self.equations[i].forcing[normaliser]) * sp.Symbol(normaliser)
         return sp.Eq(lhs, rhs, evaluate=False)
 
-    def sympy(self) -> sp.Eq:
-        """The equation with numeric constants."""
-        return self.equation(numeric=True)
+    def sympy(self, i: int | None = None):
+        """Coordinate ``i``'s equation with numeric constants; without ``i``, the one
+        equation of a single coordinate or the list of all."""
+        if i is None and self.n_coordinates > 1:
+            return [self.equation(k, numeric=True) for k in range(self.n_coordinates)]
+        return self.equation(i, numeric=True)
 
-    def latex(self, *, numeric: bool = False) -> str:
-        """LaTeX of :meth:`equation`; the derivatives print as \\dot{x} and \\ddot{x}.
-        ``numeric``: the constants' values, as (value \\pm half of the 95 % interval)
-        where the uncertainty is known."""
-        s = self.symbols
-        base = sp.latex(s.x)
-        names = {s.x: base, s.x_dot: rf"\dot{{{base}}}", s.x_ddot: rf"\ddot{{{base}}}"}
+    def latex(self, i: int | None = None, *, numeric: bool = False):
+        """LaTeX of :meth:`equation` (a list for all of several coordinates without ``i``);
+        derivatives print as \\dot{x} and \\ddot{x}. ``numeric``: the constants' values,
+        as (value \\pm half of the 95 % interval) where the uncertainty is known."""
+        if i is None and self.n_coordinates > 1:
+            return [self.latex(k, numeric=numeric) for k in range(self.n_coordinates)]
+        names = {}
+        for c in self.coordinates:
+            base = sp.latex(sp.Symbol(c))
+            names |= {sp.Symbol(c): base, sp.Symbol(f"{c}_dot"): rf"\dot{{{base}}}",
+                      sp.Symbol(f"{c}_ddot"): rf"\ddot{{{base}}}"}
         if numeric:
             names |= {sp.Symbol(name): _latex_value(text)
                       for name, text in self.constant_texts(latex=True).items()}
-        return sp.latex(self.equation(), symbol_names=names)
+        else:
+            names |= {sp.Symbol(name): _latex_name(name) for name in self.constant_names()}
+        return sp.latex(self.equation(i), symbol_names=names)
 
     def constant_texts(self, *, latex: bool = False) -> dict[str, str]:
         """Name -> the constant's value as text, with ± half of its 95 % interval where
         the uncertainty is known (``latex``: ``\\pm`` and no exponent ``e``)."""
         texts = {}
         for name, value in self.constants().items():
-            half = self.uncertainty.half_width(name) if self.uncertainty else None
+            half = self.uncertainty.half_width(name) if self.uncertainty and (
+                name in self.uncertainty.names) else None
             text = f"{value:.6g}" if half is None else f"{value:.6g} ± {half:.2g}"
             texts[name] = text.replace("±", r"\pm") if latex else text
         return texts
 
+    def couplings(self) -> dict[tuple[int, int], sp.Expr]:
+        """With ``third_law``, the coupling force F_ij of every coupled pair i < j (0-based
+        equation numbers) with numbers: +F_ij in equation i, −F_ij in equation j."""
+        out: dict[tuple[int, int], sp.Expr] = {}
+        for tie in self.ties():
+            (i, feature), (j, _) = tie.source, tie.mirror
+            key = (min(i, j), max(i, j))
+            term = sp.Float(self.system[i].state[feature]) * feature * (1 if i < j else -1)
+            out[key] = out.get(key, sp.Integer(0)) + term
+        return out
+
+    def ties(self) -> tuple:
+        """The :class:`gpjax._system_couplings.Tie` of every coupling term (none without
+        ``third_law``)."""
+        if not self.third_law:
+            return ()
+        from ._system_couplings import couple
+
+        structure = tuple((tuple(e.state), e.forcing) for e in self.system)
+        return couple(structure, self.coordinates)[1]
+
     def __str__(self) -> str:
         constants = ", ".join(f"{k} = {v}" for k, v in self.constant_texts().items())
-        return f"{self.equation()}   with {constants}"
+        equations = "; ".join(str(self.equation(i)) for i in range(self.n_coordinates))
+        return f"{equations}   with {constants}"
 
     # --- simulation ---------------------------------------------------------------------
     def evaluator(self, measurement: Measurement, *,
                   substeps: int | None = None, **options) -> PopulationEvaluator:
         """An RK4 evaluator on ``measurement`` whose basis holds this model's features
         (``substeps`` default: the model's; ``options``: :class:`PopulationEvaluator`'s)."""
-        degree, extra, families = split_state_features(self.coefficients.state, self.symbols)
-        return _evaluator(measurement, self.symbols, max_degree=degree,
-                          substeps=substeps or self.substeps, extra_state_features=extra,
-                          families=families, input_interpolation=self.input_interpolation,
-                          **options)
+        settings = dict(substeps=substeps or self.substeps,
+                        input_interpolation=self.input_interpolation)
+        if self.n_coordinates == 1:
+            degree, extra, families = split_state_features(self.coefficients.state,
+                                                           self.symbols)
+            return _evaluator(measurement, self.symbols, max_degree=degree,
+                              extra_state_features=extra, families=families,
+                              **settings, **options)
+        return PopulationEvaluator(measurement, self.symbols_of(0),
+                                   **{"max_degree": self.max_power(), **settings, **options})
 
-    def population(self, evaluator: PopulationEvaluator, y0: tuple[float, float]) -> Population:
-        """This model as a population of one on ``evaluator``, starting from ``y0``."""
-        return to_population([self.coefficients.replace(y0=tuple(y0))], evaluator)
+    def max_power(self) -> int:
+        """The highest integer power among the state features (at least 1)."""
+        powers = [int(p) for c in self.system for f in c.state
+                  for p in [f.as_base_exp()[1]] if p.is_Integer]
+        return max([1, *powers])
 
-    def simulate(self, measurement: Measurement, *,
-                 initial_conditions: tuple[float, float] | None = None,
+    def population(self, evaluator: PopulationEvaluator, y0) -> Population:
+        """This model as a population of one on ``evaluator``, starting from ``y0``
+        ((2,) or (D, 2))."""
+        y0 = np.reshape(np.asarray(y0, dtype=np.float64), (self.n_coordinates, 2))
+        equations = [c.replace(y0=tuple(map(float, s))) for c, s in zip(self.system, y0)]
+        if self.n_coordinates == 1:
+            return to_population(equations, evaluator)
+        return to_system_population([equations], evaluator)
+
+    def estimated_initial_states(self, measurement: Measurement) -> np.ndarray:
+        """(D, 2): every coordinate's (x, x') at the first sample by eq. 13."""
+        return np.array([estimate_initial_conditions(measurement.coordinate(d))
+                         for d in range(measurement.n_coordinates)])
+
+    def simulate(self, measurement: Measurement, *, initial_conditions=None,
                  solver: str = "reference") -> np.ndarray:
-        """The response (N,) on ``measurement``'s time grid and inputs.
+        """The response on ``measurement``'s time grid and inputs: (N,) for a single
+        coordinate, else (N, D).
 
         Args:
-            measurement: time grid and inputs (names as the model's).
-            initial_conditions: (x, x') at the first sample; default: estimated from the
-                measurement's first samples (eq. 13).
+            measurement: time grid and inputs (names as the model's); where it holds the
+                responses, they set the solver's scale.
+            initial_conditions: (x, x') or (D, 2) at the first sample; default: estimated
+                from the measurement's first samples (eq. 13).
             solver: ``"reference"`` (adaptive diffrax Dopri8, :mod:`gpjax._reference`) or
                 ``"rk4"`` (the fixed-step integrator the model was fitted with).
 
@@ -237,196 +399,87 @@ class Model:
         """
         if solver not in ("reference", "rk4"):
             raise ValueError(f"solver must be 'reference' or 'rk4', got {solver!r}")
-        if solver == "rk4":
-            return simulate_model(self, measurement, initial_conditions=initial_conditions)[0]
         _check_inputs(self, measurement)
-        y0 = initial_conditions or estimate_initial_conditions(measurement)
-        return reference_response(self, measurement.time, measurement.inputs, y0,
-                                  scale=measurement_scale(measurement))[0]
+        y0 = (self.estimated_initial_states(measurement) if initial_conditions is None
+              else initial_conditions)
+        if solver == "rk4":
+            evaluator = self.evaluator(measurement)
+            responses, _ = evaluator.simulate(self.population(evaluator, y0))
+            return _shaped(np.asarray(responses[0]).T)
+        return self.simulate_inputs(measurement.time, measurement.inputs, y0,
+                                    scale=measurement_scale(measurement))
 
     def simulate_inputs(self, time: np.ndarray, inputs: dict[str, np.ndarray],
-                        initial_conditions: tuple[float, float], *,
-                        scale: tuple[float, float] | None = None) -> np.ndarray:
-        """The response (N,) to ``inputs`` (name -> (N,)) at uniform sample ``time`` (s)
-        from ``initial_conditions`` (x, x'), by the reference solve; NaN if it fails.
+                        initial_conditions, *, scale=None) -> np.ndarray:
+        """The response ((N,) for one coordinate, else (N, D)) to ``inputs``
+        (name -> (N,)) at uniform sample ``time`` (s) from ``initial_conditions``
+        ((x, x') or (D, 2)), by the reference solve; NaN if it fails.
 
-        ``scale``: typical sizes of x and x' (the solver's absolute tolerance applies to
-        x/scale; :func:`gpjax._reference.measurement_scale` of a measured response). Default:
-        the spread of a first solve scaled by the initial state, solved again at that
-        spread where it is more than 10x away (a record started at rest has no scale of its
-        own).
+        ``scale``: typical sizes of each x and x' ((2,) or (D, 2); the solver's absolute
+        tolerance applies to x/scale; :func:`measurement_scale` of a measured response).
+        Default: the spread of a first solve scaled by the initial state, solved again at
+        that spread where it is more than 10x away (a record started at rest has no scale
+        of its own).
 
         Raises:
             ModelFileError: an input of the model is missing.
         """
-        missing = [u for u in self.symbols.inputs if u not in inputs]
+        missing = [u for u in self.inputs if u not in inputs]
         if missing:
             raise ModelFileError(f"input {missing[0]!r} of the model is not given; pass every "
-                                 f"input of {list(self.symbols.inputs)}")
+                                 f"input of {list(self.inputs)}")
         time = np.asarray(time, dtype=np.float64)
-        inputs = {u: np.asarray(inputs[u], dtype=np.float64) for u in self.symbols.inputs}
+        inputs = {u: np.asarray(inputs[u], dtype=np.float64) for u in self.inputs}
+        y0 = np.reshape(np.asarray(initial_conditions, dtype=np.float64), (-1, 2))
 
         def solve(scale):
-            return reference_response(self, time, inputs, initial_conditions, scale=scale)[0]
+            return _shaped(reference_response(self, time, inputs, y0, scale=scale)[0])
 
         if scale is not None:
-            return solve(scale)
-        used = np.array([abs(initial_conditions[0]), abs(initial_conditions[1])])
-        response = solve(tuple(used))
-        if not np.all(np.isfinite(response)) or response.size < 2:
+            return solve(np.reshape(np.asarray(scale, dtype=np.float64), (-1, 2)))
+        used = np.abs(y0)
+        response = solve(used)
+        if not np.all(np.isfinite(response)) or time.size < 2:
             return response
-        spread = np.array([np.std(response), np.std(np.diff(response)) / (time[1] - time[0])])
+        x = np.reshape(response, (time.size, -1))
+        spread = np.stack([x.std(axis=0), np.diff(x, axis=0).std(axis=0) / (time[1] - time[0])],
+                          axis=1)
         used = np.where(used > 0, used, 1.0)
         if np.all(spread > 0) and np.any(np.abs(np.log10(spread / used)) > 1):
-            response = solve(tuple(spread))
+            response = solve(spread)
         return response
 
     # --- JSON ---------------------------------------------------------------------------
     def to_json(self) -> dict:
-        ic = self.initial_conditions
-        canonical = {
-            "mass": self.mass,
-            "terms": [{"feature": f, "coefficient": c} for f, c in self.state.items()],
-            "forcing": [{"feature": f, "coefficient": g} for f, g in self.forcing.items()],
-        }
-        if self.parametric:
-            canonical["parametric"] = [{"feature": f, "coefficient": c}
-                                       for f, c in self.parametric.items()]
-        return {
-            "format": FORMAT, "version": VERSION,
-            "equation": str(self.equation()),
-            "equation_numeric": str(self.equation(numeric=True)),
-            "latex": self.latex(),
-            "constants": self.constants(),
-            "variables": {"time": self.symbols.time, "response": self.symbols.response,
-                          "inputs": list(self.symbols.inputs)},
-            "initial_conditions": None if ic is None else {
-                "response": ic[0], "response_dot": ic[1]},
-            "metrics": dict(self.metrics),
-            "canonical": canonical,
-            "simulation": {"input_interpolation": self.input_interpolation,
-                           "integrator": {"method": "rk4", "substeps": self.substeps},
-                           "reference_solver": ReferenceSolver().to_json(),
-                           **({"convergence": self.convergence} if self.convergence else {})},
-            "provenance": self.provenance,
-            **({"uncertainty": self.uncertainty.to_json()} if self.uncertainty else {}),
-        }
+        """The file's content (:mod:`gpjax._model_file`)."""
+        from ._model_file import model_to_json
+        return model_to_json(self)
 
     def save(self, path: str | Path) -> None:
-        from ._report import write_text_atomic
-        write_text_atomic(Path(path), json.dumps(self.to_json(), indent=2) + "\n")
+        from ._model_file import save_model
+        save_model(self, path)
 
     @classmethod
     def from_json(cls, data: dict, *, source: str = "model") -> "Model":
-        """Build from parsed JSON; only ``variables`` and ``canonical`` are required.
+        """Build from parsed JSON of any version (:func:`gpjax._model_file.model_from_json`).
 
         Raises:
             ModelFileError: a missing or malformed field, an expression outside the
-                whitelist, or a canonical form that breaks the structure rules.
+                whitelist, or an equation that breaks the structure rules.
         """
-        def fail(message: str):
-            raise ModelFileError(f"{source}: {message}")
-
-        if not isinstance(data, dict):
-            fail("the top level must be a JSON object")
-        variables = data.get("variables")
-        if not isinstance(variables, dict):
-            fail('missing "variables" object {"time", "response", "inputs"}')
-        time, response = variables.get("time", "t"), variables.get("response")
-        inputs = variables.get("inputs", [])
-        if not isinstance(response, str) or not isinstance(time, str) or not isinstance(
-                inputs, list) or not all(isinstance(u, str) for u in inputs):
-            fail('"variables" needs "response" (a name), "time" (a name), "inputs" (a list of names)')
-        names = [time, response, *inputs]
-        for name in names:
-            if not name.isidentifier() or keyword.iskeyword(name) or name.startswith("_"):
-                fail(f"variable name {name!r} is not usable; use letters, digits and _")
-            if name.endswith("_dot") or name.endswith("_ddot"):
-                fail(f"variable name {name!r} ends in _dot/_ddot, reserved for derivatives")
-        if len(set(names)) != len(names):
-            fail(f"variable names must differ, got {names}")
-        symbols = Symbols(response, time, tuple(inputs))
-        canonical = data.get("canonical")
-        if not isinstance(canonical, dict):
-            fail('missing "canonical" object {"mass", "terms", "forcing"}')
-        mass = _number(canonical.get("mass", 1.0), "canonical.mass", fail)
-        state = _terms(canonical.get("terms", []), "canonical.terms", fail)
-        forcing = _terms(canonical.get("forcing", []), "canonical.forcing", fail)
-        parametric = _terms(canonical.get("parametric", []), "canonical.parametric", fail)
-        names = symbols.names()
-        expression = mass * symbols.x_ddot
-        exogenous = {symbols.t, *symbols.u}
-        for text, value in state.items():
-            feature = _parse(text, names, source)
-            used = feature.free_symbols
-            if not (used == {symbols.x} or used == {symbols.x_dot}):
-                fail(f"term feature {text!r} must depend on {symbols.x} alone or on "
-                     f"{symbols.x_dot} alone (eqs. 5–6); move time/input terms to \"forcing\"")
-            expression += value * feature
-        for text, value in forcing.items():
-            feature = _parse(text, names, source)
-            if not feature.free_symbols <= exogenous:
-                fail(f"forcing feature {text!r} may depend only on time and inputs; move it "
-                     "to \"terms\"")
-            expression -= value * feature
-        for text in parametric:
-            _check_parametric(_parse(text, names, source), text, symbols, fail)
-        check = check_structure(expression, symbols)
-        if not check.valid:
-            fail(f"the canonical form breaks the structure rules: {check.reason}")
-        ic = data.get("initial_conditions")
-        initial = None
-        if ic is not None:
-            if not isinstance(ic, dict):
-                fail('"initial_conditions" must be {"response": x0, "response_dot": v0} or null')
-            initial = (_number(ic.get("response"), "initial_conditions.response", fail),
-                       _number(ic.get("response_dot"), "initial_conditions.response_dot", fail))
-        metrics = data.get("metrics") or {}
-        if not isinstance(metrics, dict):
-            fail('"metrics" must be an object')
-        provenance = data.get("provenance") or {}
-        simulation = data.get("simulation") or {}
-        interpolation = simulation.get("input_interpolation", "linear") if isinstance(
-            simulation, dict) else None
-        if interpolation not in INPUT_INTERPOLATIONS:
-            fail(f'"simulation" must be {{"input_interpolation": one of '
-                 f'{list(INPUT_INTERPOLATIONS)}}}, got {simulation!r}')
-        integrator = simulation.get("integrator") or {"method": "rk4", "substeps": 1}
-        substeps = integrator.get("substeps") if isinstance(integrator, dict) else None
-        if (not isinstance(integrator, dict) or integrator.get("method", "rk4") != "rk4"
-                or isinstance(substeps, bool) or not isinstance(substeps, int)
-                or not 1 <= substeps <= MAX_SUBSTEPS):
-            fail(f'"simulation.integrator" must be {{"method": "rk4", "substeps": 1 … '
-                 f'{MAX_SUBSTEPS}}}, got {integrator!r}')
-        convergence = simulation.get("convergence")
-        uncertainty = data.get("uncertainty")
-        if uncertainty is not None:
-            try:
-                uncertainty = Uncertainty.from_json(uncertainty)
-            except (KeyError, TypeError, ValueError, AttributeError):
-                fail('"uncertainty" is malformed; delete it (it is derived) or rewrite it as '
-                     'gpjax writes it')
-        return cls(symbols=symbols, mass=mass, state=state, forcing=forcing,
-                   initial_conditions=initial,
-                   metrics={k: v for k, v in metrics.items() if isinstance(v, (int, float))},
-                   provenance=provenance if isinstance(provenance, dict) else {},
-                   parametric=parametric, input_interpolation=interpolation,
-                   substeps=substeps,
-                   convergence=convergence if isinstance(convergence, dict) else None,
-                   uncertainty=uncertainty)
+        from ._model_file import model_from_json
+        return model_from_json(data, source=source)
 
     @classmethod
     def load(cls, path: str | Path) -> "Model":
-        """Read ``model.json``; any problem is a :class:`ModelFileError`."""
-        text = read_user_file(path, "model file", ModelFileError)
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as err:
-            raise ModelFileError(f"model file {path} is not valid JSON ({err}); fix the syntax") from None
-        except (ValueError, RecursionError):  # a number of thousands of digits, deep nesting
-            raise ModelFileError(f"model file {path} holds a number or nesting too large to read; "
-                                 "write numbers as ordinary floats") from None
-        return cls.from_json(data, source=str(path))
+        """Read ``model.json`` of any version; any problem is a :class:`ModelFileError`."""
+        from ._model_file import load_model
+        return load_model(path)
+
+
+def _shaped(responses: np.ndarray) -> np.ndarray:
+    """(N,) for one coordinate, else the (N, D) as given."""
+    return responses[:, 0] if responses.ndim == 2 and responses.shape[1] == 1 else responses
 
 
 def _latex_value(text: str) -> str:
@@ -438,41 +491,19 @@ def _latex_value(text: str) -> str:
     return f"({out})" if r"\pm" in out or out.startswith("-") else out
 
 
-def _parse(text: str, names: set[str], source: str) -> sp.Expr:
-    try:
-        return parse_expression(text, names)
-    except ModelFileError as err:
-        raise ModelFileError(f"{source}: {err}") from None
+def _latex_name(name: str) -> str:
+    """``k1`` as ``k_{1}``; ``x2.k1`` as ``k_{1}^{(x_{2})}``."""
+    coordinate, _, own = name.rpartition(".")
+    letter, digits = own[0], own[1:]
+    base = f"{letter}_{{{digits}}}" if digits else letter
+    return f"{base}^{{({sp.latex(sp.Symbol(coordinate))})}}" if coordinate else base
 
 
-def _check_parametric(feature: sp.Expr, text: str, symbols: Symbols, fail) -> None:
-    """A declared time-varying term must be g(t)·h(x) or g(t)·h(x') (no inputs, no x'')."""
-    response, time = feature.as_independent(symbols.t, as_Add=False)
-    if not (isinstance(feature, sp.Mul) and time.free_symbols == {symbols.t}
-            and response.free_symbols in ({symbols.x}, {symbols.x_dot})):
-        fail(f"parametric feature {text!r} is not g({symbols.t})·h({symbols.x}) or "
-             f"g({symbols.t})·h({symbols.x_dot}); write it as a function of {symbols.t} alone "
-             f"times a function of {symbols.x} alone or {symbols.x_dot} alone, e.g. "
-             f"cos(100*{symbols.t})*{symbols.x}")
-
-
-def _number(value, where: str, fail) -> float:
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
-        fail(f"{where} must be a finite number, got {value!r}")
-    return float(value)
-
-
-def _terms(items, where: str, fail) -> dict[str, float]:
-    if not isinstance(items, list):
-        fail(f"{where} must be a list of {{\"feature\", \"coefficient\"}} objects")
-    out: dict[str, float] = {}
-    for item in items:
-        if not isinstance(item, dict) or not isinstance(item.get("feature"), str):
-            fail(f"{where} entries need a \"feature\" string and a \"coefficient\" number")
-        if item["feature"] in out:
-            fail(f"{where} lists feature {item['feature']!r} twice")
-        out[item["feature"]] = _number(item.get("coefficient"), f"{where}[{item['feature']}]", fail)
-    return out
+def measurement_scale(measurement: Measurement) -> np.ndarray:
+    """(D, 2): typical sizes of every coordinate's x and x' in a measurement, the spreads
+    of its response and of its sample-to-sample rate."""
+    x = measurement.responses
+    return np.stack([x.std(axis=0), np.diff(x, axis=0).std(axis=0) / measurement.dt], axis=1)
 
 
 #: Evaluators kept for repeated simulations (:func:`_evaluator`), most recent last.
@@ -497,8 +528,8 @@ def _evaluator(measurement: Measurement, symbols: Symbols, **settings) -> Popula
 
 
 def _check_inputs(model: Model, measurement: Measurement) -> None:
-    if tuple(measurement.input_names) != tuple(model.symbols.inputs):
-        raise ModelFileError(f"the model's inputs {list(model.symbols.inputs)} differ from the "
+    if tuple(measurement.input_names) != tuple(model.inputs):
+        raise ModelFileError(f"the model's inputs {list(model.inputs)} differ from the "
                              f"data's {list(measurement.input_names)}; pass the same --input columns")
 
 
@@ -506,12 +537,11 @@ def _check_inputs(model: Model, measurement: Measurement) -> None:
 INITIAL_STATE_STEPS = 4
 
 
-def fitted_initial_state(model, measurement: Measurement, start) -> np.ndarray:
-    """The initial state with which ``model`` (a :class:`Model` or a system model: anything
-    with ``evaluator(measurement, **options)`` and ``population(evaluator, y0)``) best
-    reproduces ``measurement``'s response(s), (2,) or (D, 2): Gauss–Newton steps on the
-    simulated response from ``start`` (eq. 13's estimate), by the evaluator's own
-    initial-state step (exact sensitivities), while the objective falls.
+def fitted_initial_state(model: Model, measurement: Measurement, start) -> np.ndarray:
+    """The initial state with which ``model`` best reproduces ``measurement``'s
+    response(s), (2,) or (D, 2): Gauss–Newton steps on the simulated response from
+    ``start`` (eq. 13's estimate), by the evaluator's own initial-state step (exact
+    sensitivities), while the objective falls.
 
     Why not eq. 13's estimate alone: it is a Savitzky–Golay polynomial evaluated at the
     record's first sample, the point where its noise is largest, and a lightly damped
@@ -528,16 +558,16 @@ def fitted_initial_state(model, measurement: Measurement, start) -> np.ndarray:
     return y0
 
 
-def simulate_model(model: Model, measurement: Measurement, *,
-                   initial_conditions: tuple[float, float] | None = None):
+def simulate_model(model: Model, measurement: Measurement, *, initial_conditions=None):
     """Simulate ``model`` by its fixed-step RK4 (``model.substeps``) on ``measurement``'s
     time grid and inputs.
 
-    Returns (response (N,), scores). Initial conditions: the argument, else estimated from
-    the measurement (eq. 13).
+    Returns (response (N,) or (N, D), scores). Initial conditions: the argument, else
+    estimated from the measurement (eq. 13).
     """
     _check_inputs(model, measurement)
-    y0 = initial_conditions or estimate_initial_conditions(measurement)
+    y0 = (model.estimated_initial_states(measurement) if initial_conditions is None
+          else initial_conditions)
     evaluator = model.evaluator(measurement)
     responses, scores = evaluator.simulate(model.population(evaluator, y0))
-    return np.asarray(responses[0]), scores
+    return _shaped(np.asarray(responses[0]).T), scores

@@ -32,7 +32,7 @@ import sympy as sp
 
 from ._aot import Program, fingerprint
 from ._coefficients import Coefficients
-from ._data import BANDLIMITED_FACTOR, Measurement, bandlimited_spline
+from ._data import BANDLIMITED_FACTOR, bandlimited_spline
 from ._integrate import enable_float64
 
 
@@ -155,66 +155,35 @@ def _solve_program(expressions: tuple[sp.Expr, ...], names: tuple, constants: tu
 
 
 def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
-                       initial_conditions: tuple[float, float], *,
-                       scale: tuple[float, float] = (1.0, 1.0),
+                       initial_states, *, scale=None,
                        solver: ReferenceSolver = ReferenceSolver()) -> tuple[np.ndarray, bool]:
-    """A model's response at uniformly spaced sample times by the reference solve.
+    """A model's responses at uniformly spaced sample times by the reference solve.
 
     Args:
-        model: a :class:`~gpjax._model.Model`.
+        model: a :class:`~gpjax._model.Model` of D coordinates.
         time: sample times (N,) in seconds, uniform.
         inputs: the model's inputs by name, (N,) each.
-        initial_conditions: (x, x') at the first sample.
-        scale: typical sizes of x and x' (the absolute tolerance applies to x/scale).
+        initial_states: (D, 2) every coordinate's (x, x') at the first sample.
+        scale: (D, 2) typical sizes of every x and x' (the absolute tolerance applies to
+            x/scale; default ones).
         solver: tolerances.
-
-    Returns:
-        (response (N,), ok); a failed solve gives NaN and ``ok`` false.
-    """
-    symbols = model.symbols
-    x, ok = reference_system_response(
-        (model.coefficients,), (symbols.response,), symbols.time, symbols.inputs, time, inputs,
-        [initial_conditions], interpolation=model.input_interpolation, scale=[scale],
-        solver=solver)
-    return x[:, 0], ok
-
-
-def reference_system_response(equations, coordinates: tuple[str, ...], time_name: str,
-                              input_names: tuple[str, ...], time: np.ndarray,
-                              inputs: dict[str, np.ndarray], initial_states, *,
-                              interpolation: str = "linear", scale=None,
-                              solver: ReferenceSolver = ReferenceSolver()
-                              ) -> tuple[np.ndarray, bool]:
-    """The response of a system of equations (one :class:`Coefficients` per coordinate,
-    features in the ``coordinates``' names, ``NAME_dot``, ``time_name`` and the inputs) at
-    uniformly spaced sample ``time`` by the reference solve.
-
-    Args:
-        initial_states: (D, 2) each coordinate's (x, x') at the first sample.
-        interpolation: the inputs between samples (the module docstring).
-        scale: (D, 2) typical sizes of each x and x' (default ones).
 
     Returns:
         (responses (N, D), ok); a failed solve gives NaN and ``ok`` false.
     """
     enable_float64()
-    expressions, constants, values = _structure(tuple(equations))
+    coordinates = model.coordinates
+    expressions, constants, values = _structure(model.system)
     names = tuple(sp.Symbol(n) for n in coordinates) + tuple(
-        sp.Symbol(f"{n}_dot") for n in coordinates) + (sp.Symbol(time_name),) + tuple(
-        sp.Symbol(n) for n in input_names)
-    program = _solve_program(expressions, names, constants, interpolation, solver)
-    path = input_path(time, [inputs[name] for name in input_names], interpolation)
+        sp.Symbol(f"{n}_dot") for n in coordinates) + (sp.Symbol(model.time),) + tuple(
+        sp.Symbol(n) for n in model.inputs)
+    program = _solve_program(expressions, names, constants, model.input_interpolation, solver)
+    path = input_path(time, [inputs[name] for name in model.inputs], model.input_interpolation)
     scale = np.ones((len(coordinates), 2)) if scale is None else np.asarray(scale, float)
     scale = jnp.asarray(np.where(scale > 0, scale, 1.0).T)
+    y0 = np.reshape(np.asarray(initial_states, float), (len(coordinates), 2))
     scaled, succeeded = program(jnp.asarray(values), path, jnp.asarray(time, dtype=float),
-                                jnp.asarray(np.asarray(initial_states, float).T), scale)
+                                jnp.asarray(y0.T), scale)
     x = np.asarray(scaled) * np.asarray(scale[0])
     ok = bool(succeeded) and bool(np.all(np.isfinite(x)))
     return (x if ok else np.full(x.shape, np.nan)), ok
-
-
-def measurement_scale(measurement: Measurement) -> tuple[float, float]:
-    """Typical sizes of x and x' in a measurement: the spreads of the response and of its
-    sample-to-sample rate."""
-    return (float(np.std(measurement.response)),
-            float(np.std(np.diff(measurement.response)) / measurement.dt))

@@ -54,7 +54,7 @@ def refit(model: Model, measurement: Measurement, *, iterations: int = 20,
     fits = {}
 
     def fit_at(steps: int, previous: Model | None) -> Model:
-        current = previous or dataclasses.replace(model, initial_conditions=tuple(start))
+        current = previous or dataclasses.replace(model, initial_states=(tuple(start),))
         evaluator = current.evaluator(measurement, substeps=steps)
         population = current.population(evaluator, current.initial_conditions)
         u0 = model.symbols.u[0] if model.symbols.u else None

@@ -1,6 +1,6 @@
 """Per-equation diagnosis of a system: every coordinate's residual, described on its own.
 
-For a fitted :class:`gpjax._system_fit.SystemModel` and a record of all its coordinates,
+For a fitted :class:`gpjax.Model` of several coordinates and a record of all its coordinates,
 coordinate i's output-error residual (measured − reference-solve response) is described
 as the one-coordinate diagnosis describes its final residual: RMS, NRMS (÷ the response's
 standard deviation), the noise floor σ̂ above the coordinate's 99 %-energy band, RMS / σ̂
@@ -20,17 +20,18 @@ from ._data import Measurement
 from ._diagnose_evidence import input_lines
 from ._diagnose_noise import noise_floor
 from ._diagnose_residual import FAR_ABOVE, describe_residual
-from ._system_fit import SystemModel, measurement_of
+from ._model import Model
 from ._weak_form import smoothed_derivatives, smoothing_cutoff_hz
 
 
-def residual_statistics(model: SystemModel, measurement: Measurement, *, alpha: float = 0.05,
+def residual_statistics(model: Model, measurement: Measurement, *, alpha: float = 0.05,
                         simulated: np.ndarray | None = None) -> dict[str, dict]:
     """Per coordinate name: ``rms`` (response units), ``nrms``, ``noise`` (the noise floor's
     ``sigma``, ``ratio`` = RMS/σ̂, ``band_hz``, ``p_excess``; ``None`` on a record too
     short for it) and ``unexplained`` (the residual described, or ``None`` where it is
     not far above its noise). ``simulated``: the model's (N, D) response if already
-    computed (default: :meth:`SystemModel.simulate`, reference solve).
+    computed (default: :meth:`Model.simulate` from the fitted initial states, reference
+    solve).
 
     Raises:
         ValueError: ``measurement``'s responses are not the model's coordinates.
@@ -38,11 +39,12 @@ def residual_statistics(model: SystemModel, measurement: Measurement, *, alpha: 
     if tuple(measurement.response_names) != tuple(model.coordinates):
         raise ValueError(f"the record's responses {list(measurement.response_names)} are not "
                          f"the model's coordinates {list(model.coordinates)}")
-    simulated = model.simulate(measurement) if simulated is None else simulated
+    simulated = (model.simulate(measurement, initial_conditions=model.initial_states)
+                 if simulated is None else simulated)
     lines = input_lines(measurement) if measurement.inputs else []
     out = {}
     for d, name in enumerate(model.coordinates):
-        single = measurement_of(measurement, d)
+        single = measurement.coordinate(d)
         residual = single.response - simulated[:, d]
         rms = float(np.sqrt(np.mean(residual ** 2)))
         floor = noise_floor(residual, single.dt, smoothing_cutoff_hz(single))

@@ -1,7 +1,7 @@
-"""Systems of several coordinates: a model, its constants for a given structure, and the
-converged-integration check.
+"""Systems of several coordinates: the constants of a given structure, at converged
+integration.
 
-A :class:`SystemModel` is one Newton–Euler equation per measured coordinate (eqs. 21–22):
+A system is a :class:`gpjax.Model` of one Newton–Euler equation per measured coordinate (eqs. 21–22):
 ``m_i·x_i'' + Σ c·φ(x_i, x_i', x_i − x_j, x_i' − x_j') = Σ g·ψ(t, u)``. Given the features
 of every equation (a :data:`Structure`), :func:`fit_system` sets the constants as the
 one-coordinate search does for one structure: weak-form equation-error least squares per
@@ -9,7 +9,7 @@ equation (:mod:`gpjax._weak_form`'s test functions; no second derivative of the 
 then output-error Levenberg–Marquardt on the simulated responses of all coordinates
 together — every constant and every initial state (:class:`gpjax._refine.Refiner` on a
 system evaluator) — at converged integration: the refitted system is simulated by RK4 and
-by the reference solve (:func:`gpjax._reference.reference_system_response`), and the step
+by the reference solve (:func:`gpjax._reference.reference_response`), and the step
 count grows until they agree (:mod:`gpjax._convergence`).
 
 Each equation is normalised on its own (each can be multiplied by any factor): the first
@@ -27,13 +27,12 @@ import sympy as sp
 
 from . import _progress
 from ._canonical import Symbols
-from ._coefficients import (Coefficients, Population, from_system_population,
-                            to_system_population)
+from ._coefficients import Coefficients, from_system_population, to_system_population
 from ._convergence import fit_converged
 from ._data import Measurement
 from ._diagnose_fits import blocked_cv_residual
-from ._evaluator import PopulationEvaluator, Scores
-from ._reference import ReferenceSolver, reference_system_response
+from ._evaluator import Scores
+from ._model import Model
 from ._refine import Refiner
 from ._uncertainty import Uncertainty, system_names, uncertainty_of
 from ._system_couplings import couple, coupled_least_squares, fixed_columns, tie_columns
@@ -41,103 +40,6 @@ from ._weak_form import WeakForm, smoothed_derivatives
 
 #: Per equation: (state features, forcing features with their fixed coefficient or None).
 Structure = tuple[tuple[tuple[sp.Expr, ...], dict[sp.Expr, float | None]], ...]
-
-
-@dataclasses.dataclass(frozen=True)
-class SystemModel:
-    """A system of D equations with its constants and initial states.
-
-    Attributes:
-        coordinates: the response names, one per equation.
-        time_name, input_names: the time and input column names.
-        equations: one :class:`Coefficients` per coordinate (y0: that coordinate's state).
-        input_interpolation: the inputs between samples.
-        substeps: RK4 steps per sample interval the constants were fitted with.
-        max_degree: the evaluator basis' highest power.
-        third_law: each coupling force acts on both of its coordinates with opposite
-            signs, its constants tied (:mod:`gpjax._system_couplings`).
-    """
-
-    coordinates: tuple[str, ...]
-    time_name: str
-    input_names: tuple[str, ...]
-    equations: tuple[Coefficients, ...]
-    input_interpolation: str = "linear"
-    substeps: int = 1
-    max_degree: int = 3
-    third_law: bool = False
-
-    @property
-    def initial_conditions(self) -> tuple[tuple[float, float], ...]:
-        return tuple(e.y0 for e in self.equations)
-
-    def sympy(self) -> list[sp.Eq]:
-        """The equations, ``m·x'' + Σ c·φ = Σ g·ψ`` with numbers."""
-        out = []
-        for name, e in zip(self.coordinates, self.equations):
-            lhs = sp.Float(e.mass) * sp.Symbol(f"{name}_ddot") + sum(
-                (sp.Float(v) * f for f, v in e.state.items()), sp.Integer(0))
-            rhs = sum((sp.Float(v) * f for f, v in e.forcing.items()), sp.Integer(0))
-            out.append(sp.Eq(lhs, rhs))
-        return out
-
-    def couplings(self) -> dict[tuple[int, int], sp.Expr]:
-        """With ``third_law``, the coupling force F_ij of every coupled pair i < j (0-based
-        equation numbers) with numbers: +F_ij in equation i, −F_ij in equation j."""
-        if not self.third_law:
-            return {}
-        out: dict[tuple[int, int], sp.Expr] = {}
-        for tie in self.ties():
-            (i, feature), (j, _) = tie.source, tie.mirror
-            key = (min(i, j), max(i, j))
-            term = sp.Float(self.equations[i].state[feature]) * feature * (1 if i < j else -1)
-            out[key] = out.get(key, sp.Integer(0)) + term
-        return out
-
-    def ties(self) -> tuple:
-        """The :class:`gpjax._system_couplings.Tie` of every coupling term (none without
-        ``third_law``)."""
-        if not self.third_law:
-            return ()
-        structure = tuple((tuple(e.state), e.forcing) for e in self.equations)
-        return couple(structure, self.coordinates)[1]
-
-    def latex(self) -> list[str]:
-        """The equations in LaTeX, derivatives as dots."""
-        names = {}
-        for name in self.coordinates:
-            base = sp.latex(sp.Symbol(name))
-            names |= {sp.Symbol(f"{name}_dot"): rf"\dot{{{base}}}",
-                      sp.Symbol(f"{name}_ddot"): rf"\ddot{{{base}}}"}
-        return [sp.latex(e, symbol_names=names) for e in self.sympy()]
-
-    def evaluator(self, measurement: Measurement, **options) -> PopulationEvaluator:
-        return PopulationEvaluator(measurement, Symbols(self.coordinates[0], self.time_name,
-                                                        self.input_names),
-                                   max_degree=self.max_degree, substeps=self.substeps,
-                                   input_interpolation=self.input_interpolation, **options)
-
-    def population(self, evaluator: PopulationEvaluator, y0) -> Population:
-        """This system as a population of one on ``evaluator``, starting from ``y0`` (D, 2)."""
-        return to_system_population([[e.replace(y0=tuple(map(float, s)))
-                                      for e, s in zip(self.equations, y0)]], evaluator)
-
-    def simulate(self, measurement: Measurement, *, initial_conditions=None,
-                 solver: str = "reference") -> np.ndarray:
-        """Responses (N, D) on ``measurement``'s time grid and inputs, by the reference
-        solve or (``solver="rk4"``) the fitted RK4 step count, from ``initial_conditions``
-        ((D, 2); default the fitted ones)."""
-        y0 = self.initial_conditions if initial_conditions is None else initial_conditions
-        if solver == "rk4":
-            evaluator = self.evaluator(measurement)
-            responses, _ = evaluator.simulate(self.population(evaluator, y0))
-            return responses[0].T
-        spread = measurement.responses.std(axis=0)
-        rate = np.diff(measurement.responses, axis=0).std(axis=0) / measurement.dt
-        return reference_system_response(
-            self.equations, self.coordinates, self.time_name, self.input_names,
-            measurement.time, measurement.inputs, y0, interpolation=self.input_interpolation,
-            scale=np.stack([spread, rate], axis=1), solver=ReferenceSolver())[0]
 
 
 def weak_form_start(measurement: Measurement, structure: Structure,
@@ -159,7 +61,7 @@ class SystemWeakForm:
     def __init__(self, measurement: Measurement):
         names = measurement.response_names
         self.measurement = measurement
-        single = [measurement_of(measurement, d) for d in range(len(names))]
+        single = [measurement.coordinate(d) for d in range(len(names))]
         smooth = [smoothed_derivatives(m) for m in single]
         self._states = [s.initial_state for s in smooth]
         values = {sp.Symbol(n): s.x for n, s in zip(names, smooth)}
@@ -274,13 +176,6 @@ class SystemWeakForm:
             y0=self._states[d])
 
 
-def measurement_of(measurement: Measurement, coordinate: int) -> Measurement:
-    """Coordinate ``coordinate`` of a system measurement, with its inputs."""
-    return Measurement(time=measurement.time, response=measurement.responses[:, coordinate],
-                       inputs=measurement.inputs, time_name=measurement.time_name,
-                       response_name=measurement.response_names[coordinate])
-
-
 @dataclasses.dataclass(frozen=True)
 class SystemFit:
     """:func:`fit_system`'s result: the model, its scores at the fitted step count, every
@@ -288,7 +183,7 @@ class SystemFit:
     constants' standard errors and 95 % intervals (:mod:`gpjax._uncertainty`; names
     ``"x2: x2_dot"``, ``"x2: m"``, ``"x2(0)"``)."""
 
-    model: SystemModel
+    model: Model
     scores: Scores
     checks: tuple
     uncertainty: Uncertainty | None = None
@@ -316,26 +211,29 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
     start = start or weak_form_start(measurement, structure, ties)
     last = {}
 
-    def fit_at(steps: int, previous: SystemModel | None) -> SystemModel:
+    def fit_at(steps: int, previous: Model | None) -> Model:
         _progress.stage(f"fitting the system's constants at {steps} substeps, then its "
                         "convergence check")
         model, last["scores"], last["refit"] = _refit(
-            measurement, structure, list(previous.equations) if previous else start, steps,
+            measurement, structure, list(previous.system) if previous else start, steps,
             max_degree, input_interpolation, iterations, ties)
         return model
 
     model, checks = fit_converged(fit_at, measurement, substeps=substeps, tolerance=tolerance)
     refiner, population, fixed, tied = last["refit"]
     uncertainty = uncertainty_of(refiner, population, fixed, ties=tied, names=lambda s: system_names(
-        s, model.equations, model.coordinates, refiner.evaluator))
+        s, model, refiner.evaluator))
     return SystemFit(model, last["scores"], tuple(checks), uncertainty)
 
 
 def _refit(measurement, structure, start, steps, max_degree, interpolation, iterations, ties):
-    model = SystemModel(measurement.response_names, measurement.time_name,
-                        measurement.input_names, tuple(start), interpolation, steps, max_degree,
-                        third_law=bool(ties))
-    evaluator = model.evaluator(measurement)
+    def model_of(equations) -> Model:
+        return Model.from_equations(measurement.response_names, measurement.time_name,
+                                    measurement.input_names, equations,
+                                    input_interpolation=interpolation, substeps=steps,
+                                    third_law=bool(ties))
+
+    evaluator = model_of(start).evaluator(measurement, max_degree=max_degree)
     population = to_system_population([start], evaluator)
     fixed = np.array([fixed_columns(structure, ties, evaluator.forcing_index)])
     if not np.all(np.isfinite(evaluator.layout.pack(population))):
@@ -345,8 +243,7 @@ def _refit(measurement, structure, start, steps, max_degree, interpolation, iter
     tied = [tie_columns(ties, evaluator)]
     refined = refiner.refine(population, fixed, ties=tied).population
     equations = from_system_population(refined, evaluator, [start])[0]
-    model = dataclasses.replace(model, equations=tuple(equations))
     scores = evaluator.score(to_system_population([equations], evaluator))
     if not math.isfinite(float(scores.objective[0])):
         raise ValueError("the refined system diverged")
-    return model, scores, (refiner, refined, fixed, tied)
+    return model_of(equations), scores, (refiner, refined, fixed, tied)

@@ -372,7 +372,7 @@ def constant_columns(layout, model, coefficients, columns) -> dict[int, str]:
     ``coefficients`` on the evaluator ``columns``) of the constant it holds, for every
     column that holds one: ``m``, the state and forcing constants' names, ``k2.θ1`` for a
     family's inner constant, ``x(0)`` and ``x'(0)``."""
-    by_feature = {feature: name for name, (part, feature) in model.constant_names().items()
+    by_feature = {feature: name for name, (_, part, feature) in model.constant_names().items()
                   if part != "mass"}
     features = list(coefficients.state)
     placed = columns.state_columns(features)
@@ -394,22 +394,25 @@ def constant_columns(layout, model, coefficients, columns) -> dict[int, str]:
     return names
 
 
-def system_names(sensitivity, equations, coordinates, columns) -> list[str]:
-    """``"x2: m"``, ``"x2: x2_dot"``, ``"x2: u"``, ``"x2(0)"``, ``"x2'(0)"``: the name of each
-    constant of a system's ``sensitivity`` (``equations``: its :class:`Coefficients`, one per
-    coordinate, on the system evaluator ``columns``)."""
+def system_names(sensitivity, model, columns) -> list[str]:
+    """The name in ``model`` (a :class:`gpjax.Model` of several coordinates on the system
+    evaluator ``columns``) of each constant of a system's ``sensitivity``: ``x2.m``,
+    ``x2.c1``, ``x2.g1``, ``x2(0)``, ``x2'(0)``; a fixed input's coefficient by its
+    feature, ``x2.u``."""
+    named = {(i, part if part != "parametric" else "state", feature): name
+             for name, (i, part, feature) in model.constant_names().items()}
     names = []
     for column in sensitivity.columns:
         part, e, index = sensitivity.layout.part(int(column))
-        equation, coordinate = equations[e], coordinates[e]
+        equation, coordinate = model.system[e], model.coordinates[e]
         if part == "mass":
-            names.append(f"{coordinate}: m")
-        elif part == "state":
-            names.append(f"{coordinate}: " + next(str(f) for f in equation.state
-                                                  if columns.equation_index(f, e) == index))
-        elif part == "forcing":
-            names.append(f"{coordinate}: " + next(str(f) for f in equation.forcing
-                                                  if columns.forcing_index(f) == index))
-        else:
+            names.append(named[(e, "mass", "")])
+            continue
+        if part == "y0":
             names.append(f"{coordinate}(0)" if index == 0 else f"{coordinate}'(0)")
+            continue
+        feature = str(next(f for f in getattr(equation, part) if (
+            columns.equation_index(f, e) if part == "state" else columns.forcing_index(f))
+            == index))
+        names.append(named.get((e, part, feature), f"{coordinate}.{feature}"))
     return names

@@ -12,6 +12,7 @@ every command writes its progress there, one line per generation and per stage
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import shutil
 import sys
 from pathlib import Path
@@ -83,10 +84,11 @@ def _parser() -> argparse.ArgumentParser:
     simulate.add_argument("data", help="CSV file with the model's time and input columns "
                           "(and its response column, unless --initial is given)")
     simulate.add_argument("--out", required=True, help="CSV file to write (time, response)")
-    simulate.add_argument("--initial", nargs=2, type=_finite_float, metavar=("X0", "V0"),
-                          help="response and its derivative at the first sample (default: "
-                          "the state that best reproduces the data's response column(s): "
-                          "eq. 13's estimate refined by Gauss-Newton steps)")
+    simulate.add_argument("--initial", nargs="+", type=_finite_float, metavar="X0 V0",
+                          help="each response and its derivative at the first sample, "
+                          "X0 V0 per coordinate in the model's order (default: the state "
+                          "that best reproduces the data's response columns: eq. 13's "
+                          "estimate refined by Gauss-Newton steps)")
     simulate.add_argument("--band", action="store_true",
                           help="add the 95%% band of the response from the constants' "
                           "uncertainty, from draws of the constants (columns "
@@ -302,7 +304,6 @@ def _fit_system(args) -> int:
     out = Path(args.out)
     check_out_folder(out)
     from ._system_diagnose import residual_statistics, summary_line
-    from ._system_file import save_system
     from ._system_search import search_system
 
     result = search_system(measurement, config=config, seed=args.seed)
@@ -310,13 +311,13 @@ def _fit_system(args) -> int:
     _progress.stage(f"residuals by the reference solve; writing results to {out}/")
     residuals = residual_statistics(model, measurement, alpha=args.alpha)
     check = result.fit.checks[-1]
-    save_system(model, out / "model.json",
-                metrics={"rms": {k: v["rms"] for k, v in residuals.items()},
-                         "objective": float(result.fit.scores.objective[0]),
-                         "residuals": residuals},
-                convergence=check.to_json(),
-                **({"uncertainty": result.fit.uncertainty.to_json()}
-                   if result.fit.uncertainty else {}))
+    model = dataclasses.replace(
+        model, metrics={"rms": {k: v["rms"] for k, v in residuals.items()},
+                        "objective": float(result.fit.scores.objective[0]),
+                        "residuals": residuals},
+        convergence=check.to_json(), uncertainty=result.fit.uncertainty,
+        provenance={"seed": args.seed, "generations": len(result.history)})
+    model.save(out / "model.json")
     print(f"System of {measurement.n_coordinates} equations (GP over systems, "
           f"{len(result.history)} generations{', third law' if config.third_law else ''}):")
     for equation in model.sympy():
@@ -358,6 +359,10 @@ def _diagnose(args) -> int:
     from ._model import Model
 
     model = Model.load(args.model)
+    if model.n_coordinates > 1:
+        raise UserInputError(f"{args.model} is a model of {model.n_coordinates} coordinates; "
+                             "diagnose takes a one-coordinate model for now (a system's fit "
+                             "lists each coordinate's residual against its noise floor)")
     measurement = load_csv(args.data, time=args.time, response=response, inputs=args.inputs)
     _run_diagnosis(args, measurement, model, out)
     return 0
@@ -400,51 +405,57 @@ def _simulate(args) -> int:
 
     from ._band import prediction_band
     from ._data import Measurement, check_time, read_columns
-    from ._model import fitted_initial_state
-    from ._reference import measurement_scale
+    from ._model import fitted_initial_state, measurement_scale
+    from ._model_file import load_model
     from ._report import write_text_atomic
-    from ._system_file import load_model
-    from ._system_fit import SystemModel
-    from ._weak_form import estimate_initial_conditions
 
     out = Path(args.out)
     if out.is_dir():
         raise UserInputError(f"--out {out} is a folder; give a CSV file name")
     model = load_model(args.model)
-    if isinstance(model, SystemModel):
-        return _simulate_system(args, model, out)
-    names = model.symbols
-    data = read_columns(args.data, [names.time, *names.inputs], optional=(names.response,))
-    check_time(data[names.time])
-    time, inputs = data[names.time], {u: data[u] for u in names.inputs}
-    if names.response in data:
-        measurement = Measurement(time=time, response=data[names.response], inputs=inputs,
-                                  time_name=names.time, response_name=names.response)
-        initial = tuple(args.initial or fitted_initial_state(
-            model, measurement, estimate_initial_conditions(measurement)))
+    coordinates = model.coordinates
+    if args.initial is not None and len(args.initial) != 2 * len(coordinates):
+        raise UserInputError(f"--initial takes X0 V0 for each of the model's "
+                             f"{len(coordinates)} coordinates ({', '.join(coordinates)}): "
+                             f"{2 * len(coordinates)} numbers, got {len(args.initial)}")
+    if args.band and len(coordinates) > 1:
+        raise UserInputError("--band takes a one-coordinate model; a model of several "
+                             "coordinates lists its constants' intervals but has no band yet; "
+                             "drop --band")
+    data = read_columns(args.data, [model.time, *model.inputs], optional=coordinates)
+    check_time(data[model.time])
+    time, inputs = data[model.time], {u: data[u] for u in model.inputs}
+    if all(c in data for c in coordinates):
+        measurement = Measurement(time=time, responses=[data[c] for c in coordinates],
+                                  inputs=inputs, time_name=model.time,
+                                  response_names=coordinates)
+        initial = (np.reshape(args.initial, (-1, 2)) if args.initial else fitted_initial_state(
+            model, measurement, model.estimated_initial_states(measurement)))
         scale = measurement_scale(measurement)
     elif args.initial is None:
-        raise UserInputError(f"{args.data} has no column {names.response!r} to estimate the "
-                             "initial state from; give --initial X0 V0")
+        missing = [c for c in coordinates if c not in data]
+        raise UserInputError(f"{args.data} has no column {missing[0]!r} to estimate the "
+                             "initial state from; give --initial X0 V0"
+                             + (" per coordinate" if len(coordinates) > 1 else ""))
     else:
-        initial, scale = tuple(args.initial), None
+        initial, scale = np.reshape(args.initial, (-1, 2)), None
+    header = [model.time, *coordinates]
     if args.band:
-        band = prediction_band(model, time, inputs, initial, scale=scale, seed=args.seed)
+        band = prediction_band(model, time, inputs, tuple(np.ravel(initial)), scale=scale,
+                               seed=args.seed)
         columns = [band.response, band.low, band.high]
-        header = [names.time, names.response, f"{names.response}_low",
-                  f"{names.response}_high"]
+        header += [f"{coordinates[0]}_low", f"{coordinates[0]}_high"]
     else:
-        columns = [model.simulate_inputs(time, inputs, initial, scale=scale)]
-        header = [names.time, names.response]
-    response = columns[0]
-    if not np.all(np.isfinite(response)):
+        columns = list(np.reshape(model.simulate_inputs(time, inputs, initial, scale=scale),
+                                  (time.size, -1)).T)
+    if not np.all(np.isfinite(columns[0])):
         raise UserInputError("the model diverged on this input (the reference solve failed); "
                              "check the input's units and the initial state")
     lines = [",".join(header)] + [",".join(map(repr, map(float, row)))
                                   for row in zip(time, *columns)]
     write_text_atomic(out, "\n".join(lines) + "\n")
-    print(f"Simulated {model.sympy()} on {len(response)} samples (reference solve); "
-          f"wrote {out}")
+    equations = "; ".join(str(model.sympy(i)) for i in range(len(coordinates)))
+    print(f"Simulated {equations} on {time.size} samples (reference solve); wrote {out}")
     if args.band:
         print(f"  {band.level:.0%} band from {band.draws} draws of the constants "
               f"({', '.join(band.constants)}; seed {args.seed}; initial state held)")
@@ -452,41 +463,6 @@ def _simulate(args) -> int:
             print(f"  caution: {band.diverged} of {band.draws} draws diverged on this input; "
                   "the band is that of the others, and the model may diverge within its "
                   "intervals")
-    return 0
-
-
-def _simulate_system(args, model, out: Path) -> int:
-    """``gpjax simulate`` of a system file: one column per coordinate."""
-    import numpy as np
-
-    from ._data import Measurement, read_columns
-    from ._model import fitted_initial_state
-    from ._report import write_text_atomic
-    from ._weak_form import estimate_initial_conditions
-
-    if args.initial is not None:
-        raise UserInputError("a system's initial states are estimated from its response "
-                             "columns in the data; drop --initial")
-    if args.band:
-        raise UserInputError("--band takes a one-coordinate model; a system file lists its "
-                             "constants' intervals but has no band yet; drop --band")
-    data = read_columns(args.data, [model.time_name, *model.coordinates, *model.input_names])
-    measurement = Measurement(time=data[model.time_name],
-                              responses=[data[n] for n in model.coordinates],
-                              inputs={u: data[u] for u in model.input_names},
-                              time_name=model.time_name, response_names=model.coordinates)
-    y0 = [estimate_initial_conditions(Measurement(time=measurement.time, response=data[n]))
-          for n in model.coordinates]
-    responses = model.simulate(measurement,
-                               initial_conditions=fitted_initial_state(model, measurement, y0))
-    if not np.all(np.isfinite(responses)):
-        raise UserInputError("the system diverged on this input (the reference solve failed); "
-                             "check the input's units and the initial state")
-    lines = [",".join([model.time_name, *model.coordinates])] + [
-        ",".join(map(repr, map(float, (t, *row)))) for t, row in zip(measurement.time, responses)]
-    write_text_atomic(out, "\n".join(lines) + "\n")
-    print(f"Simulated the system of {len(model.coordinates)} equations on {len(responses)} "
-          f"samples (reference solve); wrote {out}")
     return 0
 
 

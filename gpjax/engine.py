@@ -9,10 +9,11 @@
   :class:`Status`, :func:`objective_parts`, and :func:`simulate_model` (a model by the
   evaluator's fixed-step RK4);
 * systems of several coordinates (issue 14): :func:`to_system_population`,
-  :func:`from_system_population`, :func:`system_state_features`, :class:`SystemModel`,
+  :func:`from_system_population`, :func:`system_state_features`,
   :func:`fit_system` (constants of a given system structure, converged),
-  :func:`weak_form_start`, :func:`search_system` (the GP over systems) and
-  :func:`load_model` (a model file of either kind).
+  :func:`weak_form_start` and :func:`search_system` (the GP over systems); a system is a
+  :class:`gpjax.Model` of several coordinates, read by :func:`load_model` (any version of
+  the model file).
 """
 
 from ._canonical import (CanonicalForm, StructureCheck, Symbols, check_structure, check_tree,
@@ -23,13 +24,13 @@ from ._evaluator import PopulationEvaluator, Scores, Status, system_state_featur
 from ._expressions import parse_expression
 from ._model import simulate_model
 from ._objective import objective_parts
-from ._system_file import load_model
-from ._system_fit import SystemFit, SystemModel, fit_system, weak_form_start
+from ._model_file import load_model
+from ._system_fit import SystemFit, fit_system, weak_form_start
 from ._system_search import search_system
 
 __all__ = ["CanonicalForm", "Coefficients", "FlatLayout", "Population", "PopulationEvaluator",
            "Scores", "Status", "StructureCheck", "Symbols", "check_structure", "check_tree",
-           "SystemFit", "SystemModel", "fit_system", "from_population",
+           "SystemFit", "fit_system", "from_population",
            "load_model", "search_system",
            "from_system_population", "objective_parts", "parse_expression", "simulate_model",
            "system_state_features", "to_population", "to_system_population",

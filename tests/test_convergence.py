@@ -31,7 +31,7 @@ def _held_record(n=400, dt=0.02, seed=3):
 
 
 def _model(interpolation, **changes):
-    return Model(symbols=S, mass=M, state={"x": K, "x_dot": C}, forcing={"u": 1.0},
+    return Model.single(S, mass=M, state={"x": K, "x_dot": C}, forcing={"u": 1.0},
                  input_interpolation=interpolation, **changes)
 
 

@@ -188,7 +188,7 @@ def drifting_mass(seed: int = 0) -> Measurement:
 
 
 def test_drifting_system_is_diagnosed_on_the_equation_error():
-    model = Model(symbols=Symbols("x", "t", ("u",)), mass=1.0, state={}, forcing={"u": 1.0})
+    model = Model.single(symbols=Symbols("x", "t", ("u",)), mass=1.0, state={}, forcing={"u": 1.0})
     result = diagnose(drifting_mass(), model)
     assert result.mode == "equation_error"
     assert result.effects_added[0] == "coulomb_friction"
@@ -218,7 +218,7 @@ def test_friction_of_the_wrong_sign_is_flagged_not_passed_off_as_friction():
                   max_step=1 / 200.0).y[0]
     data = Measurement(time=time, response=x + 1e-4 * rng.standard_normal(x.size),
                        inputs={"u": u}, time_name="t", response_name="x")
-    model = Model(symbols=Symbols("x", "t", ("u",)), mass=1.0, state={"x": 1.0, "x_dot": 1.0},
+    model = Model.single(symbols=Symbols("x", "t", ("u",)), mass=1.0, state={"x": 1.0, "x_dot": 1.0},
                   forcing={"u": 1.0})
     result = diagnose(data, model, max_steps=1)
     step = result.steps[0]

@@ -157,7 +157,7 @@ def test_drifting_stage_measured_in_position_only_finds_friction_and_its_constan
     record = generate("stage", seed=0, noise=0.0, input_noise=0.0).fit
     data = Measurement(time=record.time, response=record.response_measured[0],
                        inputs={"u": record.input_measured}, time_name="t", response_name="x")
-    start = Model(symbols=Symbols("x", "t", ("u",)), mass=1.0, state={"x_dot": 1.0},
+    start = Model.single(symbols=Symbols("x", "t", ("u",)), mass=1.0, state={"x_dot": 1.0},
                   forcing={"u": 1.0}, input_interpolation="hold")
     result = diagnose(data, start)
     assert result.mode == "equation_error"
@@ -185,7 +185,7 @@ def test_stage_whose_friction_and_offset_only_explain_it_together_gets_both():
     data = Measurement(time=record.time, response=record.response_measured[0],
                        inputs={"u": record.input_measured}, time_name="t", response_name="x")
     symbols = Symbols("x", "t", ("u",))
-    start = Model(symbols=symbols, mass=1.0, state={"x_dot": 1.0}, forcing={"u": 1.0},
+    start = Model.single(symbols, mass=1.0, state={"x_dot": 1.0}, forcing={"u": 1.0},
                   input_interpolation="hold")
     result = diagnose(data, start)
     assert sorted(result.effects_added) == ["coulomb_friction", "static_offset"]
@@ -273,9 +273,9 @@ def test_the_separating_input_is_simulated_not_assumed():
     from gpjax._diagnose_ambiguity import separating_input
 
     symbols = Symbols(response="x", time="t", inputs=("u",))
-    linear = Model(symbols=symbols, mass=1.0, state={"x_dot": 2.0, "x": 4.0},
+    linear = Model.single(symbols, mass=1.0, state={"x_dot": 2.0, "x": 4.0},
                    forcing={"u": 1.0}, initial_conditions=(0.0, 0.0))
-    cubic = Model(symbols=symbols, mass=1.0, state={"x_dot": 2.0, "x": 4.0, "x**3": 0.4},
+    cubic = Model.single(symbols, mass=1.0, state={"x_dot": 2.0, "x": 4.0, "x**3": 0.4},
                   forcing={"u": 1.0}, initial_conditions=(0.0, 0.0))
     t = np.arange(3000) * 0.01
     u = 0.5 * np.sin(1.3 * t) + 0.3 * np.sin(3.1 * t)
@@ -301,7 +301,7 @@ def test_a_tied_step_records_the_set_and_the_report_names_it():
     rng = np.random.default_rng(0)
 
     def fit(state):
-        model = Model(symbols=symbols, mass=1.0, state=state, forcing={"u": 1.0},
+        model = Model.single(symbols, mass=1.0, state=state, forcing={"u": 1.0},
                       initial_conditions=(0.0, 0.0))
         return types.SimpleNamespace(holdout=rng.normal(size=500), metrics={"rms_holdout": 1.0},
                                      model=lambda symbols, provenance, **settings: model)

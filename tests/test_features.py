@@ -336,7 +336,7 @@ def test_exp_has_two_slots_a_pair_with_one_scale_is_sinh_and_a_third_member_is_r
     for tree in (three, two_sines):
         _, form, reason = fitness.classify(tree)
         assert form is None and "more members of one feature-bank family" in reason
-    model = Model(symbols=S, mass=1.0, state={"x_dot": 0.4, "exp(1.1*x)": 4.5,
+    model = Model.single(S, mass=1.0, state={"x_dot": 0.4, "exp(1.1*x)": 4.5,
                                               "exp(-1.1*x)": -4.5}, forcing={"u": 1.0},
                   initial_conditions=(0.1, 0.0), substeps=4)
     rk4, reference = model.simulate(data, solver="rk4"), model.simulate(data)

@@ -62,7 +62,7 @@ def test_band_limited_inputs_simulate_the_true_model_closer_to_the_data(substeps
     record, (m, d, k) = _oscillator_record()
     errors = {}
     for method in ("linear", "bandlimited"):
-        model = Model(symbols=Symbols("y", "t", ("u",)), mass=m, state={"y": k, "y_dot": d},
+        model = Model.single(symbols=Symbols("y", "t", ("u",)), mass=m, state={"y": k, "y_dot": d},
                       forcing={"u": 1.0}, input_interpolation=method)
         evaluator = model.evaluator(record, substeps=substeps)
         assert evaluator.input_interpolation == method
@@ -75,7 +75,7 @@ def test_band_limited_inputs_simulate_the_true_model_closer_to_the_data(substeps
 
 def test_model_file_records_the_interpolation_and_simulation_uses_it(tmp_path):
     record, (m, d, k) = _oscillator_record()
-    model = Model(symbols=Symbols("y", "t", ("u",)), mass=m, state={"y": k, "y_dot": d},
+    model = Model.single(symbols=Symbols("y", "t", ("u",)), mass=m, state={"y": k, "y_dot": d},
                   forcing={"u": 1.0}, input_interpolation="bandlimited")
     model.save(tmp_path / "model.json")
     again = Model.load(tmp_path / "model.json")
@@ -198,7 +198,7 @@ def test_refiner_recovers_a_held_oscillator():
 
 
 def test_model_file_round_trips_hold(tmp_path):
-    model = Model(symbols=H, mass=HOLD["m"], state={"x": HOLD["k"], "x_dot": HOLD["c"]},
+    model = Model.single(H, mass=HOLD["m"], state={"x": HOLD["k"], "x_dot": HOLD["c"]},
                   forcing={"u": 1.0, "t": HOLD["alpha"]}, input_interpolation="hold")
     model.save(tmp_path / "model.json")
     again = Model.load(tmp_path / "model.json")

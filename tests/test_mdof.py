@@ -199,7 +199,7 @@ def test_fit_system_recovers_the_chain_with_converged_integration():
                  ((V2, X2, X2 - X1, (X2 - X1) ** 3), {}))
     fit = fit_system(measurement, structure, input_interpolation="bandlimited")
     c = system.constants
-    first, second = fit.model.equations
+    first, second = fit.model.system
     assert first.mass == pytest.approx(c["m1"], rel=1e-3)
     for feature, name in zip(structure[0][0], ("c", "k", "kc", "k3")):
         assert first.state[feature] == pytest.approx(c[name], rel=1e-3), name
@@ -207,12 +207,13 @@ def test_fit_system_recovers_the_chain_with_converged_integration():
         assert second.state[feature] == pytest.approx(c[name] / c["m2"], rel=1e-3), name
     assert fit.checks[-1].converged
     band = fit.uncertainty  # every fitted constant has an interval (a noise-free record:
-    assert "x1: m" in band.names and "x2: m" not in band.names  # a narrow one); equation
+    assert "x1.m" in band.names and "x2.m" not in band.names  # a narrow one); equation
+    named = {(e, f): name for name, (e, _, f) in fit.model.constant_names().items()}
     for e, (features, _) in enumerate(structure):  # 2's mass is held
         for feature, name in zip(features, ("c", "k", "kc", "k3")):
-            key = f"x{e + 1}: {feature}"
+            key = named[(e, str(feature))]
             assert band.half_width(key) < 1e-4 * c[name] / (c["m2"] if e else 1.0), key
-    reference = fit.model.simulate(measurement)
+    reference = fit.model.simulate(measurement, initial_conditions=fit.model.initial_states)
     assert reference.shape == (measurement.n_samples, 2)
     error = np.sqrt(np.mean((reference - record.response_true.T) ** 2, axis=0)
                     / np.mean(record.response_true ** 2, axis=1))
@@ -221,25 +222,23 @@ def test_fit_system_recovers_the_chain_with_converged_integration():
 
 # --- files, exports and the command line ---------------------------------------------
 def _truth_model(system, record):
-    from gpjax.engine import SystemModel
-
     equations = _equations(system.constants, y0=tuple(zip(record.response_true[:, 0],
                                                           record.velocity_true[:, 0])))
-    return SystemModel(("x1", "x2"), "t", ("u",), tuple(equations), "linear", 2, 3)
+    return gpjax.Model.from_equations(("x1", "x2"), "t", ("u",), equations, substeps=2)
 
 
 def test_system_model_file_round_trip_and_simulate_command(tmp_path, capsys):
     from gpjax.cli import main
     from gpjax.engine import load_model
-    from gpjax._system_file import save_system
 
     system, record, measurement = _chain(duration=3.0)
     model = _truth_model(system, record)
-    save_system(model, tmp_path / "model.json")
+    model.save(tmp_path / "model.json")
     loaded = load_model(tmp_path / "model.json")
     assert loaded == model
     assert [str(e) for e in loaded.sympy()] == [str(e) for e in model.sympy()]
-    assert loaded.latex()[0].startswith("50.0 x_{1} + 1.0 \\ddot{x_{1}}")
+    assert r"m^{(x_{1})} \ddot{x_{1}} = u" in loaded.latex()[0]
+    assert loaded.latex(numeric=True)[0].endswith(r"\ddot{x_{1}} = u")
     measurement.to_csv(tmp_path / "data.csv")
     assert main(["simulate", str(tmp_path / "model.json"), str(tmp_path / "data.csv"),
                  "--out", str(tmp_path / "sim.csv")]) == 0
@@ -254,22 +253,22 @@ def test_system_model_file_round_trip_and_simulate_command(tmp_path, capsys):
         measurement, initial_conditions=estimated), rtol=0, atol=1e-14)
     # from the true state; the model file's linear input interpolation vs the truth's
     # continuous input costs ~1e-3
-    error = loaded.simulate(measurement) - record.response_true.T
+    error = loaded.simulate(measurement, initial_conditions=loaded.initial_states) - \
+        record.response_true.T
     assert np.sqrt(np.mean(error ** 2)) < 2e-3 * np.std(record.response_true)
 
 
 def test_system_model_file_refuses_a_feature_outside_its_equation(tmp_path):
     from gpjax import ModelFileError
-    from gpjax._system_file import system_from_json, system_to_json
 
     system, record, _ = _chain(duration=1.0)
-    data = system_to_json(_truth_model(system, record))
-    data["system"][0]["terms"].append({"feature": "(x2 - x1)**3", "coefficient": 1.0})
+    data = _truth_model(system, record).to_json()
+    data["canonical"][0]["terms"].append({"feature": "(x2 - x1)**3", "coefficient": 1.0})
     with pytest.raises(ModelFileError, match="not a power of x1, x1_dot or of their"):
-        system_from_json(data)
-    data["system"][0]["terms"][-1]["feature"] = "__import__('os')"
+        gpjax.Model.from_json(data)
+    data["canonical"][0]["terms"][-1]["feature"] = "__import__('os')"
     with pytest.raises(ModelFileError):
-        system_from_json(data)
+        gpjax.Model.from_json(data)
 
 
 def test_one_coordinate_model_file_still_loads(tmp_path):
@@ -292,7 +291,7 @@ def test_system_gp_finds_the_two_mass_chain():
     data = generate("chain2", seed=3)
     result = search_system(data.fit.system_measurement(),
                            config=GPConfig(population=60, generations=2), seed=0)
-    first, second = result.model.equations
+    first, second = result.model.system
     c = data.system.constants
     assert set(first.state) == {V1, X1, X1 - X2, (X1 - X2) ** 3} and set(first.forcing) == {U}
     assert set(second.state) == {V2, X2, X2 - X1, (X2 - X1) ** 3} and not second.forcing
@@ -306,7 +305,6 @@ def test_the_initial_state_is_fitted_to_the_measured_responses():
     Gauss–Newton steps on the simulated responses, lands nearer the true state, and the
     simulation then fits the measurement (1 % noise) at its noise floor."""
     from gpjax._model import fitted_initial_state
-    from gpjax._system_fit import SystemModel
     from gpjax._weak_form import estimate_initial_conditions
 
     system = dataclasses.replace(get_system("chain2"), duration=5.0)
@@ -314,8 +312,8 @@ def test_the_initial_state_is_fitted_to_the_measured_responses():
     measurement = gpjax.Measurement(time=record.time, responses=record.response_measured.T,
                                     inputs={"u": record.input_true},
                                     response_names=record.coordinates)
-    model = SystemModel(("x1", "x2"), "t", ("u",), tuple(_equations(system.constants)),
-                        "bandlimited", substeps=4)
+    model = gpjax.Model.from_equations(("x1", "x2"), "t", ("u",), _equations(system.constants),
+                                       input_interpolation="bandlimited", substeps=4)
     truth = np.asarray(record.initial_state).reshape(2, 2).T  # (x_i, x_i') per row
     start = np.array([estimate_initial_conditions(gpjax.Measurement(time=record.time,
                                                                     response=x))

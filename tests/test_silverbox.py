@@ -17,7 +17,7 @@ from gpjax._errors import DataError
 from gpjax._silverbox import (SAMPLE_RATE, SEGMENTS, load_silverbox, segment_rms,
                               silverbox_segments)
 
-LINEAR = Model(symbols=Symbols("y", "t", ("u",)), mass=1.0, state={"y": 1.0, "y_dot": 1.0},
+LINEAR = Model.single(symbols=Symbols("y", "t", ("u",)), mass=1.0, state={"y": 1.0, "y_dot": 1.0},
                forcing={"u": 1.0})
 
 
@@ -46,7 +46,8 @@ def test_equation_error_evidence_names_the_offset_then_cubic_stiffness(silverbox
     estimation = silverbox_segments(silverbox_dir)["estimation"]
     problem = FitProblem(estimation, LINEAR.symbols, holdout=0.25, iterations=1, substeps=1,
                        batch=1)
-    with_offset = dataclasses.replace(LINEAR, forcing={"u": 1.0, "1": 1.0})
+    with_offset = Model.single(symbols=LINEAR.symbols, mass=1.0, state=LINEAR.state,
+                               forcing={"u": 1.0, "1": 1.0})
     explained = []
     for model in (LINEAR, with_offset):
         structure = structure_of(model)

@@ -83,7 +83,7 @@ def _model_with_intervals() -> Model:
     uncertainty = Uncertainty(("m", "k1", "x(0)"), np.array([1.002, 39.9, 0.01]),
                               np.diag([1e-6, 0.01, np.inf]), np.array([40.0, 12.0, 3.0]),
                               8000)
-    return Model(symbols=Symbols("x", "t", ("u",)), mass=1.002, state={"x": 39.9},
+    return Model.single(symbols=Symbols("x", "t", ("u",)), mass=1.002, state={"x": 39.9},
                  forcing={"u": 1.0}, initial_conditions=(0.01, 0.0), uncertainty=uncertainty)
 
 
@@ -110,7 +110,7 @@ def test_refit_of_the_true_structure_brackets_the_truth():
 
     synthetic = generate("duffing", seed=5, noise=0.01, input_noise=0.01)
     t = synthetic.truth
-    start = Model(symbols=Symbols("x", "t", ("u",)), mass=1.1 * t["m"],
+    start = Model.single(symbols=Symbols("x", "t", ("u",)), mass=1.1 * t["m"],
                   state={"x_dot": 0.9 * t["c"], "x": 1.05 * t["k"], "x**3": 0.9 * t["k3"]},
                   forcing={"u": 1.0}, input_interpolation="bandlimited")
     fitted = refit(start, synthetic.fit.measurement())
@@ -127,7 +127,7 @@ def _oscillator_with_intervals(se_k: float) -> Model:
     """x'' + 2x' + 4x = u with a standard error ``se_k`` on k1 only (c1 nearly exact)."""
     import dataclasses
 
-    model = Model(symbols=Symbols(response="x", time="t", inputs=("u",)), mass=1.0,
+    model = Model.single(symbols=Symbols(response="x", time="t", inputs=("u",)), mass=1.0,
                   state={"x_dot": 2.0, "x": 4.0}, forcing={"u": 1.0})
     return dataclasses.replace(model, uncertainty=Uncertainty(
         names=("c1", "k1"), values=np.array([2.0, 4.0]),

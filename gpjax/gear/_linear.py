@@ -112,7 +112,7 @@ def fit_linear_model(measurement: Measurement, *, iterations: int = 60) -> Linea
 
 def _model(symbols: Symbols, mass: float, stiffness: float, y0: tuple[float, float], *,
            refined: bool) -> Model:
-    return Model(symbols=symbols, mass=mass, state={str(symbols.x): stiffness},
+    return Model.single(symbols, mass=mass, state={str(symbols.x): stiffness},
                  forcing={str(symbols.u[0]): 1.0}, initial_conditions=y0,
                  provenance={"model": "eq. 23 (linear)", "start": START,
                              "refined": "optimistix Levenberg-Marquardt" if refined else "no"})

@@ -104,7 +104,7 @@ class UndeclaredEffectCase:
             omega = 2 * math.pi * t["frequency"]
             parametric[f"cos({omega!r}*t + {t['psi']!r})*phi"] = t["k"]
             parametric[f"cos({2 * omega!r}*t + {t['psi2']!r})*phi"] = t["k2"]
-        return Model(symbols=self.start.symbols, mass=t["J"], state=state, forcing=forcing,
+        return Model.single(self.start.symbols, mass=t["J"], state=state, forcing=forcing,
                      parametric=parametric, initial_conditions=(PAPER_PHI0, PAPER_PHI_DOT0))
 
     def truth_rms(self, measurement: Measurement | None = None, *,
@@ -183,7 +183,7 @@ def undeclared_effect_case(name: str, *, seed: int, strength: float = 1.0,
                                     noise_torque=torque_noise * NOISE_TORQUE)
     state = {"phi": 1.0} if name == "quadratic_stiffness" else {"phi": 1.0, "phi**2": 1.0}
     forcing = {"1": 1.0} if name == "input_gain" else {"T": 1.0}
-    start = Model(symbols=Symbols("phi", "t", ("T",)), mass=1.0, state=state, forcing=forcing)
+    start = Model.single(symbols=Symbols("phi", "t", ("T",)), mass=1.0, state=state, forcing=forcing)
     return UndeclaredEffectCase(name=name, seed=seed, strength=strength,
                                 torque_noise=torque_noise, measurement=example.measurement,
                                 start=start, truth={**PAPER_TRUTH, **parameters},
