@@ -93,17 +93,27 @@ class Identifier:
             migration: a :class:`gpjax.Migration` (default: ring, every 2
                 generations, 2 migrants).
 
+        Several responses are a system, one equation per coordinate
+        (:mod:`gpjax._estimator_systems`).
+
         Raises:
             UserInputError: resuming without a checkpoint, or with other data or settings;
-                bad island settings or an unreachable scheduler; several responses.
+                bad island settings or an unreachable scheduler; islands or resume with
+                several responses.
         """
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise UserInputError(f"seed must be a non-negative integer, got {seed!r}")
         if measurement.n_coordinates > 1:
-            raise UserInputError(
-                f"{measurement.n_coordinates} responses ({', '.join(measurement.response_names)})"
-                ": Identifier fits one response; identify a system with `gpjax fit` and "
-                "repeated --response, or gpjax.engine.search_system")
+            if resume or islands is not None or scheduler is not None or migration is not None:
+                raise UserInputError(
+                    f"islands and resume take one response for now; drop them to identify "
+                    f"the system of {measurement.n_coordinates} responses "
+                    f"({', '.join(measurement.response_names)})")
+            from ._estimator_systems import fit_systems
+
+            fit_systems(self, measurement, seed=int(seed),
+                        out=Path(out) if out is not None else None)
+            return self
         if islands is not None or scheduler is not None or migration is not None:
             from ._islands import fit_islands
 
@@ -378,17 +388,17 @@ class Identifier:
         return self.model_
 
     def simulate(self, time=None, inputs: dict[str, np.ndarray] | None = None,
-                 x0: tuple[float, float] | None = None, *,
-                 solver: str = "reference") -> np.ndarray:
-        """The model's response (N,), by the reference solve (adaptive diffrax Dopri8) or
-        ``solver="rk4"`` (the run's fixed-step integrator; :meth:`Model.simulate`).
+                 x0=None, *, solver: str = "reference") -> np.ndarray:
+        """The model's response ((N,), or (N, D) for several coordinates), by the
+        reference solve (adaptive diffrax Dopri8) or ``solver="rk4"`` (the run's
+        fixed-step integrator; :meth:`Model.simulate`).
 
         Args:
             time: sample times (N,) in seconds, uniform, with ``inputs`` (name -> (N,)) a
                 new excitation; or a :class:`Measurement` (its time and inputs); default:
                 the fitting data.
             inputs: the model's inputs by name (with ``time`` as an array).
-            x0: (x, x') at the first sample. Default: the fitted initial state on the
+            x0: (x, x') at the first sample, or (D, 2). Default: the fitted initial state on the
                 fitting data and for new inputs; estimated from the first samples
                 (eq. 13) for another Measurement.
 
@@ -402,24 +412,25 @@ class Identifier:
                 raise UserInputError("no data to simulate on; pass time and inputs or a "
                                      "Measurement")
             time = self.measurement_
-            x0 = x0 or model.initial_conditions
+            x0 = model.initial_states if x0 is None else x0
         if isinstance(time, Measurement):
             return model.simulate(time, initial_conditions=x0, solver=solver)
         if inputs is None:
             raise UserInputError("simulate(time, inputs): give the inputs by name with time")
-        x0 = x0 or model.initial_conditions
+        x0 = model.initial_states if x0 is None else x0
         if x0 is None:
             raise UserInputError("the model has no initial state; pass x0=(x, x')")
         return model.simulate_inputs(time, inputs, x0)
 
     def score(self, measurement: Measurement | None = None) -> float:
         """Coefficient of determination R² of the response simulated by the reference
-        solve (1 is perfect); its RMS error is ``model_.metrics["rms_reference"]`` on the
-        fitting data."""
+        solve (1 is perfect; several coordinates: the mean of theirs); its RMS error is
+        ``model_.metrics["rms_reference"]`` on the fitting data."""
         data = measurement or self.measurement_
-        simulated = self.simulate(measurement)
-        residual = np.sum((data.response - simulated) ** 2)
-        return float(1.0 - residual / np.sum((data.response - data.response.mean()) ** 2))
+        simulated = np.reshape(self.simulate(measurement), data.responses.shape)
+        residual = np.sum((data.responses - simulated) ** 2, axis=0)
+        spread = np.sum((data.responses - data.responses.mean(axis=0)) ** 2, axis=0)
+        return float(np.mean(1.0 - residual / spread))
 
     def _equation_model(self, index: int | None) -> Model:
         if index is None:
@@ -442,8 +453,11 @@ class Identifier:
         if self.model_ is None:
             return f"Identifier(unfitted, population={self.config.population})"
         m = self.model_.metrics
+        rms = m.get("rms", float("nan"))
+        rms = (", ".join(f"{k} {v:.4g}" for k, v in rms.items()) if isinstance(rms, dict)
+               else f"{rms:.4g}")
         lines = [f"{self.model_}",
-                 f"  RMS {m.get('rms', float('nan')):.4g}   f = {m.get('objective', float('nan')):.4g}"
+                 f"  RMS {rms}   f = {m.get('objective', float('nan')):.4g}"
                  f"   stopped by {self.stopped_by or 'n/a'}"]
         check = self.model_.convergence
         if check:

@@ -3,7 +3,8 @@
 Each record is read on the client (a file that cannot be read is a failed row at once),
 fitted on a worker into a temporary folder whose files come back with the result, and
 written to ``OUT/<record>/``; ``OUT/summary.csv`` has one row per record (record,
-equation, constants, rms, seconds, error), rewritten as results arrive. A record that
+equation, constants, rms, seconds, error; several coordinates: equations joined by ``;``
+and the RMS per coordinate), rewritten as results arrive. A record that
 fails gets its one-line error in the ``error`` column; the others go on.
 """
 
@@ -14,6 +15,7 @@ import os
 import tempfile
 import time
 from pathlib import Path
+from typing import Sequence
 
 from . import _progress
 from ._cluster import dask_client
@@ -64,20 +66,25 @@ def fit_record(measurement: Measurement, config: GPConfig, seed: int) -> dict:
             return {"error": " ".join(str(err).split())}
         files = {p.name: p.read_bytes() for p in Path(folder).iterdir() if p.is_file()}
     model = identifier.model_
-    return {"files": files, "equation": str(model.equation()),
+    rms = model.metrics.get("rms_reference", model.metrics["rms"])
+    return {"files": files,
+            "equation": "; ".join(str(model.equation(i)) for i in range(model.n_coordinates)),
             "constants": "; ".join(f"{k}={v!r}" for k, v in model.constants().items()),
-            "rms": model.metrics.get("rms_reference", model.metrics["rms"]),
+            "rms": ("; ".join(f"{k}={v:.6g}" for k, v in rms.items())
+                    if isinstance(rms, dict) else rms),
             "seconds": time.perf_counter() - began, "error": ""}
 
 
-def fit_many(source: str | Path, *, time: str, response: str, inputs: tuple[str, ...] = (),
+def fit_many(source: str | Path, *, time: str, response: str | Sequence[str],
+             inputs: tuple[str, ...] = (),
              config: GPConfig | None = None, seed: int = 0, out: str | Path = "gpjax-many",
              scheduler: str | None = None, workers: int | None = None) -> list[dict]:
     """Fit every record of ``source`` (a folder of CSV files or a glob), one Dask task each.
 
     Args:
         source: folder or glob of CSV files, all with the named columns.
-        time, response, inputs: column names, as for :func:`gpjax.load_csv`.
+        time, response, inputs: column names, as for :func:`gpjax.load_csv`; several
+            responses (a list) are the coordinates of a system.
         config: run settings for every record; seed: the seed of every record's run.
         out: folder for one run folder per record and ``summary.csv``.
         scheduler: a running Dask scheduler's address; ``None`` starts a LocalCluster of
@@ -97,11 +104,12 @@ def fit_many(source: str | Path, *, time: str, response: str, inputs: tuple[str,
         raise UserInputError(f"workers must be a positive integer, got {workers!r}")
     from distributed import as_completed  # after the checks: a bad request fails at once
     config = config or GPConfig()
+    responses = [response] if isinstance(response, str) else list(response)
     rows = {p.stem: dict.fromkeys(COLUMNS, "") | {"record": p.stem} for p in paths}
     data = {}
     for path in paths:
         try:
-            data[path.stem] = load_csv(path, time=time, response=response, inputs=inputs)
+            data[path.stem] = load_csv(path, time=time, responses=responses, inputs=inputs)
         except UserInputError as err:
             rows[path.stem]["error"] = " ".join(str(err).split())
     count = workers or max(1, min(len(data), os.cpu_count() or 1))

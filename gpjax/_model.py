@@ -341,7 +341,7 @@ class Model:
 
     def __str__(self) -> str:
         constants = ", ".join(f"{k} = {v}" for k, v in self.constant_texts().items())
-        equations = "; ".join(str(self.equation(i)) for i in range(self.n_coordinates))
+        equations = "\n".join(str(self.equation(i)) for i in range(self.n_coordinates))
         return f"{equations}   with {constants}"
 
     # --- simulation ---------------------------------------------------------------------

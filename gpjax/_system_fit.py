@@ -180,13 +180,16 @@ class SystemWeakForm:
 class SystemFit:
     """:func:`fit_system`'s result: the model, its scores at the fitted step count, every
     convergence check made (the last one passed unless ``substeps`` hit the cap), and the
-    constants' standard errors and 95 % intervals (:mod:`gpjax._uncertainty`; names
-    ``"x2: x2_dot"``, ``"x2: m"``, ``"x2(0)"``)."""
+    constants' standard errors and 95 % intervals (:mod:`gpjax._uncertainty`; names as the
+    model's constants, ``"x2.c1"``, ``"x2.m"``, and ``"x2(0)"``), and the seconds and
+    count of the evaluator and refiner programs its refits compiled or loaded."""
 
     model: Model
     scores: Scores
     checks: tuple
     uncertainty: Uncertainty | None = None
+    compile_s: float = 0.0
+    compiles: int = 0
 
 
 def fit_system(measurement: Measurement, structure: Structure, *, max_degree: int = 3,
@@ -209,7 +212,7 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
     if third_law:
         structure, ties = couple(structure, measurement.response_names)
     start = start or weak_form_start(measurement, structure, ties)
-    last = {}
+    last, refiners = {}, []
 
     def fit_at(steps: int, previous: Model | None) -> Model:
         _progress.stage(f"fitting the system's constants at {steps} substeps, then its "
@@ -217,13 +220,17 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
         model, last["scores"], last["refit"] = _refit(
             measurement, structure, list(previous.system) if previous else start, steps,
             max_degree, input_interpolation, iterations, ties)
+        refiners.append(last["refit"][0])
         return model
 
     model, checks = fit_converged(fit_at, measurement, substeps=substeps, tolerance=tolerance)
     refiner, population, fixed, tied = last["refit"]
     uncertainty = uncertainty_of(refiner, population, fixed, ties=tied, names=lambda s: system_names(
         s, model, refiner.evaluator))
-    return SystemFit(model, last["scores"], tuple(checks), uncertainty)
+    return SystemFit(model, last["scores"], tuple(checks), uncertainty,
+                     compile_s=sum(r.compile_seconds + r.evaluator.compile_seconds
+                                   for r in refiners),
+                     compiles=sum(r.compile_count + r.evaluator.compile_count for r in refiners))
 
 
 def _refit(measurement, structure, start, steps, max_degree, interpolation, iterations, ties):

@@ -88,10 +88,14 @@ REFINE_BATCH = 4
 
 @dataclasses.dataclass(frozen=True)
 class SearchResult:
-    """The reported system, the best objective of every generation, and the final fit."""
+    """The final fit of the reported system; per generation (0 first) its number, best
+    objective and seconds; and the seconds of the stages (``search_s``, ``selection_s``,
+    ``convergence_s``: the final fit at converged integration and its uncertainty) and the
+    seconds and count of the programs compiled or loaded (``compile_s``, ``compiles``)."""
 
     fit: SystemFit
-    history: list[float]
+    history: list[dict]
+    timings: dict
 
     @property
     def model(self):
@@ -234,11 +238,12 @@ def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
                              equations)
     _progress.stage(f"generation 0: compiling (or loading) the evaluator of {count} "
                     f"equations, scoring {config.population} systems")
-    began = time.perf_counter()
+    started = began = time.perf_counter()
     fitness = scorer(trees)
-    _progress.generation(0, config.generations, float(fitness.min()),
-                         time.perf_counter() - began)
-    history = []
+    history = [{"generation": 0, "best_objective": float(fitness.min()),
+                "seconds": time.perf_counter() - began}]
+    _progress.generation(0, config.generations, history[-1]["best_objective"],
+                         history[-1]["seconds"])
     for generation in range(1, config.generations + 1):
         began = time.perf_counter()
         offspring = [_offspring(trees, fitness, grammars, rng, config)
@@ -249,22 +254,30 @@ def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
         scorer.refine_best(pool, scores, config.refine_top)
         scores = scorer(pool)
         trees, fitness = _survivors(pool, scores, scorer, config.population)
-        history.append(float(fitness.min()))
-        _progress.generation(generation, config.generations, history[-1],
-                             time.perf_counter() - began)
-        if history[-1] <= config.epsilon:
+        history.append({"generation": generation, "best_objective": float(fitness.min()),
+                        "seconds": time.perf_counter() - began})
+        _progress.generation(generation, config.generations, history[-1]["best_objective"],
+                             history[-1]["seconds"])
+        if history[-1]["best_objective"] <= config.epsilon:
             break
     best = scorer.key(trees[int(np.argmin(fitness))])
     if best is None:
         raise ValueError("no valid system was found; widen the search")
+    selecting = time.perf_counter()
     _progress.stage("final model selection: one-term removals by the held-out test at "
                     f"level {config.selection_alpha}")
     best = _simplest(best, scorer, config.selection_alpha, config.convergence_tolerance)
     start = scorer.coefficients(best)
+    fitting = time.perf_counter()
     fit = fit_system(measurement, scorer.normalised(best), max_degree=config.max_degree,
                      input_interpolation=config.input_interpolation, start=start,
                      tolerance=config.convergence_tolerance, third_law=config.third_law)
-    return SearchResult(fit, history)
+    programs = [scorer.evaluator, *scorer.refiners()]
+    return SearchResult(fit, history, {
+        "search_s": selecting - started, "selection_s": fitting - selecting,
+        "convergence_s": time.perf_counter() - fitting,
+        "compile_s": fit.compile_s + sum(p.compile_seconds for p in programs),
+        "compiles": fit.compiles + sum(p.compile_count for p in programs)})
 
 
 def _random_terms(i: int, equations: _Equations, rng) -> tuple:
@@ -392,6 +405,10 @@ class _Scorer:
                 for k, value in zip(chosen, scores.objective):
                     self.objective[k] = float(value)
         return np.array([PENALTY if k is None else self.objective[k] for k in keys])
+
+    def refiners(self) -> list:
+        """The refiners compiled so far (one per Jacobian width)."""
+        return list(self._refiners.values())
 
     def refine_best(self, systems, scores, top: int) -> None:
         """Levenberg–Marquardt on the best ``top`` distinct systems not refined yet."""

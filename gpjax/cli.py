@@ -12,7 +12,6 @@ every command writes its progress there, one line per generation and per stage
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import shutil
 import sys
 from pathlib import Path
@@ -250,14 +249,18 @@ def _timings(identifier, out) -> None:
 def _fit(args) -> int:
     from ._data import load_csv
 
-    if len(args.responses) > 1:
-        return _fit_system(args)
+    config = _config(args, GPConfig.from_toml(args.config) if args.config else GPConfig())
+    several = len(args.responses) > 1
     if args.third_law:
-        raise UserInputError("--third-law couples the equations of several responses; give "
-                             "one --response per coordinate, or drop it")
-    config = GPConfig.from_toml(args.config) if args.config else GPConfig()
-    config = _config(args, config)
+        if not several:
+            raise UserInputError("--third-law couples the equations of several responses; "
+                                 "give one --response per coordinate, or drop it")
+        config = config.replace(third_law=True)
     _check_diagnose_options(args)
+    if several and args.diagnose:
+        raise UserInputError("--diagnose works on one response for now; drop it to identify "
+                             f"the system of {len(args.responses)} responses (the fit "
+                             "reports each coordinate's residual against its noise floor)")
     islands = {}
     if any(getattr(args, k) is not None for k in ("islands", "scheduler", "every", "migrants",
                                                   "topology")):
@@ -274,70 +277,17 @@ def _fit(args) -> int:
     identifier = _run(config, measurement, args.seed, Path(args.out), resume=args.resume,
                       **islands)
     print(identifier)
+    if several:
+        from ._system_diagnose import summary_line
+
+        print("Residuals per coordinate (reference solve):")
+        for name, statistics in identifier.model_.metrics["residuals"].items():
+            print(summary_line(name, statistics))
     _timings(identifier, args.out)
     if identifier.stopped_by == "interrupted":
         return 130
     if args.diagnose:
         _run_diagnosis(args, measurement, identifier.model_, Path(args.out) / "diagnosis")
-    return 0
-
-
-def _fit_system(args) -> int:
-    """``gpjax fit`` with several responses: the GP over systems (one equation each), with
-    the same settings and defaults as one response."""
-    from ._config import check_system_config
-    from ._data import load_csv
-
-    config = _config(args, GPConfig.from_toml(args.config) if args.config else GPConfig())
-    if args.third_law:
-        config = config.replace(third_law=True)
-    check_system_config(config)
-    _check_diagnose_options(args)
-    measurement = load_csv(args.data, time=args.time, responses=args.responses,
-                           inputs=args.inputs)
-    used = [flag for flag, on in (("--resume", args.resume), ("--diagnose", args.diagnose),
-                                  ("--islands", args.islands is not None),
-                                  ("--scheduler", args.scheduler is not None)) if on]
-    if used:
-        raise UserInputError(f"{', '.join(used)} work on one response; drop them to identify "
-                             f"the system of {measurement.n_coordinates} responses")
-    out = Path(args.out)
-    check_out_folder(out)
-    from ._system_diagnose import residual_statistics, summary_line
-    from ._system_search import search_system
-
-    result = search_system(measurement, config=config, seed=args.seed)
-    model = result.model
-    _progress.stage(f"residuals by the reference solve; writing results to {out}/")
-    residuals = residual_statistics(model, measurement, alpha=args.alpha)
-    check = result.fit.checks[-1]
-    model = dataclasses.replace(
-        model, metrics={"rms": {k: v["rms"] for k, v in residuals.items()},
-                        "objective": float(result.fit.scores.objective[0]),
-                        "residuals": residuals},
-        convergence=check.to_json(), uncertainty=result.fit.uncertainty,
-        provenance={"seed": args.seed, "generations": len(result.history)})
-    model.save(out / "model.json")
-    print(f"System of {measurement.n_coordinates} equations (GP over systems, "
-          f"{len(result.history)} generations{', third law' if config.third_law else ''}):")
-    for equation in model.sympy():
-        print(f"  {equation}")
-    band = result.fit.uncertainty
-    if band is not None:
-        print("Constants with half of their 95 % interval (output error, frequency-domain "
-              "sandwich):")
-        for name, value in zip(band.names, band.values):
-            print(f"  {name} = {value:.6g} ± {band.half_width(name):.2g}")
-        for a, b, rho in band.correlated():
-            print(f"  {a} and {b} are correlated, ρ = {rho:+.2f}")
-        if band.reconstruction_warning():
-            print(f"  {band.reconstruction_warning()}")
-    print("Residuals per coordinate (reference solve):")
-    for name, statistics in residuals.items():
-        print(summary_line(name, statistics))
-    print(f"RK4 at {model.substeps} step(s) per sample differs from the reference solve by "
-          f"{check.ratio:.2%} of the residual ({'converged' if check.converged else 'NOT converged'})"
-          f". Model in {out / 'model.json'}")
     return 0
 
 
@@ -470,13 +420,13 @@ def _fit_many(args) -> int:
     from ._fit_many import SUMMARY, fit_many
 
     config = _config(args, GPConfig.from_toml(args.config) if args.config else GPConfig())
-    rows = fit_many(args.source, time=args.time, response=_one_response(args),
+    rows = fit_many(args.source, time=args.time, response=args.responses,
                     inputs=tuple(args.inputs), config=config, seed=args.seed, out=args.out,
                     scheduler=args.scheduler, workers=args.workers)
     for row in rows:
         print(f"{row['record']}: " + (f"error: {row['error']}" if row["error"] else
                                       f"{row['equation']}  ({row['constants']}), "
-                                      f"RMS {row['rms']:.4g}, {row['seconds']:.1f} s"))
+                                      f"RMS {_rms_text(row['rms'])}, {row['seconds']:.1f} s"))
     failed = sum(bool(row["error"]) for row in rows)
     if failed:
         print(f"gpjax: error: {failed} of {len(rows)} records failed (see "
@@ -485,6 +435,11 @@ def _fit_many(args) -> int:
         return EXIT_USER_ERROR
     print(f"Summary in {Path(args.out) / SUMMARY}")
     return 0
+
+
+def _rms_text(rms) -> str:
+    """A summary row's RMS: a number, or (several coordinates) already text."""
+    return rms if isinstance(rms, str) else f"{rms:.4g}"
 
 
 def _run(config, measurement, seed, out: Path, *, resume: bool, **islands):

@@ -282,16 +282,28 @@ def test_one_coordinate_model_file_still_loads(tmp_path):
 
 
 @pytest.mark.slow
-def test_system_gp_finds_the_two_mass_chain():
-    """The GP over systems, from random trees, finds both equations of chain2 (its
-    structure: own and relative terms) and their constants within 2 %."""
-    from gpjax import GPConfig
-    from gpjax.engine import search_system
+def test_system_gp_finds_the_two_mass_chain(tmp_path):
+    """The Identifier on two coordinates (the GP over systems, from random trees) finds
+    both equations of chain2 (its structure: own and relative terms) and their constants
+    within 2 %; its run folder reloads, and the estimator's methods work at D = 2."""
+    from gpjax import GPConfig, Identifier
 
     data = generate("chain2", seed=3)
-    result = search_system(data.fit.system_measurement(),
-                           config=GPConfig(population=60, generations=2), seed=0)
-    first, second = result.model.system
+    measurement = data.fit.system_measurement()
+    identifier = Identifier(GPConfig(population=60, generations=2)).fit(
+        measurement, seed=0, out=tmp_path / "run")
+    result = identifier
+    assert identifier.model_.n_coordinates == 2 and len(identifier.equations_) == 1
+    assert identifier.score() > 0.999 and identifier.simulate().shape == (
+        measurement.n_samples, 2)
+    assert identifier.timings_["generations"] == len(identifier.history_) - 1
+    assert "x2.m" in str(identifier) and identifier.convergence_[-1].converged
+    for name in ("model.json", "history.csv", "equations.csv", "equations.json",
+                 "config.json", "fit.png"):
+        assert (tmp_path / "run" / name).is_file(), name
+    again = Identifier.load(tmp_path / "run", measurement)
+    assert again.model_ == identifier.model_ and again.score() == identifier.score()
+    first, second = result.model_.system
     c = data.system.constants
     assert set(first.state) == {V1, X1, X1 - X2, (X1 - X2) ** 3} and set(first.forcing) == {U}
     assert set(second.state) == {V2, X2, X2 - X1, (X2 - X1) ** 3} and not second.forcing
@@ -324,3 +336,28 @@ def test_the_initial_state_is_fitted_to_the_measured_responses():
     residual = model.simulate(measurement, initial_conditions=fitted).T - \
         record.response_measured
     assert np.sqrt(np.mean(residual ** 2)) < 1.05 * noise
+
+
+@pytest.mark.slow  # ~1 min: two small system runs on a one-worker Dask cluster
+def test_fit_many_fits_every_record_as_a_system(tmp_path, capsys):
+    """``gpjax fit-many`` with two --response: one system per record, its run folder
+    holding a two-equation model, the summary the RMS of each coordinate."""
+    import csv
+
+    from gpjax.cli import main
+
+    (tmp_path / "records").mkdir()
+    for seed in (0, 1):
+        system = dataclasses.replace(get_system("chain2"), duration=2.0)
+        write_csv(generate(system, seed=seed).fit, tmp_path / "records" / f"r{seed}.csv")
+    assert main(["fit-many", str(tmp_path / "records"), "--time", "t", "--response", "x1",
+                 "--response", "x2", "--input", "u", "--population", "16",
+                 "--generations", "1", "--workers", "1", "--out", str(tmp_path / "many")]) == 0
+    with open(tmp_path / "many" / "summary.csv", newline="") as handle:
+        rows = list(csv.DictReader(handle))
+    assert [r["record"] for r in rows] == ["r0", "r1"] and not any(r["error"] for r in rows)
+    for row in rows:
+        assert "x1_ddot" in row["equation"] and "x2_ddot" in row["equation"]
+        assert row["rms"].startswith("x1=") and "; x2=" in row["rms"]
+        model = gpjax.Model.load(tmp_path / "many" / row["record"] / "model.json")
+        assert model.coordinates == ("x1", "x2")

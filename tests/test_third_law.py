@@ -233,8 +233,8 @@ def test_residual_statistics_point_at_the_coordinate_that_misses_something():
     _, measurement, truth = _noisy_chain()
     right = residual_statistics(truth, measurement)
     equations = list(truth.equations)
-    equations[1] = equations[1].replace(state={k: v for k, v in equations[1].state.items()
-                                               if k != V2})  # mass 2 loses its damper
+    equations[1] = dataclasses.replace(equations[1], state={
+        k: v for k, v in equations[1].state.items() if k != str(V2)})  # mass 2 loses its damper
     wrong = residual_statistics(dataclasses.replace(truth, equations=tuple(equations)),
                                 measurement)
     assert wrong["x2"]["noise"]["ratio"] > 3 * right["x2"]["noise"]["ratio"]
