@@ -265,18 +265,19 @@ class Model:
         values = self.constants()
         symbols = self.symbols_of(i)
 
-        def coefficient(name):
-            return sp.Float(values[name]) if numeric else sp.Symbol(name)
+        def term(name, feature):  # a relative coordinate's term is not multiplied out
+            value = sp.Float(values[name]) if numeric else sp.Symbol(name)
+            return sp.Mul(value, feature, evaluate=not isinstance(feature, sp.Add))
         lhs, rhs = sp.Integer(0), sp.Integer(0)
         for name, (e, part, feature) in self.constant_names().items():
             if e != i:
                 continue
             if part == "mass":
-                lhs += coefficient(name) * symbols.x_ddot
+                lhs += term(name, symbols.x_ddot)
             elif part in ("state", "parametric"):
-                lhs += coefficient(name) * self._feature(feature, i)
+                lhs += term(name, self._feature(feature, i))
             else:
-                rhs += coefficient(name) * self._feature(feature, i)
+                rhs += term(name, self._feature(feature, i))
         normaliser = self.normaliser(i)
         if normaliser is not None:
             rhs += int(self.equations[i].forcing[normaliser]) * sp.Symbol(normaliser)

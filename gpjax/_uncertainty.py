@@ -298,8 +298,9 @@ def uncertainty_of(refiner, population, fixed_forcing, held_inner=None, *, names
     if evaluator.input_interpolation == "linear":
         other = refiner.sensitivity(population, fixed_forcing, held_inner, ties=ties,
                                     forcing_basis=evaluator.forcing_basis_as("bandlimited"))
-        shift = _gauss_newton_shift(other.response - sensitivity.response,
-                                    sensitivity.jacobian, weights)
+        change = other.response - sensitivity.response
+        if np.all(np.isfinite(change)) and np.all(np.isfinite(sensitivity.jacobian)):
+            shift = _gauss_newton_shift(change, sensitivity.jacobian, weights)
     return Uncertainty(names=named, values=np.asarray(sensitivity.values, dtype=float),
                        covariance=covariance, dof=dof, n_samples=int(measured.shape[0]),
                        reconstruction_shift=shift, profile=profile)

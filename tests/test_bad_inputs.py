@@ -185,7 +185,7 @@ CLI_CASES = [
     data_case("several-responses-with-islands", ragged_coordinates(N_ROWS),
               ["islands and resume take one response", "drop them"],
               args=(*TWO_RESPONSES, "--islands", "2")),
-    case("diagnose-takes-one-response", ("diagnose", "model.json", "data.csv", "--time", "t",
+    case("diagnose-takes-one-response", ("diagnose", "data.csv", "--model", "model.json", "--time", "t",
                                          "--response", "x", "--response", "x2", "--out", "d"),
          {"data.csv": VALID_CSV}, ["diagnose takes one --response", "give one"]),
     case("several-responses-with-diagnose", (*TWO_RESPONSES, "--diagnose"),

@@ -338,7 +338,7 @@ def test_the_initial_state_is_fitted_to_the_measured_responses():
     assert np.sqrt(np.mean(residual ** 2)) < 1.05 * noise
 
 
-@pytest.mark.slow  # ~1 min: two small system runs on a one-worker Dask cluster
+@pytest.mark.slow  # ~2 min: two small system runs on a one-worker Dask cluster
 def test_fit_many_fits_every_record_as_a_system(tmp_path, capsys):
     """``gpjax fit-many`` with two --response: one system per record, its run folder
     holding a two-equation model, the summary the RMS of each coordinate."""
@@ -348,10 +348,10 @@ def test_fit_many_fits_every_record_as_a_system(tmp_path, capsys):
 
     (tmp_path / "records").mkdir()
     for seed in (0, 1):
-        system = dataclasses.replace(get_system("chain2"), duration=2.0)
+        system = dataclasses.replace(get_system("chain2"), duration=4.0)
         write_csv(generate(system, seed=seed).fit, tmp_path / "records" / f"r{seed}.csv")
     assert main(["fit-many", str(tmp_path / "records"), "--time", "t", "--response", "x1",
-                 "--response", "x2", "--input", "u", "--population", "16",
+                 "--response", "x2", "--input", "u", "--population", "30",
                  "--generations", "1", "--workers", "1", "--out", str(tmp_path / "many")]) == 0
     with open(tmp_path / "many" / "summary.csv", newline="") as handle:
         rows = list(csv.DictReader(handle))
