@@ -36,8 +36,9 @@ class Band:
     """A simulated response with its pointwise band.
 
     Attributes:
-        response: (N,) the reference response at the reported constants.
-        low, high: (N,) the band's lower and upper edge (the response's units).
+        response: (N,), or (N, D) for several coordinates, the reference response at the
+            reported constants.
+        low, high: the band's lower and upper edge, shaped as ``response`` (its units).
         level: the band's coverage probability per sample (0.95).
         draws: constant draws simulated.
         diverged: draws whose simulation failed (not in the band).
@@ -54,12 +55,13 @@ class Band:
 
 
 def prediction_band(model, time: np.ndarray, inputs: dict[str, np.ndarray],
-                    initial_conditions, *, scale: tuple[float, float] | None = None,
-                    seed: int = 0, draws: int = DRAWS, level: float = 0.95) -> Band:
-    """The ``level`` band of ``model``'s response to ``inputs`` (name -> (N,)) at uniform
-    sample ``time`` (s) from ``initial_conditions`` (x, x'), from ``draws`` draws of its
-    constants (module docstring); ``scale`` as :meth:`gpjax.Model.simulate_inputs`
-    takes it, ``seed`` makes the draws reproducible.
+                    initial_conditions, *, scale=None, seed: int = 0, draws: int = DRAWS,
+                    level: float = 0.95) -> Band:
+    """The ``level`` band of ``model``'s response (any number of coordinates) to
+    ``inputs`` (name -> (N,)) at uniform sample ``time`` (s) from ``initial_conditions``
+    ((x, x') or (D, 2)), from ``draws`` draws of its constants (module docstring);
+    ``scale`` as :meth:`gpjax.Model.simulate_inputs` takes it, ``seed`` makes the draws
+    reproducible.
 
     Raises:
         UserInputError: the model has no uncertainty, a constant has no finite standard
@@ -69,18 +71,17 @@ def prediction_band(model, time: np.ndarray, inputs: dict[str, np.ndarray],
     if uncertainty is None:
         raise UserInputError("the model file has no uncertainty section; refit its constants "
                              "(gpjax fit, or gpjax.refit) to get one before asking for --band")
-    response = model.simulate_inputs(time, inputs, tuple(initial_conditions), scale=scale)
+    response = model.simulate_inputs(time, inputs, initial_conditions, scale=scale)
     if not np.all(np.isfinite(response)):
         raise UserInputError("the model diverged on this input (the reference solve failed); "
                              "check the input's units and the initial state")
     # The evaluator scores against a response; the reference one serves (scores unused).
-    record = Measurement(time=time, response=response, inputs=inputs,
-                         time_name=model.symbols.time, response_name=model.symbols.response)
+    record = Measurement(time=time, responses=np.reshape(response, (time.size, -1)),
+                         inputs=inputs, time_name=model.time, response_names=model.coordinates)
     evaluator = model.evaluator(record, batch=min(draws + 1, 512))
-    base = model.population(evaluator, tuple(initial_conditions))
+    base = model.population(evaluator, initial_conditions)
     columns = {name: column for column, name in constant_columns(
-        evaluator.layout, model, model.coefficients, evaluator).items()
-        if not name.endswith("(0)")}
+        evaluator.layout, model, evaluator).items() if not name.endswith("(0)")}
     names = tuple(n for n in uncertainty.names if n in columns)
     index = [uncertainty.names.index(n) for n in names]
     se = np.sqrt(np.diag(uncertainty.covariance))[index]
@@ -97,11 +98,12 @@ def prediction_band(model, time: np.ndarray, inputs: dict[str, np.ndarray],
     paths, _ = evaluator.simulate(dataclasses.replace(
         base, mass=mass, state=state, forcing=forcing[..., :base.forcing.shape[-1]],
         inner=inner, y0=y0))
-    offsets = paths[1:] - paths[0]
-    finite = np.all(np.isfinite(offsets), axis=1)
+    offsets = np.reshape(np.moveaxis(np.asarray(paths), -1, 1), (draws + 1,) + response.shape)
+    offsets = offsets[1:] - offsets[0]  # (draws, N[, D])
+    finite = np.all(np.isfinite(offsets.reshape(draws, -1)), axis=1)
     tail = (1 - level) / 2
     low, high = (np.quantile(offsets[finite], [tail, 1 - tail], axis=0) if finite.any()
-                 else np.full((2, response.size), np.nan))
+                 else np.full((2,) + response.shape, np.nan))
     return Band(response=response, low=response + low, high=response + high, level=level,
                 draws=draws, diverged=int(draws - finite.sum()), constants=names)
 

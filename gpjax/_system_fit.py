@@ -34,7 +34,7 @@ from ._diagnose_fits import blocked_cv_residual
 from ._evaluator import Scores
 from ._model import Model
 from ._refine import Refiner
-from ._uncertainty import Uncertainty, system_names, uncertainty_of
+from ._uncertainty import Uncertainty, model_names, uncertainty_of
 from ._system_couplings import couple, coupled_least_squares, fixed_columns, tie_columns
 from ._weak_form import WeakForm, smoothed_derivatives
 
@@ -225,7 +225,7 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
 
     model, checks = fit_converged(fit_at, measurement, substeps=substeps, tolerance=tolerance)
     refiner, population, fixed, tied = last["refit"]
-    uncertainty = uncertainty_of(refiner, population, fixed, ties=tied, names=lambda s: system_names(
+    uncertainty = uncertainty_of(refiner, population, fixed, ties=tied, names=lambda s: model_names(
         s, model, refiner.evaluator))
     return SystemFit(model, last["scores"], tuple(checks), uncertainty,
                      compile_s=sum(r.compile_seconds + r.evaluator.compile_seconds

@@ -273,7 +273,7 @@ def fitted_uncertainty(fitness, record, model) -> Uncertainty:
     evaluator (``model``: the record as a :class:`gpjax.Model`, whose names it uses)."""
     return uncertainty_of(fitness.refiner, fitness.population([record]),
                           *fitness.held([record]), names=lambda sensitivity: model_names(
-                              sensitivity, model, record.coefficients, fitness.evaluator))
+                              sensitivity, model, fitness.evaluator))
 
 
 def uncertainty_of(refiner, population, fixed_forcing, held_inner=None, *, names,
@@ -361,59 +361,43 @@ def _gauss_newton_shift(change: np.ndarray, jacobian: np.ndarray,
                             rcond=None)[0]
 
 
-def model_names(sensitivity, model, coefficients, columns) -> list[str]:
-    """The name in ``model`` (a :class:`gpjax.Model` of ``coefficients`` on the evaluator
-    ``columns``) of each constant of ``sensitivity``."""
-    names = constant_columns(sensitivity.layout, model, coefficients, columns)
+def model_names(sensitivity, model, columns) -> list[str]:
+    """The name in ``model`` (a :class:`gpjax.Model`, any number of coordinates, on the
+    evaluator ``columns``) of each constant of ``sensitivity``."""
+    names = constant_columns(sensitivity.layout, model, columns)
     return [names[int(column)] for column in sensitivity.columns]
 
 
-def constant_columns(layout, model, coefficients, columns) -> dict[int, str]:
-    """Flat column of ``layout`` -> the name in ``model`` (a :class:`gpjax.Model` of
-    ``coefficients`` on the evaluator ``columns``) of the constant it holds, for every
-    column that holds one: ``m``, the state and forcing constants' names, ``k2.θ1`` for a
-    family's inner constant, ``x(0)`` and ``x'(0)``."""
-    by_feature = {feature: name for name, (_, part, feature) in model.constant_names().items()
-                  if part != "mass"}
-    features = list(coefficients.state)
-    placed = columns.state_columns(features)
-    state_at = {column: by_feature[str(f)] for f, (column, _, _) in zip(features, placed)}
-    inner_at = {slot: f"{by_feature[str(f)]}.θ{slot - slots.start + 1}"
-                for f, (_, slots, _) in zip(features, placed)
-                for slot in range(slots.start, slots.stop)}
-    forcing_at = {columns.forcing_index(f): by_feature.get(str(f), str(f))
-                  for f in coefficients.forcing}
-    response = model.symbols.response
+def constant_columns(layout, model, columns) -> dict[int, str]:
+    """Flat column of ``layout`` -> the name in ``model`` (a :class:`gpjax.Model` on the
+    evaluator ``columns``) of the constant it holds, for every column that holds one:
+    ``m``, the state and forcing constants' names (:meth:`gpjax.Model.constant_names`;
+    a normalising input by its feature), ``k2.θ1`` for a family's inner constant,
+    ``x(0)`` and ``x'(0)``; with several coordinates prefixed, ``x2.m``, ``x2.u``,
+    ``x2(0)``."""
+    named = {(i, part, feature): name
+             for name, (i, part, feature) in model.constant_names().items()}
+    several = model.n_coordinates > 1
+    at: dict[tuple[str, int, int], str] = {}
+    for e, coefficients in enumerate(model.system):
+        prefix = f"{model.coordinates[e]}." if several else ""
+        at[("mass", e, 0)] = named[(e, "mass", "")]
+        features = list(coefficients.state)
+        placed = ([(columns.equation_index(f, e), slice(0, 0), ()) for f in features]
+                  if several else columns.state_columns(features))
+        for f, (column, slots, _) in zip(features, placed):
+            name = named.get((e, "state", str(f))) or named[(e, "parametric", str(f))]
+            at[("state", e, column)] = name
+            at |= {("inner", 0, slot): f"{name}.θ{slot - slots.start + 1}"
+                   for slot in range(slots.start, slots.stop)}
+        for f in coefficients.forcing:
+            at[("forcing", e, columns.forcing_index(f))] = named.get(
+                (e, "forcing", str(f)), f"{prefix}{f}")
+        coordinate = model.coordinates[e]
+        at |= {("y0", e, 0): f"{coordinate}(0)", ("y0", e, 1): f"{coordinate}'(0)"}
     names = {}
     for column in range(layout.width):
-        part, _, index = layout.part(column)
-        name = {"mass": lambda i: "m", "state": state_at.get, "forcing": forcing_at.get,
-                "inner": inner_at.get,
-                "y0": lambda i: f"{response}(0)" if i == 0 else f"{response}'(0)"}[part](index)
+        name = at.get(layout.part(column))
         if name is not None:
             names[column] = name
-    return names
-
-
-def system_names(sensitivity, model, columns) -> list[str]:
-    """The name in ``model`` (a :class:`gpjax.Model` of several coordinates on the system
-    evaluator ``columns``) of each constant of a system's ``sensitivity``: ``x2.m``,
-    ``x2.c1``, ``x2.g1``, ``x2(0)``, ``x2'(0)``; a fixed input's coefficient by its
-    feature, ``x2.u``."""
-    named = {(i, part if part != "parametric" else "state", feature): name
-             for name, (i, part, feature) in model.constant_names().items()}
-    names = []
-    for column in sensitivity.columns:
-        part, e, index = sensitivity.layout.part(int(column))
-        equation, coordinate = model.system[e], model.coordinates[e]
-        if part == "mass":
-            names.append(named[(e, "mass", "")])
-            continue
-        if part == "y0":
-            names.append(f"{coordinate}(0)" if index == 0 else f"{coordinate}'(0)")
-            continue
-        feature = str(next(f for f in getattr(equation, part) if (
-            columns.equation_index(f, e) if part == "state" else columns.forcing_index(f))
-            == index))
-        names.append(named.get((e, part, feature), f"{coordinate}.{feature}"))
     return names

@@ -89,7 +89,7 @@ def _parser() -> argparse.ArgumentParser:
                           "that best reproduces the data's response columns: eq. 13's "
                           "estimate refined by Gauss-Newton steps)")
     simulate.add_argument("--band", action="store_true",
-                          help="add the 95%% band of the response from the constants' "
+                          help="add the 95%% band of each response from the constants' "
                           "uncertainty, from draws of the constants (columns "
                           "<response>_low, <response>_high)")
     simulate.add_argument("--seed", type=_non_negative, default=0,
@@ -368,10 +368,6 @@ def _simulate(args) -> int:
         raise UserInputError(f"--initial takes X0 V0 for each of the model's "
                              f"{len(coordinates)} coordinates ({', '.join(coordinates)}): "
                              f"{2 * len(coordinates)} numbers, got {len(args.initial)}")
-    if args.band and len(coordinates) > 1:
-        raise UserInputError("--band takes a one-coordinate model; a model of several "
-                             "coordinates lists its constants' intervals but has no band yet; "
-                             "drop --band")
     data = read_columns(args.data, [model.time, *model.inputs], optional=coordinates)
     check_time(data[model.time])
     time, inputs = data[model.time], {u: data[u] for u in model.inputs}
@@ -390,14 +386,17 @@ def _simulate(args) -> int:
     else:
         initial, scale = np.reshape(args.initial, (-1, 2)), None
     header = [model.time, *coordinates]
+
+    def by_coordinate(values):
+        return list(np.reshape(values, (time.size, -1)).T)
     if args.band:
-        band = prediction_band(model, time, inputs, tuple(np.ravel(initial)), scale=scale,
-                               seed=args.seed)
-        columns = [band.response, band.low, band.high]
-        header += [f"{coordinates[0]}_low", f"{coordinates[0]}_high"]
+        band = prediction_band(model, time, inputs, initial, scale=scale, seed=args.seed)
+        columns = by_coordinate(band.response)
+        for c, low, high in zip(coordinates, by_coordinate(band.low), by_coordinate(band.high)):
+            columns += [low, high]
+            header += [f"{c}_low", f"{c}_high"]
     else:
-        columns = list(np.reshape(model.simulate_inputs(time, inputs, initial, scale=scale),
-                                  (time.size, -1)).T)
+        columns = by_coordinate(model.simulate_inputs(time, inputs, initial, scale=scale))
     if not np.all(np.isfinite(columns[0])):
         raise UserInputError("the model diverged on this input (the reference solve failed); "
                              "check the input's units and the initial state")

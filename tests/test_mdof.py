@@ -255,6 +255,9 @@ def test_system_model_file_round_trip_and_simulate_command(tmp_path, capsys):
     # continuous input costs ~1e-3
     error = loaded.simulate(measurement, initial_conditions=loaded.initial_states) - \
         record.response_true.T
+    assert main(["simulate", str(tmp_path / "model.json"), str(tmp_path / "data.csv"),
+                 "--out", str(tmp_path / "band.csv"), "--band"]) == 2
+    assert "no uncertainty section" in capsys.readouterr().err
     assert np.sqrt(np.mean(error ** 2)) < 2e-3 * np.std(record.response_true)
 
 
@@ -309,6 +312,20 @@ def test_system_gp_finds_the_two_mass_chain(tmp_path):
     assert set(second.state) == {V2, X2, X2 - X1, (X2 - X1) ** 3} and not second.forcing
     assert first.state[(X1 - X2) ** 3] == pytest.approx(c["k3"], rel=0.02)
     assert second.state[X2 - X1] == pytest.approx(c["kc"] / c["m2"], rel=0.02)
+    # the band of both coordinates from the constants' intervals, on the extrapolation
+    # record (input 20 % larger): the true response lies inside it nearly everywhere
+    from gpjax import prediction_band
+
+    record = data.extrapolation
+    band = prediction_band(identifier.model_, record.time, {"u": record.input_true},
+                           np.column_stack([record.response_true[:, 0],
+                                            record.velocity_true[:, 0]]), draws=200)
+    truth = record.response_true.T
+    assert band.low.shape == band.high.shape == truth.shape and not band.diverged
+    assert np.all(band.low <= band.response) and np.all(band.response <= band.high)
+    inside = np.mean((band.low <= truth) & (truth <= band.high), axis=0)
+    print("inside the band:", inside)
+    assert np.all(inside > 0.9), inside
 
 
 @pytest.mark.slow  # ~35 s: a 5-second record with noise; the fast round trip runs the path
