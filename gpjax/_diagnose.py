@@ -453,7 +453,8 @@ def _uncertainty(result: Diagnosis, whole: FitProblem) -> Uncertainty:
     evaluator = whole.simulator_for([fit.structure]).full
     free = types.SimpleNamespace(columns=np.array(base), layout=evaluator.layout)
     flat = evaluator.layout.pack(to_population([fit.coefficients], evaluator))[0]
-    return Uncertainty(names=tuple(model_names(free, result.model(), evaluator)),
+    return Uncertainty(names=tuple(model_names(free, result.model(), evaluator,
+                                               [fit.coefficients])),
                        values=flat[base], covariance=covariance, dof=dof,
                        n_samples=whole.measurement.n_samples)
 

@@ -77,12 +77,12 @@ def refit(model: Model, measurement: Measurement, *, iterations: int = 20,
         fitted = Model.from_coefficients(
             model.symbols, coefficients, input_interpolation=model.input_interpolation,
             substeps=steps, metrics={"objective": best}, provenance=model.provenance)
-        fits[steps] = (refiner, population, fixed)
+        fits[steps] = (refiner, population, fixed, coefficients)
         return fitted
 
     fitted, checks = fit_converged(fit_at, measurement, substeps=substeps, tolerance=tolerance)
-    refiner, population, fixed = fits[fitted.substeps]
+    refiner, population, fixed, coefficients = fits[fitted.substeps]
     return dataclasses.replace(
         fitted, convergence=checks[-1].to_json(),
         uncertainty=uncertainty_of(refiner, population, fixed, names=lambda s: model_names(
-            s, fitted, refiner.evaluator)))
+            s, fitted, refiner.evaluator, [coefficients])))

@@ -273,7 +273,7 @@ def fitted_uncertainty(fitness, record, model) -> Uncertainty:
     evaluator (``model``: the record as a :class:`gpjax.Model`, whose names it uses)."""
     return uncertainty_of(fitness.refiner, fitness.population([record]),
                           *fitness.held([record]), names=lambda sensitivity: model_names(
-                              sensitivity, model, fitness.evaluator))
+                              sensitivity, model, fitness.evaluator, [record.coefficients]))
 
 
 def uncertainty_of(refiner, population, fixed_forcing, held_inner=None, *, names,
@@ -361,16 +361,19 @@ def _gauss_newton_shift(change: np.ndarray, jacobian: np.ndarray,
                             rcond=None)[0]
 
 
-def model_names(sensitivity, model, columns) -> list[str]:
+def model_names(sensitivity, model, columns, equations=None) -> list[str]:
     """The name in ``model`` (a :class:`gpjax.Model`, any number of coordinates, on the
-    evaluator ``columns``) of each constant of ``sensitivity``."""
-    names = constant_columns(sensitivity.layout, model, columns)
+    evaluator ``columns``) of each constant of ``sensitivity``; ``equations`` as
+    :func:`constant_columns` takes them."""
+    names = constant_columns(sensitivity.layout, model, columns, equations)
     return [names[int(column)] for column in sensitivity.columns]
 
 
-def constant_columns(layout, model, columns) -> dict[int, str]:
+def constant_columns(layout, model, columns, equations=None) -> dict[int, str]:
     """Flat column of ``layout`` -> the name in ``model`` (a :class:`gpjax.Model` on the
-    evaluator ``columns``) of the constant it holds, for every column that holds one:
+    evaluator ``columns``; ``equations``: the :class:`Coefficients` the population was
+    packed from, default ``model.system`` — their features' order sets a family member's
+    inner slots) of the constant it holds, for every column that holds one:
     ``m``, the state and forcing constants' names (:meth:`gpjax.Model.constant_names`;
     a normalising input by its feature), ``k2.θ1`` for a family's inner constant,
     ``x(0)`` and ``x'(0)``; with several coordinates prefixed, ``x2.m``, ``x2.u``,
@@ -379,7 +382,7 @@ def constant_columns(layout, model, columns) -> dict[int, str]:
              for name, (i, part, feature) in model.constant_names().items()}
     several = model.n_coordinates > 1
     at: dict[tuple[str, int, int], str] = {}
-    for e, coefficients in enumerate(model.system):
+    for e, coefficients in enumerate(equations or model.system):
         prefix = f"{model.coordinates[e]}." if several else ""
         at[("mass", e, 0)] = named[(e, "mass", "")]
         features = list(coefficients.state)
