@@ -67,6 +67,11 @@ def test_a_model_of_two_coordinates_round_trips_and_names_its_constants(tmp_path
     assert len(model.sympy()) == 2 and len(model.latex()) == 2
     model.save(tmp_path / "chain.json")
     assert Model.load(tmp_path / "chain.json") == model
+    from gpjax import Equation  # the same model built in Python
+    assert Model(coordinates=("x1", "x2"), time="t", inputs=("u",), equations=(
+        Equation(1.0, {"x1_dot": 0.5, "x1 - x2": 40.0}, {"u": 1.0}),
+        Equation(2.0, {"x2 - x1": 40.0, "(x2 - x1)**3": 3.0}, {})),
+        initial_states=((0.0, 0.0), (0.0, 0.0))) == model
     with pytest.raises(ValueError, match="2 .x1, x2.: use model.equations"):
         model.mass
 
