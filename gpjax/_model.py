@@ -442,9 +442,7 @@ class Model:
         response = solve(used)
         if not np.all(np.isfinite(response)) or time.size < 2:
             return response
-        x = np.reshape(response, (time.size, -1))
-        spread = np.stack([x.std(axis=0), np.diff(x, axis=0).std(axis=0) / (time[1] - time[0])],
-                          axis=1)
+        spread = _spread(np.reshape(response, (time.size, -1)), time[1] - time[0])
         used = np.where(used > 0, used, 1.0)
         if np.all(spread > 0) and np.any(np.abs(np.log10(spread / used)) > 1):
             response = solve(spread)
@@ -503,8 +501,12 @@ def _latex_name(name: str) -> str:
 def measurement_scale(measurement: Measurement) -> np.ndarray:
     """(D, 2): typical sizes of every coordinate's x and x' in a measurement, the spreads
     of its response and of its sample-to-sample rate."""
-    x = measurement.responses
-    return np.stack([x.std(axis=0), np.diff(x, axis=0).std(axis=0) / measurement.dt], axis=1)
+    return _spread(measurement.responses, measurement.dt)
+
+
+def _spread(x: np.ndarray, dt: float) -> np.ndarray:
+    """(D, 2): the spreads of every column of ``x`` (N, D) and of its rate (``dt`` in s)."""
+    return np.stack([x.std(axis=0), np.diff(x, axis=0).std(axis=0) / dt], axis=1)
 
 
 #: Evaluators kept for repeated simulations (:func:`_evaluator`), most recent last.

@@ -132,8 +132,6 @@ def model_from_json(data: dict, *, source: str = "model") -> Model:
         fail('missing "canonical": one {"mass", "terms", "forcing"} object per response')
     equations = tuple(_equation(item, i, coordinates, time, inputs, names, fail, source)
                       for i, item in enumerate(canonical))
-    if len(coordinates) > 1:
-        _check_system_basis(equations, coordinates, names, fail)
     simulation = data.get("simulation") or {}
     if not isinstance(simulation, dict):
         fail('"simulation" must be an object')
@@ -156,6 +154,8 @@ def model_from_json(data: dict, *, source: str = "model") -> Model:
                   convergence=convergence if isinstance(convergence, dict) else None,
                   uncertainty=_uncertainty(data.get("uncertainty"), fail),
                   third_law=third_law)
+    if model.n_coordinates > 1:
+        _check_system_basis(model, fail)
     _check_ties(model, fail)
     return model
 
@@ -234,16 +234,13 @@ def _state_kind(feature: sp.Expr, i: int, coordinates) -> str | None:
     return None
 
 
-def _check_system_basis(equations, coordinates, names, fail) -> None:
+def _check_system_basis(model: Model, fail) -> None:
     """With several coordinates, every state feature is a power of x_i, x_i', x_i − x_j or
     x_i' − x_j' (the system evaluator's basis, :func:`gpjax._evaluator.system_state_features`)."""
-    parsed = [[parse_expression(text, names) for text in (*e.state, *e.parametric)]
-              for e in equations]
-    powers = [int(p) for features in parsed for f in features
-              for p in [f.as_base_exp()[1]] if p.is_Integer]
-    basis = system_state_features(tuple(coordinates), max([1, *powers]))
-    for i, features in enumerate(parsed):
-        for feature in features:
+    coordinates = model.coordinates
+    basis = system_state_features(coordinates, model.max_power())
+    for i, equation in enumerate(model.system):
+        for feature in equation.state:
             if feature not in basis[i]:
                 fail(f"feature {feature} of equation {i + 1} is not a power of "
                      f"{coordinates[i]}, {coordinates[i]}_dot or of their differences to the "
