@@ -25,9 +25,10 @@ FUNCTIONS = {"add": 2, "sub": 2, "mul": 2, "div": 2, "sin": 1, "cos": 1, "tanh":
 VARIABLES = ("x", "x_dot", "x_ddot", "u", "t")
 COEFFICIENT_MODES = ("least_squares", "tree")
 #: Fields of one coordinate's grammar, not (yet) of the search over systems: a system's
-#: trees use add, sub, mul on the states and inputs, its constants come from least squares,
-#: its refinements take 20 steps, and its RK4 steps and initial states are found.
-ONE_COORDINATE = ("functions", "variables", "named_constants", "interval_constants",
+#: trees use the states and inputs, its constants come from least squares, its refinements
+#: take 20 steps, and its RK4 steps and initial states are found. Its functions are those
+#: of :data:`gpjax._system_bank.SYSTEM_FUNCTIONS`.
+ONE_COORDINATE = ("variables", "named_constants", "interval_constants",
                   "coefficients", "refine_iterations", "substeps", "initial_conditions")
 
 
@@ -368,9 +369,19 @@ def _validate(c: GPConfig) -> None:
 
 def check_system_config(config: GPConfig) -> None:
     """Raise :class:`gpjax.ConfigError` if ``config``, for several responses, changes a
-    :data:`ONE_COORDINATE` field."""
+    :data:`ONE_COORDINATE` field, names a function outside
+    :data:`gpjax._system_bank.SYSTEM_FUNCTIONS`, or has bank functions with ``third_law``."""
+    from ._system_bank import SYSTEM_FUNCTIONS, kinds_for
+
     defaults = GPConfig()
     changed = [k for k in ONE_COORDINATE if getattr(config, k) != getattr(defaults, k)]
     if changed:
-        raise ConfigError(f"{changed[0]} is not supported with several responses yet (the "
-                          "search over systems uses add, sub, mul); leave it at its default")
+        raise ConfigError(f"{changed[0]} is not supported with several responses yet; leave "
+                          "it at its default")
+    other = [f for f in config.functions if f not in SYSTEM_FUNCTIONS]
+    if other:
+        raise ConfigError(f"function {other[0]!r} is not supported with several responses; "
+                          f"choose from {', '.join(SYSTEM_FUNCTIONS)}")
+    if config.third_law and kinds_for(config.functions):
+        raise ConfigError("third_law takes polynomial couplings only; drop it or the "
+                          "functions beyond add, sub, mul")

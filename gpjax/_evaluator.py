@@ -15,7 +15,8 @@ every model (eqs. 7–9).
 equations): the state is (x_1 … x_D, x_1' … x_D') for every model, so the population ×
 coordinates state goes through the same scan. Equation i's state basis holds the powers of
 its own x_i and x_i' and of the relative coordinates x_i − x_j and x_i' − x_j' (j ≠ i; the
-couplings of eqs. 21–22), so coefficients are (P, D, F); the masses (P, D); the forcing
+couplings of eqs. 21–22), then the system bank's kinds of them (:mod:`gpjax._system_bank`),
+so coefficients are (P, D, F); the masses (P, D); the forcing
 (P, D, F_forcing) over the shared forcing basis; the initial states (P, D, 2). With D = 1
 the coordinate axis is absent from every array a caller sees, and the computation is the
 one-coordinate one operation for operation. The objective sums eqs. 7–9 over the
@@ -160,12 +161,16 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         pad_to_bucket: integrate the record padded to its length bucket, so its programs
             serve every record of the bucket (:mod:`gpjax._record`; the results are the
             same); ``False`` compiles for this length alone.
+        kinds: several coordinates: the system bank's kinds (:mod:`gpjax._system_bank`),
+            one column per kind and equation variable after the powers
+            (:func:`system_state_features`).
+        sign_scales: (2D²,) θ of the smoothed signs tanh(θ·z) of every equation variable
+            (a program argument: new values never compile); default 1.
 
     Raises:
         ValueError: for an unknown integrator or input interpolation, or ``"hold"`` with
             the ``"diffrax"`` integrator; extra features or families with several
-            coordinates (systems have the polynomial basis of
-            :func:`system_state_features`).
+            coordinates (systems take ``kinds``), or ``kinds`` with one.
     """
 
     def __init__(self, measurement: Measurement, symbols: Symbols, *, max_degree: int = 4,
@@ -173,15 +178,23 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
                  w_freq: float = 1.0, extra_state_features: tuple[sp.Expr, ...] = (),
                  families: tuple[Family, ...] = (), batch: int = 500, fit_initial_conditions: bool = False,
                  integrator: str = "scan", devices: list | None = None,
-                 input_interpolation: str = "linear", pad_to_bucket: bool = True):
+                 input_interpolation: str = "linear", pad_to_bucket: bool = True,
+                 kinds: tuple[str, ...] = (), sign_scales=None):
         if integrator not in INTEGRATORS:
             raise ValueError(f"integrator must be one of {INTEGRATORS}, got {integrator!r}")
         if integrator == "diffrax" and input_interpolation == "hold":
             raise ValueError(HOLD_WITH_DIFFRAX)
         self.n_coordinates = measurement.n_coordinates
         if self.n_coordinates > 1 and (extra_state_features or families):
-            raise ValueError("a system of several coordinates has the polynomial basis only; "
+            raise ValueError("a system of several coordinates has its own bank (kinds); "
                              "give no extra_state_features or families")
+        if self.n_coordinates == 1 and kinds:
+            raise ValueError("kinds are a system's bank; one coordinate takes families")
+        names = measurement.response_names
+        #: The system bank's kinds (:mod:`gpjax._system_bank`) and their sign scales θ.
+        self.kinds = tuple(kinds)
+        self.sign_scales = (np.ones(2 * len(names) ** 2) if sign_scales is None
+                            else np.asarray(sign_scales, dtype=np.float64))
         enable_float64()
         self.measurement = measurement
         self.symbols = symbols
@@ -190,7 +203,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         self._inner_slots = []
         fixed = (polynomial_state_features(symbols, max_degree) + list(extra_state_features)
                  if self.n_coordinates == 1 else
-                 system_state_features(measurement.response_names, max_degree)[0])
+                 system_state_features(names, max_degree, self.kinds, self.sign_scales)[0])
         for j, family in enumerate(self.families):
             self._family_column[family] = len(fixed) + j
             start = self._inner_slots[-1].stop if self._inner_slots else 0
@@ -201,7 +214,8 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         self._state_index = {f: i for i, f in enumerate(fixed)}
         #: Per equation, its state features in column order (D = 1: :attr:`state_features`).
         self.equation_features = ((self.state_features,) if self.n_coordinates == 1 else
-                                  system_state_features(measurement.response_names, max_degree))
+                                  system_state_features(names, max_degree, self.kinds,
+                                                        self.sign_scales))
         self._equation_index = [{f: i for i, f in enumerate(features)}
                                 for features in self.equation_features]
         self.max_degree = max_degree
@@ -250,7 +264,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
                            for f in extra_state_features]
         #: The record as the programs' argument (:class:`~gpjax._record.RecordArrays`).
         self.record_arrays = _record_arrays(measurement, self.n_padded, self.n_bins,
-                                            self.n_bins_padded, dft, self.h)
+                                            self.n_bins_padded, dft, self.h, self.sign_scales)
         run = self._simulate_and_score
         if len(self.devices) > 1:
             mesh = jax.make_mesh((len(self.devices),), ("population",),
@@ -262,7 +276,9 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         #: argument: records of one length bucket share the programs).
         #: The same without eq. 9's bins: the key of programs that integrate but take no
         #: spectrum (the refiner's; their record is :attr:`time_record`).
-        self.time_key = fingerprint(self.n_padded, symbols, self.state_features,
+        unit = (self.state_features if self.n_coordinates == 1 else  # θ is an argument
+                system_state_features(names, max_degree, self.kinds)[0])
+        self.time_key = fingerprint(self.n_padded, symbols, unit,
                                     self.families, max_degree, substeps, self.batch,
                                     fit_initial_conditions, integrator, input_interpolation,
                                     [str(d) for d in self.devices])
@@ -382,7 +398,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
 
 
 def _record_arrays(measurement: Measurement, n_padded: int, n_bins: int, n_bins_padded: int,
-                   dft: np.ndarray, step: float) -> RecordArrays:
+                   dft: np.ndarray, step: float, sign_scales: np.ndarray) -> RecordArrays:
     """``measurement`` as program arguments, padded to ``n_padded`` samples and
     ``n_bins_padded`` bins (:class:`~gpjax._record.RecordArrays`); ``dft`` is
     :func:`~gpjax._objective._dft_matrix` of the unpadded record."""
@@ -406,7 +422,7 @@ def _record_arrays(measurement: Measurement, n_padded: int, n_bins: int, n_bins_
         amplitude=np.asarray(_amplitude(padded_dft, responses, n_bins_padded)),
         weights=np.std(measured[:, :1]) / np.std(measured, axis=0), bounds=bounds,
         step=np.asarray(step), start=np.asarray(float(measurement.time[0])),
-        noise_scale=np.where(noise_scale == 0, 1.0, noise_scale))
+        noise_scale=np.where(noise_scale == 0, 1.0, noise_scale), sign_scales=sign_scales)
 
 
 def _pad_columns(array: np.ndarray, columns: int) -> np.ndarray:

@@ -12,6 +12,7 @@ import sympy as sp
 
 from ._coefficients import FlatLayout, Population
 from ._features import SLOTS, match
+from ._system_bank import match_bank, system_variables
 
 
 class Columns:
@@ -55,7 +56,13 @@ class Columns:
         or ``None``; for D = 1 :meth:`state_index`."""
         if self.n_coordinates == 1:
             return self.state_index(feature)
-        return self._equation_index[equation].get(feature)
+        column = self._equation_index[equation].get(feature)
+        found = None if column is not None or not self.kinds else match_bank(
+            feature, system_variables(self.measurement.response_names)[equation])
+        if found is None or found[0] not in self.kinds:
+            return column
+        count = self.n_coordinates
+        return 2 * count * (self.max_degree + self.kinds.index(found[0])) + found[1]
 
     def inner_of(self, feature: sp.Expr) -> tuple[slice, tuple[float, ...]]:
         """The slots of a state feature's inner constants in :attr:`Population.inner` (its

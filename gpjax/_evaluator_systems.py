@@ -11,19 +11,22 @@ import jax.numpy as jnp
 import numpy as np
 import sympy as sp
 
+from ._system_bank import bank_feature, bank_values, system_variables
 
-def system_state_features(names: tuple[str, ...], max_degree: int) -> tuple[list[sp.Expr], ...]:
+
+def system_state_features(names: tuple[str, ...], max_degree: int, kinds: tuple[str, ...] = (),
+                          scales=None) -> tuple[list[sp.Expr], ...]:
     """Per equation i of a system with coordinates ``names``: the powers 1 … max_degree of
-    x_i, of x_i − x_j (j ≠ i, in order), of x_i' and of x_i' − x_j'. One name gives
-    :func:`gpjax._evaluator.polynomial_state_features`' order (x, …, x', …)."""
-    positions = [sp.Symbol(name) for name in names]
-    velocities = [sp.Symbol(f"{name}_dot") for name in names]
-    out = []
-    for i in range(len(names)):
-        variables = [z[i] - z[j] if j != i else z[i] for z in (positions, velocities)
-                     for j in [i, *(j for j in range(len(names)) if j != i)]]
-        out.append([z ** k for z in variables for k in range(1, max_degree + 1)])
-    return tuple(out)
+    x_i, of x_i − x_j (j ≠ i, in order), of x_i' and of x_i' − x_j', then per bank kind
+    (:mod:`gpjax._system_bank`) its feature of each of them (``scales``: the (D·2D,) sign
+    θ; default 1). One name gives :func:`gpjax._evaluator.polynomial_state_features'`
+    order (x, …, x', …)."""
+    variables = system_variables(names)
+    scales = np.ones(len(names) * 2 * len(names)) if scales is None else scales
+    return tuple([z ** k for z in zs for k in range(1, max_degree + 1)]
+                 + [bank_feature(kind, z, float(scales[i * len(zs) + p]))
+                    for kind in kinds for p, z in enumerate(zs)]
+                 for i, zs in enumerate(variables))
 
 
 class SystemTerms:
@@ -46,13 +49,47 @@ class SystemTerms:
         return jnp.stack([w[e] if j == e else w[e] - w[j] for e in range(count)
                           for w in (xs, vs) for j in [e, *(j for j in range(count) if j != e)]])
 
+    def _system_bank_coefficients(self, state):
+        """(K, D·2D, ..., P) coefficients of the bank kinds' columns (after the powers,
+        :func:`system_state_features`) from ``state`` (..., P, D, F)."""
+        count, kinds = self.n_coordinates, len(self.kinds)
+        lead = state.ndim - 3
+        shaped = state[..., 2 * count * self.max_degree:].reshape(
+            state.shape[:-1] + (kinds, 2 * count))
+        order = (lead + 2, lead + 1, lead + 3, *range(lead), lead)
+        return jnp.transpose(shaped, order).reshape(
+            (kinds, 2 * count * count) + shaped.shape[:lead] + shaped.shape[lead:lead + 1])
+
+    def _system_bank(self, state, lead: int):
+        """``terms(z, slope)``: Σ over the bank kinds of c·g(z) (and with ``slope``, also
+        Σ c·g'(z)) for the stacked variables ``z`` (D·2D, [1]*lead, P); a kind no model of
+        the call uses is skipped (``lax.cond`` on a loop-invariant flag)."""
+        c = self._system_bank_coefficients(state)
+        used = [jnp.any(c_k != 0) for c_k in c]
+        scales = self.record.sign_scales.reshape((-1,) + (1,) * (lead + 1))
+
+        def terms(z, slope: bool):
+            value = jnp.zeros(jnp.broadcast_shapes(z.shape, c.shape[1:]))
+            derivative = value
+            for kind, c_k, flag in zip(self.kinds, c, used):
+                def on(kind=kind, c_k=c_k):
+                    g, dg = bank_values(kind, z, scales)
+                    return c_k * g, (c_k * dg if slope else jnp.zeros_like(value))
+
+                term, d_term = jax.lax.cond(flag, on, lambda: (value * 0.0, value * 0.0))
+                value, derivative = value + term, derivative + d_term
+            return value, derivative
+
+        return terms
+
     def _system_restoring(self, state, *, stacked: bool):
-        """:meth:`_restoring_fn` of a system (D > 1, polynomial basis): all equations'
-        variables stacked into one (D·2D, P) array and one Horner sum over it — a few large
+        """:meth:`_restoring_fn` of a system (D > 1): all equations' variables stacked into
+        one (D·2D, P) array, one Horner sum over it and the bank's kinds on it — a few large
         operations per RK4 stage instead of D·2D·max_degree small ones."""
         d, count = self.max_degree, self.n_coordinates
         lead = state.ndim - 3
         c = self._system_coefficients(state)
+        bank = self._system_bank(state, lead) if self.kinds else None
 
         def restoring(xs, vs, t):
             z = self._system_variables(xs, vs)
@@ -60,7 +97,10 @@ class SystemTerms:
             total = c[d - 1]
             for k in range(d - 2, -1, -1):
                 total = total * z + c[k]
-            total = (total * z).reshape((count, 2 * count) + total.shape[1:]).sum(axis=1)
+            total = total * z
+            if bank is not None:
+                total = total + bank(z, False)[0]
+            total = total.reshape((count, 2 * count) + total.shape[1:]).sum(axis=1)
             return jnp.moveaxis(total, 0, -2) if stacked else [total[e] for e in range(count)]
 
         return restoring
@@ -71,6 +111,7 @@ class SystemTerms:
         derivative (the chain rule through x_i − x_j is a constant 0/±1 matrix)."""
         d, count = self.max_degree, self.n_coordinates
         c = self._system_coefficients(state)
+        bank = self._system_bank(state, 0) if self.kinds else None
         chain = np.zeros((2, count, 2, count, count))  # (x or x', eq., x or x', position, j)
         for e in range(count):
             for position, j in enumerate([e, *(j for j in range(count) if j != e)]):
@@ -86,7 +127,10 @@ class SystemTerms:
             for k in range(d - 2, -1, -1):
                 slope = slope * z + value
                 value = value * z + c[k]
-            slope = (slope * z + value).reshape((count, 2 * count) + z.shape[1:])
+            slope = slope * z + value
+            if bank is not None:
+                slope = slope + bank(z, True)[1]
+            slope = slope.reshape((count, 2 * count) + z.shape[1:])
             out = jnp.einsum("wekj,ekp->wjep", chain, slope)
             return [out[0, j] for j in range(count)], [out[1, j] for j in range(count)]
 

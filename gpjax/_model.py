@@ -32,6 +32,7 @@ from ._evaluator import PopulationEvaluator, split_state_features
 from ._expressions import parse_expression
 from ._objective import default_n_bins
 from ._reference import reference_response
+from ._system_bank import bank_of
 from ._uncertainty import Uncertainty
 from ._weak_form import estimate_initial_conditions
 
@@ -358,7 +359,9 @@ class Model:
             return _evaluator(measurement, self.symbols, max_degree=degree,
                               extra_state_features=extra, families=families,
                               **settings, **options)
-        return PopulationEvaluator(measurement, self.symbols_of(0),
+        kinds, scales = bank_of(self.coordinates, [list(c.state) for c in self.system])
+        return PopulationEvaluator(measurement, self.symbols_of(0), kinds=kinds,
+                                   sign_scales=scales,
                                    **{"max_degree": self.max_power(), **settings, **options})
 
     def max_power(self) -> int:

@@ -21,7 +21,8 @@ x_i − x_j or x_i' − x_j' alone; forcing terms of time and inputs alone; the 
 rules (:func:`gpjax._canonical.check_structure`) on the coordinate's own terms; declared
 time-varying terms g(t)·h(x_i) or g(t)·h(x_i'); with ``third_law``, each coupling term's
 mirror in the other equation with the tied coefficient. With several coordinates the state
-terms are, for now, powers only (the system evaluator's polynomial basis).
+terms are powers or system-bank terms (tanh(θ·z), z·|z|, sin(z), cos(z) of one variable z;
+:mod:`gpjax._system_bank`).
 """
 
 from __future__ import annotations
@@ -37,7 +38,7 @@ from ._canonical import Symbols, check_structure
 from ._convergence import MAX_SUBSTEPS
 from ._data import INPUT_INTERPOLATIONS
 from ._errors import ModelFileError, read_user_file
-from ._evaluator import system_state_features
+from ._system_bank import bank_of
 from ._expressions import parse_expression
 from ._model import Equation, Model
 from ._reference import ReferenceSolver
@@ -235,17 +236,13 @@ def _state_kind(feature: sp.Expr, i: int, coordinates) -> str | None:
 
 
 def _check_system_basis(model: Model, fail) -> None:
-    """With several coordinates, every state feature is a power of x_i, x_i', x_i − x_j or
-    x_i' − x_j' (the system evaluator's basis, :func:`gpjax._evaluator.system_state_features`)."""
-    coordinates = model.coordinates
-    basis = system_state_features(coordinates, model.max_power())
-    for i, equation in enumerate(model.system):
-        for feature in equation.state:
-            if feature not in basis[i]:
-                fail(f"feature {feature} of equation {i + 1} is not a power of "
-                     f"{coordinates[i]}, {coordinates[i]}_dot or of their differences to the "
-                     "other coordinates (x_i - x_j, x_i_dot - x_j_dot); several coordinates "
-                     "take polynomial terms only")
+    """With several coordinates, every state feature is a power or a bank term
+    (:mod:`gpjax._system_bank`) of x_i, x_i', x_i − x_j or x_i' − x_j' (the system
+    evaluator's basis, :func:`gpjax._evaluator.system_state_features`)."""
+    try:
+        bank_of(model.coordinates, [list(c.state) for c in model.system])
+    except ValueError as error:
+        fail(str(error))
 
 
 def _check_parametric(feature: sp.Expr, text: str, symbols: Symbols, fail) -> None:

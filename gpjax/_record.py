@@ -69,6 +69,8 @@ class RecordArrays:
         start: () the time of the first sample (s).
         noise_scale: (D,) the responses' standard deviations (residual scales of the
             refiner).
+        sign_scales: (2D²,) θ of a system's smoothed signs tanh(θ·z), one per equation
+            variable (:mod:`gpjax._system_bank`; unused for D = 1).
     """
 
     responses: np.ndarray
@@ -81,6 +83,7 @@ class RecordArrays:
     step: np.ndarray
     start: np.ndarray
     noise_scale: np.ndarray
+    sign_scales: np.ndarray
 
 
 class RecordContext:

@@ -80,7 +80,8 @@ class SystemWeakForm:
         integrated by parts against the measured positions (∫ψ·x' = −∫ψ'·x), as one
         coordinate's weak form does: no velocity estimate blurs a damping term's column."""
         symbols = feature.free_symbols
-        if not symbols or not symbols <= set(self._velocities):
+        if (not symbols or not symbols <= set(self._velocities)
+                or not feature.is_polynomial(*self._velocities)):
             return self.column(equation, feature)
         linear = sp.Poly(feature, *self._velocities)
         if linear.total_degree() != 1 or linear.coeff_monomial(1):
@@ -98,6 +99,12 @@ class SystemWeakForm:
             self._columns[key] = self._weak[equation]._integrate(
                 np.broadcast_to(numbers, self.measurement.time.shape), 0)
         return self._columns[key]
+
+    def rms(self, expression: sp.Expr) -> float:
+        """RMS of a function of the states on the smoothed record."""
+        numbers = sp.lambdify(list(self._values), expression, modules="numpy")(
+            *self._values.values())
+        return float(np.sqrt(np.mean(np.square(numbers))))
 
     def rows(self, d: int) -> int:
         """Test-function windows of equation ``d``."""

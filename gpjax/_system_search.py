@@ -42,8 +42,10 @@ gear's mesh damping), the removal must also not simulate significantly worse
 (:meth:`_Scorer.simulates_better`: a likelihood-ratio test on the refined systems' simulated
 residuals). That guard is in-sample, and a term that fits the measured input's noise as it
 rings through the dynamics passes it; so a removal that predicts the held-out windows
-significantly better is taken without it. The chosen system is refitted at converged integration
-(:func:`gpjax._system_fit.fit_system`).
+significantly better is taken without it. The chosen system is refitted at converged
+integration (:func:`gpjax._system_fit.fit_system`), and a term whose constant that fit
+cannot tell from 0 (a Wald test at ``selection_alpha`` with the interval's standard error)
+is dropped and the rest refitted, one at a time (:func:`_without_insignificant`).
 
 With Newton's third law (``GPConfig.third_law``, :mod:`gpjax._system_couplings`) the
 relative coordinates d_ij are terminals of equation min(i, j) only; each coupling term
@@ -79,6 +81,8 @@ from ._operators import Grammar, crossover, initial_population, mutation, pertur
 from ._refine import Refiner
 from ._system_couplings import (couple, coupled_least_squares, coupled_residual,
                                 fixed_columns, normalisation, tie_columns)
+from ._system_bank import (MAKERS, SYSTEM_FUNCTIONS, bank_feature, kinds_for, match_bank,
+                           sign_scales, system_variables)
 from ._system_fit import SystemFit, SystemWeakForm, fit_system
 
 PENALTY = 1e12
@@ -103,11 +107,17 @@ class SearchResult:
 
 
 class _Equations:
-    """Terminals, tree reading and structure rules of every equation of one measurement."""
+    """Terminals, tree reading and structure rules of every equation of one measurement;
+    ``functions`` beyond add, sub, mul make the bank's kinds (:mod:`gpjax._system_bank`),
+    the smoothed sign of variable z at θ = ``scales``' entry of z."""
 
-    def __init__(self, measurement: Measurement, max_degree: int, third_law: bool = False):
+    def __init__(self, measurement: Measurement, max_degree: int, third_law: bool = False,
+                 functions=("add", "sub", "mul"), scales=None):
         names = measurement.response_names
         self.names, self.max_degree, self.third_law = names, max_degree, third_law
+        self.functions = ("add", "sub", "mul") + tuple(
+            f for f in functions if f in SYSTEM_FUNCTIONS and f not in ("add", "sub", "mul"))
+        self.kinds = kinds_for(self.functions)
         self.inputs = tuple(sp.Symbol(u) for u in measurement.input_names)
         self.t = sp.Symbol(measurement.time_name)
         self.tables, self.meaning = [], []
@@ -123,11 +133,17 @@ class _Equations:
                     meaning[dv] = v - sp.Symbol(f"{other}_dot")
             self.tables.append(table)
             self.meaning.append(meaning)
+        variables = system_variables(names)
+        scales = np.ones(2 * len(names) ** 2) if scales is None else scales
+        #: Per equation, the sign's θ of each of its variables.
+        self.scale_of = [{z: float(scales[i * len(zs) + p]) for p, z in enumerate(zs)}
+                         for i, zs in enumerate(variables)]
+        self.variables = variables
 
     def grammar(self, i: int, config) -> Grammar:
         variables = tuple(("s", name) for name in self.tables[i]) + tuple(
             ("u", k) for k in range(len(self.inputs)))
-        return Grammar(functions=("add", "sub", "mul"), variables=variables,
+        return Grammar(functions=self.functions, variables=variables,
                        named_constants=(), interval_constants={},
                        real_interval=config.real_interval, int_interval=config.int_interval,
                        max_depth=config.max_depth, max_size=config.max_size)
@@ -136,6 +152,10 @@ class _Equations:
         """(state features, forcing features) of equation ``i``, or ``None`` if invalid."""
         return _structure(self, i, tree)
 
+    def feature(self, i: int, kind: str, z: sp.Expr) -> sp.Expr:
+        """Equation ``i``'s bank feature of ``kind`` of its variable ``z``."""
+        return bank_feature(kind, z, self.scale_of[i][z])
+
     def tree(self, i: int, state, forcing):
         """A tree whose structure is (``state``, ``forcing``) (for local search)."""
         inverse = {m: s for s, m in self.meaning[i].items()}
@@ -143,10 +163,16 @@ class _Equations:
         terms = [("s", f"{name}_ddot")]
         for feature in state:
             base, power = feature.as_base_exp()
-            leaf = ("s", str(inverse[base]))
-            term = leaf
-            for _ in range(int(power) - 1):
-                term = ("mul", term, leaf)
+            if base in inverse:
+                leaf = ("s", str(inverse[base]))
+                term = leaf
+                for _ in range(int(power) - 1):
+                    term = ("mul", term, leaf)
+            else:
+                kind, position, _ = match_bank(feature, self.variables[i])
+                leaf = ("s", str(inverse[self.variables[i][position]]))
+                maker = next(f for f in MAKERS[kind] if f in self.functions)
+                term = ("mul", leaf, (maker, leaf)) if kind == "abs" else (maker, leaf)
             terms.append(term)
         for feature in forcing:
             terms.append(("u", self.inputs.index(feature)) if feature in self.inputs
@@ -160,7 +186,42 @@ class _Equations:
         """Equation ``i``'s possible state and forcing features (local search)."""
         state = [m ** k for m in self.meaning[i].values()
                  for k in range(1, self.max_degree + 1)]
+        state += [self.feature(i, kind, m) for kind in self.kinds
+                  for m in self.meaning[i].values()]
         return state, list(self.inputs) + [sp.Integer(1)]
+
+
+#: A tree's unary functions as sympy functions.
+_UNARY = {"sign": sp.sign, "tanh": sp.tanh, "abs": sp.Abs, "sin": sp.sin, "cos": sp.cos}
+
+
+def _bank_placeholders(expression: sp.Expr, states) -> tuple | None:
+    """``expression`` with every function of one state variable s (sign(c·s),
+    tanh(c·s): the smoothed sign of s times sign(c); |c·s|; sin(±s), cos(±s)) replaced by
+    a placeholder symbol, and {placeholder: (kind, s)}; ``None`` where a function has
+    another argument."""
+    replacements, table = {}, {}
+    for atom in expression.atoms(*_UNARY.values()):
+        argument = atom.args[0]
+        if len(argument.free_symbols) != 1 or not argument.free_symbols <= states:
+            return None
+        (s,) = argument.free_symbols
+        factor = sp.expand(argument / s)
+        if not factor.is_number or factor == 0:
+            return None
+        if isinstance(atom, (sp.sign, sp.tanh)):
+            kind, value = "sign", sp.sign(factor)
+        elif isinstance(atom, sp.Abs):
+            kind, value = "abs", abs(factor)
+        elif factor in (1, -1):
+            kind = "sin" if isinstance(atom, sp.sin) else "cos"
+            value = factor if kind == "sin" else 1
+        else:
+            return None
+        placeholder = sp.Symbol(f"_{kind}_{s}")
+        replacements[atom] = value * placeholder
+        table[placeholder] = (kind, s)
+    return expression.xreplace(replacements), table
 
 
 @lru_cache(maxsize=200_000)
@@ -169,7 +230,11 @@ def _structure(equations: _Equations, i: int, tree) -> tuple | None:
     expression = sp.expand(_expression(tree, table, equations.inputs, equations.t))
     ddot = table[f"{equations.names[i]}_ddot"]
     states = list(meaning)
-    generators = [ddot, *states, equations.t, *equations.inputs]
+    replaced = _bank_placeholders(expression, set(states))
+    if replaced is None:
+        return None
+    expression, bank = sp.expand(replaced[0]), replaced[1]
+    generators = [ddot, *states, *bank, equations.t, *equations.inputs]
     try:
         terms = sp.Poly(expression, *generators).terms()
     except sp.PolynomialError:
@@ -179,10 +244,19 @@ def _structure(equations: _Equations, i: int, tree) -> tuple | None:
         used = [g for g, e in zip(generators, exponents) if e]
         if abs(float(coefficient)) < 1e-12:
             continue
+        powers = dict(zip(generators, exponents))
+        placeholders = [g for g in used if g in bank]
         if ddot in used:
             if used != [ddot] or exponents[0] != 1:
                 return None
             mass += float(coefficient)
+        elif placeholders:
+            kind, s = bank[placeholders[0]]
+            alone = used == placeholders and kind != "abs"
+            drag = kind == "abs" and sorted(used, key=str) == sorted([placeholders[0], s], key=str)
+            if len(placeholders) > 1 or any(powers[g] != 1 for g in used) or not (alone or drag):
+                return None
+            state.append(equations.feature(i, kind, meaning[s]))
         elif set(used) & set(states):
             power = sum(exponents)
             if len(used) > 1 or power > equations.max_degree:
@@ -190,7 +264,7 @@ def _structure(equations: _Equations, i: int, tree) -> tuple | None:
             state.append(meaning[used[0]] ** power)
         else:
             forcing.append(sp.Mul(*(g ** e for g, e in zip(generators, exponents) if e)))
-    if mass == 0.0:
+    if mass == 0.0 or len(set(state)) < len(state):
         return None
     return tuple(sorted(state, key=str)), tuple(sorted(forcing, key=str))
 
@@ -200,6 +274,8 @@ def _expression(tree, table, inputs, t):
     if head in ("add", "sub", "mul"):
         a, b = (_expression(c, table, inputs, t) for c in tree[1:])
         return a + b if head == "add" else a - b if head == "sub" else a * b
+    if head in _UNARY:
+        return _UNARY[head](_expression(tree[1], table, inputs, t))
     if head == "s":
         return table[tree[1]]
     if head == "u":
@@ -221,7 +297,12 @@ def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
     """
     check_system_config(config)
     rng = np.random.default_rng(seed)
-    equations = _Equations(measurement, config.max_degree, config.third_law)
+    weak = SystemWeakForm(measurement)
+    kinds = kinds_for(config.functions)
+    scales = (sign_scales(measurement.response_names, weak.rms) if "sign" in kinds
+              else None)
+    equations = _Equations(measurement, config.max_degree, config.third_law,
+                           config.functions, scales)
     count = len(equations.names)
     grammars = [equations.grammar(i, config) for i in range(count)]
     evaluator = PopulationEvaluator(
@@ -229,8 +310,9 @@ def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
                              measurement.input_names),
         max_degree=config.max_degree, fit_initial_conditions=True, n_bins=config.n_bins,
         w_time=config.w_time, w_freq=config.w_freq,
-        input_interpolation=config.input_interpolation, batch=config.population)
-    scorer = _Scorer(measurement, equations, evaluator)
+        input_interpolation=config.input_interpolation, batch=config.population,
+        kinds=kinds, sign_scales=scales)
+    scorer = _Scorer(weak, equations, evaluator)
     trees = list(zip(*(initial_population(g, rng, config.population, config.init_depth)
                        for g in grammars)))
     for k in range(0, len(trees), 2):  # half of them sums of valid terms (see the docstring)
@@ -272,6 +354,14 @@ def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
     fit = fit_system(measurement, scorer.normalised(best), max_degree=config.max_degree,
                      input_interpolation=config.input_interpolation, start=start,
                      tolerance=config.convergence_tolerance, third_law=config.third_law)
+    while (smaller := _without_insignificant(best, fit, config.selection_alpha)) is not None:
+        _progress.stage(f"dropping a term its converged fit does not demonstrate (Wald test "
+                        f"at level {config.selection_alpha}), then fitting again")
+        best = smaller
+        fit = fit_system(measurement, scorer.normalised(best), max_degree=config.max_degree,
+                         input_interpolation=config.input_interpolation,
+                         start=scorer.coefficients(best),
+                         tolerance=config.convergence_tolerance, third_law=config.third_law)
     programs = [scorer.evaluator, *scorer.refiners()]
     return SearchResult(fit, history, {
         "search_s": selecting - started, "selection_s": fitting - selecting,
@@ -296,9 +386,9 @@ def _random_terms(i: int, equations: _Equations, rng) -> tuple:
 class _Scorer:
     """Objective of systems by structure, with least-squares and refined constants cached."""
 
-    def __init__(self, measurement, equations: _Equations, evaluator: PopulationEvaluator):
-        self.equations, self.evaluator = equations, evaluator
-        self.weak = SystemWeakForm(measurement)
+    def __init__(self, weak: SystemWeakForm, equations: _Equations,
+                 evaluator: PopulationEvaluator):
+        self.equations, self.evaluator, self.weak = equations, evaluator, weak
         self.objective: dict[tuple, float] = {}
         self.refined: dict[tuple, list[Coefficients]] = {}
         self._refiners: dict[int, Refiner] = {}
@@ -562,6 +652,41 @@ def _survivors(pool, scores, scorer: _Scorer, count: int):
         seen.add(key)
     chosen = (first + repeats)[:count]
     return [pool[i] for i in chosen], scores[chosen]
+
+
+def _without_insignificant(key, fit: SystemFit, alpha: float):
+    """``key`` without its least significant term where the converged output-error fit's
+    Wald test (t = c/se with the interval's degrees of freedom, :mod:`gpjax._uncertainty`)
+    cannot tell its constant from 0 at level ``alpha``, else ``None``. Reason: the
+    selection before it runs at the search's step count, whose discretisation error a
+    spurious term can absorb (a stiff smoothed sign wants a damping term beside it at one
+    RK4 step per sample); only the converged fit says what the record demonstrates.
+    A removal that would empty an equation is not made."""
+    uncertainty = fit.uncertainty
+    if uncertainty is None:
+        return None
+    errors = uncertainty.standard_errors
+    worst, largest = None, alpha
+    for name, (i, part, feature) in fit.model.constant_names().items():
+        terms = {str(f): f for f in key[i][part == "forcing"]}  # the model's names are text
+        if part not in ("state", "forcing") or str(feature) not in terms:
+            continue
+        se = errors.get(name, math.inf)
+        if not 0 < se < math.inf:
+            continue
+        value = float(uncertainty.values[uncertainty.names.index(name)])
+        dof = float(uncertainty.dof[uncertainty.names.index(name)])
+        p = 2.0 * float(stats.t.sf(abs(value) / se, dof))
+        if p >= largest:
+            worst, largest = (i, part == "forcing", terms[str(feature)]), p
+    if worst is None:
+        return None
+    i, forcing, feature = worst
+    part = tuple(tuple(f for f in key[i][k] if not (k == forcing and f == feature))
+                 for k in (0, 1))
+    if not (part[0] or part[1]):
+        return None
+    return key[:i] + (part,) + key[i + 1:]
 
 
 def _simplest(best, scorer: _Scorer, alpha: float, resolution: float):

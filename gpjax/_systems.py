@@ -4,7 +4,8 @@ Each :class:`System` holds its true equations (sympy, one per coordinate, in the
 ``x, x_dot, x_ddot, u, t`` or ``x1, x2, …`` for chains), its true constants and how it is
 excited; :data:`SYSTEMS` is the catalogue (the nine single-coordinate systems of the
 physics benchmark, :data:`PHYSICS_SUITE`, two and three masses in a chain with cubic
-coupling springs, and a drifting positioning stage in a PD loop). Records are made by
+coupling springs, two with dry friction between them, and a drifting positioning stage in
+a PD loop). Records are made by
 :mod:`gpjax._synthetic`.
 
 Units: x in m (rad for the pendulum), u in N (N·m), t in s, constants in SI.
@@ -187,6 +188,26 @@ def _chain(n: int) -> System:
                   excitation=Excitation(low=0.1, high=3.0, rms=6.0))
 
 
+def _friction_chain() -> System:
+    """Two masses on ground springs and dampers, coupled by a spring and by dry friction
+    F·tanh((x_i' − x_j')/v0) between them, v0 = 1 mm/s (a sign resolved by the truth's
+    integrator: the masses stick to each other for ~15 % of the time)."""
+    F, kc, v0 = sp.symbols("F kc v0")
+    names = ("x1", "x2")
+    equations = []
+    for i, name in enumerate(names):
+        x, x_dot, x_ddot = state_symbols(name)
+        other, other_dot, _ = state_symbols(names[1 - i])
+        lhs = (sp.Symbol(f"m{i + 1}") * x_ddot + _c * x_dot + _k * x + kc * (x - other)
+               + F * sp.tanh((x_dot - other_dot) / v0))
+        equations.append(sp.Eq(lhs, U if i == 0 else 0))
+    return System(name="chain2_friction", description="2-mass chain, dry friction between "
+                  "the masses, input on mass 1", equations=tuple(equations), coordinates=names,
+                  constants={"m1": 1.0, "m2": 0.8, "c": 0.5, "k": 30.0, "kc": 20.0, "F": 1.5,
+                             "v0": 1e-3},
+                  excitation=Excitation(low=0.1, high=3.0, rms=6.0), max_step=SIGN_MAX_STEP)
+
+
 def _catalogue() -> dict[str, System]:
     F, Fc, Fs, vs, v0, a, k3, f0 = sp.symbols("F Fc Fs vs v0 a k3 f0")
     sign = sp.sign(X_DOT)
@@ -222,6 +243,7 @@ def _catalogue() -> dict[str, System]:
                 {"c": 1.5, "F": 4.0, "v0": 0.2, "k": 30.0}, 6.0),
         _chain(2),
         _chain(3),
+        _friction_chain(),
         System(name="stage", description="drifting positioning stage: m·x'' + c·x' + "
                "F·sign(x') + f0 = u, PD loop on a quantised encoder",
                equations=(sp.Eq(_m * X_DDOT + _c * X_DOT + F * sign + f0, U),),

@@ -133,8 +133,8 @@ def test_system_search_takes_the_one_gpconfig_and_refuses_one_coordinate_fields(
     _, _, measurement = _chain(duration=1.0)
     with pytest.raises(ConfigError, match="coefficients is not supported with several"):
         search_system(measurement, config=GPConfig(coefficients="tree"))
-    with pytest.raises(ConfigError, match="functions is not supported with several"):
-        search_system(measurement, config=GPConfig(functions=("add", "sub", "mul", "sin")))
+    with pytest.raises(ConfigError, match="function 'exp' is not supported with several"):
+        search_system(measurement, config=GPConfig(functions=("add", "sub", "mul", "exp")))
     path = tmp_path / "run.toml"
     path.write_text("population = 30\ngenerations = 1\nthird_law = true\np_swap = 0.5\n")
     read = GPConfig.from_toml(path)
@@ -159,10 +159,10 @@ def test_system_config_errors_are_one_line_exit_2(tmp_path, capsys):
     err = capsys.readouterr().err
     assert "p_swap must be in [0, 1]" in err and err.count("\n") == 1
     assert main(["fit", str(tmp_path / "data.csv"), "--time", "t", "--response", "x1",
-                 "--response", "x2", "--input", "u", "--functions", "add,sub,mul,sin",
+                 "--response", "x2", "--input", "u", "--functions", "add,sub,mul,exp",
                  "--out", str(tmp_path / "run")]) == 2
     err = capsys.readouterr().err
-    assert "functions is not supported with several responses" in err
+    assert "function 'exp' is not supported with several responses" in err
     assert err.count("\n") == 1 and not (tmp_path / "run").exists()
     assert not (tmp_path / "run").exists()
 

@@ -1,0 +1,184 @@
+"""The system bank (:mod:`gpjax._system_bank`): non-polynomial terms of one variable of a
+system's equations — a smoothed sign (dry friction between two masses), z·|z| and sin/cos —
+in the evaluator, the structure rules, the model file and a search."""
+
+import dataclasses
+import functools
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+import sympy as sp
+
+import gpjax
+from gpjax import ConfigError, GPConfig, Symbols
+from gpjax._coefficients import Coefficients, to_system_population
+from gpjax._config import check_system_config
+from gpjax._system_bank import (KINDS, bank_feature, bank_of, match_bank, sign_scales,
+                                system_variables)
+from gpjax._system_search import _Equations
+from gpjax.engine import PopulationEvaluator
+from gpjax.systems import generate, get_system
+
+X1, X2, V1, V2, U = sp.symbols("x1 x2 x1_dot x2_dot u")
+THETA = 40.0  # the sign's scale θ (1/ε, s/m)
+
+
+@functools.lru_cache(maxsize=1)
+def _data():
+    system = dataclasses.replace(get_system("chain2_friction"), duration=4.0)
+    return generate(system, seed=2, noise=0.0, input_noise=0.0)
+
+
+def _record(duration=4.0):
+    record = _data().fit
+    keep = record.time <= duration
+    return gpjax.Measurement(time=record.time[keep], responses=record.response_true[:, keep].T,
+                             inputs={"u": record.input_true[keep]},
+                             response_names=record.coordinates)
+
+
+def _equations(y0=((0.01, 0.1), (0.0, -0.1))):
+    """Friction between the masses, drag on mass 1, a sine of the coupling on mass 2."""
+    friction = bank_feature("sign", V1 - V2, THETA)
+    first = Coefficients(1.0, {V1: 0.5, X1: 30.0, X1 - X2: 20.0, friction: 1.5,
+                               V1 * sp.Abs(V1): 0.3}, {U: 1.0}, y0[0])
+    second = Coefficients(0.8, {V2: 0.5, X2: 30.0, X2 - X1: 20.0,
+                                bank_feature("sign", V2 - V1, THETA): 1.5,
+                                sp.sin(X2 - X1): 2.0}, {}, y0[1])
+    return [first, second]
+
+
+def _model(equations, substeps=1):
+    return gpjax.Model.from_equations(("x1", "x2"), "t", ("u",), equations,
+                                      input_interpolation="linear", substeps=substeps)
+
+
+def test_every_bank_feature_is_matched_back_in_both_equations():
+    for variables in system_variables(("x1", "x2")):
+        for kind in KINDS:
+            for position, z in enumerate(variables):
+                feature = bank_feature(kind, z, 7.5)
+                assert match_bank(feature, variables) == (
+                    kind, position, 7.5 if kind == "sign" else 1.0), feature
+    assert match_bank(sp.sin(2 * X1), system_variables(("x1", "x2"))[0]) is None
+    kinds, scales = bank_of(("x1", "x2"), [list(e.state) for e in _equations()])
+    assert kinds == ("sign", "abs", "sin") and scales[3] == scales[7] == THETA
+    with pytest.raises(ValueError, match="neither a power nor a bank term"):
+        bank_of(("x1", "x2"), [[sp.exp(X1)], []])
+
+
+def test_bank_simulation_matches_the_reference_solve():
+    """RK4 on the bank's columns (the sign's θ a program argument) converges to the
+    adaptive reference solve of the same model's sympy equations."""
+    measurement = _record()
+    model = _model(_equations(), substeps=8)
+    evaluator = model.evaluator(measurement)
+    assert evaluator.kinds == ("sign", "abs", "sin")
+    y0 = np.array([[0.01, 0.1], [0.0, -0.1]])
+    rk4 = model.simulate(measurement, initial_conditions=y0, solver="rk4")
+    reference = model.simulate(measurement, initial_conditions=y0)
+    scale = np.std(reference, axis=0)
+    assert np.all(np.abs(rk4 - reference).max(axis=0) < 1e-5 * scale)
+
+
+@pytest.mark.slow  # ~15 s: compiles forward-mode autodiff through the scan
+def test_bank_variational_jacobian_matches_autodiff():
+    """The hand-written partials of the bank's terms (the initial-state step and the
+    refiner's Jacobian) equal forward-mode autodiff of the RK4 solution."""
+    measurement = _record(duration=2.0)
+    model = _model(_equations())
+    ev = model.evaluator(measurement, max_degree=3)
+    pop = to_system_population([_equations()], ev)
+    flat = jnp.asarray(ev.layout.pack(pop)[0])
+    basis = jnp.asarray(ev.forcing_basis)[: ev.stage_rows(measurement.n_samples)]
+    directions = jnp.asarray(np.random.default_rng(0).standard_normal((3, flat.size)))
+    x, dx = ev.constant_jacobian(flat, directions, basis)
+    expected = jax.jacfwd(lambda c: ev.scan_solve(*ev.unpack(c, basis))[..., 0])(flat)
+    np.testing.assert_allclose(dx, expected @ directions.T, rtol=1e-9,
+                               atol=1e-9 * float(jnp.max(jnp.abs(dx))))
+
+
+def test_a_new_sign_scale_compiles_nothing():
+    """θ is data: two evaluators that differ only in it share their program key."""
+    measurement = _record(duration=1.0)
+    keys = {PopulationEvaluator(measurement, Symbols("x1", "t", ("u",)), max_degree=3,
+                                kinds=("sign",), sign_scales=np.full(8, theta)).key
+            for theta in (10.0, 300.0)}
+    assert len(keys) == 1
+
+
+@pytest.mark.parametrize("tree, expected", [
+    (("add", ("s", "x1_ddot"), ("sign", ("s", "d_x1_x2_dot"))), "sign"),
+    (("add", ("s", "x1_ddot"), ("tanh", ("mul", ("n", -3.0), ("s", "d_x1_x2_dot")))), "-sign"),
+    (("add", ("s", "x1_ddot"), ("mul", ("s", "x1_dot"), ("abs", ("s", "x1_dot")))), "abs"),
+    (("add", ("s", "x1_ddot"), ("sin", ("s", "x1"))), "sin"),
+    (("add", ("s", "x1_ddot"), ("sin", ("mul", ("n", 2.0), ("s", "x1")))), None),
+    (("add", ("s", "x1_ddot"), ("abs", ("s", "x1_dot"))), None),
+    (("add", ("s", "x1_ddot"), ("mul", ("s", "x1"), ("sign", ("s", "x1_dot")))), None),
+    (("add", ("s", "x1_ddot"), ("sin", ("s", "x1_ddot"))), None),
+])
+def test_structure_rules_read_bank_terms(tree, expected):
+    measurement = _record(duration=1.0)
+    scales = np.arange(1.0, 9.0)
+    equations = _Equations(measurement, 3, functions=("add", "sub", "mul", "sign", "tanh",
+                                                      "abs", "sin"), scales=scales)
+    found = equations.structure(0, tree)
+    if expected is None:
+        assert found is None
+        return
+    state, forcing = found
+    feature = {"sign": bank_feature("sign", V1 - V2, 4.0),
+               "-sign": bank_feature("sign", V1 - V2, 4.0), "abs": V1 * sp.Abs(V1),
+               "sin": sp.sin(X1)}[expected]
+    assert state == (feature,) and forcing == ()
+    assert equations.structure(0, equations.tree(0, state, forcing)) == found
+
+
+def test_sign_scales_follow_the_variables_rms():
+    scales = sign_scales(("x1", "x2"), lambda z: 2.0 if z == V1 - V2 else 0.0)
+    assert scales[3] == pytest.approx(1 / (0.01 * 2.0)) and scales[0] == pytest.approx(100.0)
+
+
+@pytest.mark.parametrize("change, message", [
+    (dict(functions=("add", "sub", "mul", "exp")), "function 'exp' is not supported"),
+    (dict(functions=("add", "sub", "mul", "sign"), third_law=True),
+     "third_law takes polynomial couplings only"),
+    (dict(substeps=2), "substeps is not supported with several responses"),
+])
+def test_system_settings_outside_the_bank_are_refused(change, message):
+    with pytest.raises(ConfigError, match=message):
+        check_system_config(GPConfig(**change))
+    check_system_config(GPConfig(functions=("add", "sub", "mul", "sign", "abs", "sin", "cos")))
+
+
+def test_bank_model_file_round_trip(tmp_path):
+    model = _model(_equations())
+    model.save(tmp_path / "model.json")
+    loaded = gpjax.Model.load(tmp_path / "model.json")
+    assert [str(e) for e in loaded.sympy()] == [str(e) for e in model.sympy()]
+    data = model.to_json()
+    data["canonical"][1]["terms"].append({"feature": "exp(x2)", "coefficient": 1.0})
+    with pytest.raises(gpjax.ModelFileError, match="neither a power nor a bank term"):
+        gpjax.Model.from_json(data)
+
+
+@pytest.mark.slow  # ~1 min: a small search on the friction chain
+def test_search_finds_dry_friction_between_two_masses(tmp_path):
+    """The Identifier on chain2_friction with sign in the function set finds the friction
+    between the masses in both equations, with the spring and dampers, constants within
+    3 % (the smoothed sign's width is 1 % of RMS(x1' − x2'), the truth's ~0.1 %)."""
+    data = generate("chain2_friction", seed=3)
+    identifier = gpjax.Identifier(GPConfig(
+        population=200, generations=4, functions=("add", "sub", "mul", "sign"))).fit(
+        data.fit.system_measurement(), seed=0, out=tmp_path / "run")
+    first, second = identifier.model_.system
+    c = data.system.constants
+    friction = [f for f in first.state if f.has(sp.tanh)]
+    assert len(friction) == 1 and set(first.state) == {V1, X1, X1 - X2, friction[0]}
+    assert set(second.state) == {V2, X2, X2 - X1, -friction[0]} and set(first.forcing) == {U}
+    assert first.state[friction[0]] == pytest.approx(c["F"], rel=0.03)
+    assert first.mass == pytest.approx(c["m1"], rel=0.03)
+    assert second.state[-friction[0]] == pytest.approx(c["F"] / c["m2"], rel=0.03)
+    assert second.state[X2 - X1] == pytest.approx(c["kc"] / c["m2"], rel=0.03)
