@@ -129,12 +129,12 @@ def check_model(model, measurement: Measurement, *,
 
 
 def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int | None,
-                  tolerance: float):
+                  tolerance: float, first: int | None = None):
     """(model, checks): ``fit_at(steps, previous)`` (``previous``: the last fit, ``None``
-    at first) at the record's initial step count, checked against the reference solve and
-    fitted again at :func:`next_substeps` until the check passes or the steps reach
-    :data:`MAX_SUBSTEPS`; with ``substeps`` given, that count, checked once."""
-    steps = substeps or initial_substeps(measurement)
+    at first) at the record's initial step count (or ``first``), checked against the
+    reference solve and fitted again at :func:`next_substeps` until the check passes or the
+    steps reach :data:`MAX_SUBSTEPS`; with ``substeps`` given, that count, checked once."""
+    steps = substeps or first or initial_substeps(measurement)
     checks, model = [], None
     while True:
         model = fit_at(steps, model)

@@ -202,12 +202,14 @@ class SystemFit:
 def fit_system(measurement: Measurement, structure: Structure, *, max_degree: int = 3,
                input_interpolation: str = "linear", iterations: int = 30,
                start: list[Coefficients] | None = None, tolerance: float = 0.01,
-               substeps: int | None = None, third_law: bool = False) -> SystemFit:
+               substeps: int | None = None, third_law: bool = False,
+               first_substeps: int | None = None) -> SystemFit:
     """Constants and initial states of a system ``structure`` on ``measurement``
     (module docstring): weak-form start (or ``start``), Levenberg–Marquardt on all
     coordinates at once, repeated at a finer step until the RK4 and reference responses
     differ by less than ``tolerance`` of the RMS residual (``substeps`` given: that step
-    count, checked once). ``third_law``: every coupling feature (a power of x_i − x_j or
+    count, checked once; ``first_substeps``: the step count the ladder starts from, e.g. a
+    similar system's converged one). ``third_law``: every coupling feature (a power of x_i − x_j or
     x_i' − x_j') is one force acting on both coordinates, its mirror added to equation j
     and its constants tied (:mod:`gpjax._system_couplings`; then only one forcing value or
     mass per coupled group is held).
@@ -230,7 +232,8 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
         refiners.append(last["refit"][0])
         return model
 
-    model, checks = fit_converged(fit_at, measurement, substeps=substeps, tolerance=tolerance)
+    model, checks = fit_converged(fit_at, measurement, substeps=substeps, tolerance=tolerance,
+                                  first=first_substeps)
     refiner, population, fixed, tied = last["refit"]
     uncertainty = uncertainty_of(refiner, population, fixed, ties=tied, names=lambda s: model_names(
         s, model, refiner.evaluator))

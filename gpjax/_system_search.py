@@ -45,7 +45,10 @@ rings through the dynamics passes it; so a removal that predicts the held-out wi
 significantly better is taken without it. The chosen system is refitted at converged
 integration (:func:`gpjax._system_fit.fit_system`), and a term whose constant that fit
 cannot tell from 0 (a Wald test at ``selection_alpha`` with the interval's standard error)
-is dropped and the rest refitted, one at a time (:func:`_without_insignificant`).
+is dropped and the rest refitted, one at a time (:func:`_without_insignificant`), unless
+the refit simulates significantly worse (the likelihood-ratio test above, on the reference
+solves): the Wald interval of a model that misses physics is wide, and does not show a
+term to be spurious.
 
 With Newton's third law (``GPConfig.third_law``, :mod:`gpjax._system_couplings`) the
 relative coordinates d_ij are terminals of equation min(i, j) only; each coupling term
@@ -357,11 +360,14 @@ def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
     while (smaller := _without_insignificant(best, fit, config.selection_alpha)) is not None:
         _progress.stage(f"dropping a term its converged fit does not demonstrate (Wald test "
                         f"at level {config.selection_alpha}), then fitting again")
-        best = smaller
-        fit = fit_system(measurement, scorer.normalised(best), max_degree=config.max_degree,
-                         input_interpolation=config.input_interpolation,
-                         start=scorer.coefficients(best),
-                         tolerance=config.convergence_tolerance, third_law=config.third_law)
+        trial = fit_system(measurement, scorer.normalised(smaller), max_degree=config.max_degree,
+                           input_interpolation=config.input_interpolation,
+                           start=scorer.coefficients(smaller), first_substeps=fit.model.substeps,
+                           tolerance=config.convergence_tolerance, third_law=config.third_law)
+        if _better_fit_p(_scaled_residual(trial, measurement), _scaled_residual(fit, measurement),
+                         1, config.convergence_tolerance) < config.selection_alpha:
+            break  # the refit without it simulates significantly worse: the term stays
+        best, fit = smaller, trial
     programs = [scorer.evaluator, *scorer.refiners()]
     return SearchResult(fit, history, {
         "search_s": selecting - started, "selection_s": fitting - selecting,
@@ -453,20 +459,9 @@ class _Scorer:
             [self.coefficients(k) for k in (simpler, current)], self.evaluator))
         measured = self.evaluator.measurement.responses.T
         residual = (responses - measured) / measured.std(axis=1, keepdims=True)  # (2, D, N)
-        if not np.all(np.isfinite(residual[1])):
-            return False
-        if not np.all(np.isfinite(residual[0])):
-            return True
-        if np.mean(residual[0] ** 2) <= (1 + resolution) * np.mean(residual[1] ** 2):
-            return False
-        ratio = 0.0
-        for simple, full in zip(residual[0], residual[1]):
-            gamma0 = float(np.mean(full ** 2))
-            effective = full.size * gamma0 / max(long_run_variance(full)[0], gamma0 / full.size)
-            ratio += effective * math.log(float(np.mean(simple ** 2)) / gamma0)
         dropped = sum(len(a) + len(b) for a, b in current) - sum(
             len(a) + len(b) for a, b in simpler)
-        return float(stats.chi2.sf(ratio, max(dropped, 1))) < alpha
+        return _better_fit_p(residual[0], residual[1], dropped, resolution) < alpha
 
     def coefficients(self, key) -> list[Coefficients]:
         if key in self.refined:
@@ -652,6 +647,34 @@ def _survivors(pool, scores, scorer: _Scorer, count: int):
         seen.add(key)
     chosen = (first + repeats)[:count]
     return [pool[i] for i in chosen], scores[chosen]
+
+
+def _better_fit_p(simple, full, dropped: int, resolution: float) -> float:
+    """p-value that the (D, N) scaled residuals ``full`` fit significantly better than
+    ``simple``'s, which has ``dropped`` terms fewer (:meth:`_Scorer.simulates_better`'s
+    likelihood-ratio test); 1 where ``full`` is not finite or worsens the mean square by
+    at most ``resolution``, 0 where only ``simple`` is not finite."""
+    if not np.all(np.isfinite(full)):
+        return 1.0
+    if not np.all(np.isfinite(simple)):
+        return 0.0
+    if np.mean(simple ** 2) <= (1 + resolution) * np.mean(full ** 2):
+        return 1.0
+    ratio = 0.0
+    for s, f in zip(simple, full):
+        gamma0 = float(np.mean(f ** 2))
+        effective = f.size * gamma0 / max(long_run_variance(f)[0], gamma0 / f.size)
+        ratio += effective * math.log(float(np.mean(s ** 2)) / gamma0)
+    return float(stats.chi2.sf(ratio, max(dropped, 1)))
+
+
+def _scaled_residual(fit: SystemFit, measurement: Measurement) -> np.ndarray:
+    """(D, N) residuals of a fitted system's reference solve, each over its response's
+    standard deviation."""
+    measured = measurement.responses
+    simulated = np.reshape(fit.model.simulate(
+        measurement, initial_conditions=fit.model.initial_states), measured.shape)
+    return ((simulated - measured) / measured.std(axis=0)).T
 
 
 def _without_insignificant(key, fit: SystemFit, alpha: float):
