@@ -83,6 +83,20 @@ def chain_truth(n: int, constants: dict, third_law: bool = False) -> list[dict]:
     return truth
 
 
+def scored(model, found: list[dict], truth: list[dict], record) -> tuple:
+    """(structure right, largest relative constant error, NRMS per coordinate on the
+    extrapolation ``record``) of a fitted system: ``found`` and ``truth`` map each
+    equation's terms (and "mass") to their constants; the model is simulated by DOP853 from
+    the true initial state with the true input."""
+    right = all(set(f) == set(t) for f, t in zip(found, truth))
+    error = max(abs(f.get(k, 0.0) / t[k] - 1) for f, t in zip(found, truth) for k in t)
+    simulated = simulate_equations(model.sympy(), record.coordinates, record.time,
+                                   record.input_true, state0=record.initial_state)
+    nrms = np.sqrt(np.mean((simulated - record.response_true) ** 2, axis=1)
+                   / np.mean(record.response_true ** 2, axis=1))
+    return right, error, nrms
+
+
 def chains(seeds: int, search: bool, population: int, generations: int,
            third_law: bool = False, systems=("chain2", "chain3")) -> list[dict]:
     rows = []
@@ -103,19 +117,13 @@ def chains(seeds: int, search: bool, population: int, generations: int,
             truth = chain_truth(n, data.system.constants, third_law)
             found = [{"mass": e.mass, **{str(f): v for f, v in e.state.items()}}
                      for e in model.system]
-            structure_ok = all(set(f) == set(t) for f, t in zip(found, truth))
-            errors = [abs(f.get(k, 0.0) / t[k] - 1) for f, t in zip(found, truth) for k in t]
-            record = data.extrapolation
-            simulated = simulate_equations(model.sympy(), record.coordinates, record.time,
-                                           record.input_true, state0=record.initial_state)
-            nrms = np.sqrt(np.mean((simulated - record.response_true) ** 2, axis=1)
-                           / np.mean(record.response_true ** 2, axis=1))
+            structure_ok, error, nrms = scored(model, found, truth, data.extrapolation)
             rows.append({"system": name, "seed": seed, "structure_right": structure_ok,
-                         "max_constant_error": max(errors), "nrms": nrms.tolist(),
+                         "max_constant_error": error, "nrms": nrms.tolist(),
                          "seconds": seconds, "found": found, "truth": truth,
                          "substeps": model.substeps})
             print(f"{name} seed {seed}: structure {'right' if structure_ok else 'WRONG'}, "
-                  f"max constant error {max(errors):.3%}, extrapolation NRMS "
+                  f"max constant error {error:.3%}, extrapolation NRMS "
                   f"{', '.join(f'{e:.3%}' for e in nrms)}, {seconds:.1f} s", flush=True)
     return rows
 

@@ -330,6 +330,30 @@ def systems_chains() -> str:
                     "s per fit"], rows, "llrrrrr") + "\n\n" + _stamp(*(d for _, d in files)))
 
 
+def front_door_rows(data: dict) -> str:
+    """The table of ``benchmarks/systems_front_door.py``'s rows (also what it prints)."""
+    rows = []
+    for system in dict.fromkeys(r["system"] for r in data["rows"]):
+        chosen = [r for r in data["rows"] if r["system"] == system]
+        fitted = [r for r in chosen if "error" not in r]
+        n = len(chosen)
+        worst = [max(r["extrapolation_nrms"]) for r in fitted]
+        rows.append([f"`{system}`", f"{sum(r['structure_right'] for r in fitted)}/{n}",
+                     f"{sum(r['max_constant_error'] <= 0.02 for r in fitted)}/{n}",
+                     f"{sum(w <= 0.02 for w in worst)}/{n}",
+                     _pct(_median(worst)) if worst else "–",
+                     _span([r["seconds"] for r in chosen], "{:.0f}")])
+    return _table(["system", "structure right", "all constants within 2 %",
+                   "every coordinate's extrapolation NRMS ≤ 2 %",
+                   "median of the worst coordinate's NRMS", "s per fit (whole process)"],
+                  rows, "lrrrrr")
+
+
+def systems_front_door() -> str:
+    data = _load("benchmarks/systems_front_door.json")
+    return front_door_rows(data) + "\n\n" + _stamp(data)
+
+
 def systems_gear() -> str:
     data = _load("benchmarks/systems_gear.json")
     labels = {"line_of_action": "line of action, structure given",
@@ -563,6 +587,7 @@ TABLES = {
     "stage-diagnose": stage_diagnose,
     "silverbox": silverbox,
     "systems-chains": systems_chains,
+    "systems-front-door": systems_front_door,
     "systems-gear": systems_gear,
     "systems-speed": systems_speed,
     "islands-compare": islands_compare,

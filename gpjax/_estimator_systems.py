@@ -44,7 +44,8 @@ def fit_systems(identifier, measurement: Measurement, *, seed: int,
         fit.model, uncertainty=fit.uncertainty, convergence=fit.checks[-1].to_json(),
         metrics={"rms": {k: v["rms"] for k, v in residuals.items()},
                  "nrms": {k: v["nrms"] for k, v in residuals.items()},
-                 "objective": float(fit.scores.objective[0]), "residuals": residuals},
+                 "objective": float(fit.scores.objective[0]), "residuals": residuals,
+                 **({"sign_width": result.sign_width} if result.sign_width else {})},
         provenance={"seed": seed, "generations": history[-1]["generation"],
                     "stopped_by": identifier.stopped_by, "population": config.population,
                     "data": measurement.fingerprint()})
@@ -55,7 +56,8 @@ def fit_systems(identifier, measurement: Measurement, *, seed: int,
     model = identifier.model_
     identifier.equations_ = [{
         "complexity": len(model.constants()), "objective": model.metrics["objective"],
-        "rms": float(np.sqrt(np.mean(np.square(list(model.metrics["rms"].values()))))),
+        "rms": float(np.sqrt(np.mean(np.square([np.nan if v is None else v  # None: diverged
+                                                for v in model.metrics["rms"].values()])))),
         "equation": "; ".join(str(model.sympy(i)) for i in range(model.n_coordinates)),
         "selected": True,
         "constants": ", ".join(f"{k} = {v}" for k, v in model.constant_texts().items())}]

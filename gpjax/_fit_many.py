@@ -70,7 +70,8 @@ def fit_record(measurement: Measurement, config: GPConfig, seed: int) -> dict:
     return {"files": files,
             "equation": "; ".join(str(model.equation(i)) for i in range(model.n_coordinates)),
             "constants": "; ".join(f"{k}={v!r}" for k, v in model.constants().items()),
-            "rms": ("; ".join(f"{k}={v:.6g}" for k, v in rms.items())
+            "rms": ("; ".join(f"{k}=diverged" if v is None else f"{k}={v:.6g}"
+                              for k, v in rms.items())
                     if isinstance(rms, dict) else rms),
             "seconds": time.perf_counter() - began, "error": ""}
 

@@ -23,7 +23,12 @@ sign of a·z. The smoothed sign's width is one coordinate's starting width, ε =
 :data:`gpjax._features.SIGN_WIDTH` × RMS(z) on the smoothed record (the reported model holds
 the tanh it was fitted with, so any accurate solver integrates the same ODE). The scales θ
 are data — a program argument (:attr:`gpjax._record.RecordArrays.sign_scales`) — so a new
-record compiles nothing.
+record compiles nothing. As for one coordinate (:mod:`gpjax._sign_width`), the reported
+system must not depend on that width: its reference response with every sign
+:data:`gpjax._sign_width.NARROWING` times narrower, constants unchanged, must differ from
+its own by less than the convergence tolerance of its RMS residual; otherwise the search
+refits it with the narrower signs, at most :data:`gpjax._sign_width.MAX_NARROWINGS` times
+(:func:`gpjax._system_search.search_system`).
 """
 
 from __future__ import annotations
@@ -130,3 +135,15 @@ def bank_of(names: tuple[str, ...], features: list) -> tuple[tuple[str, ...], np
             kinds.add(found[0])
             scales[i * len(variables[i]) + found[1]] = found[2]
     return tuple(k for k in KINDS if k in kinds), scales
+
+
+def sharpened_features(features, names: tuple[str, ...], i: int, factor: float) -> dict:
+    """{feature: the same with its smoothed sign ``factor`` times narrower} for the sign
+    terms among equation ``i``'s ``features`` (θ × ``factor``)."""
+    variables = system_variables(names)[i]
+    out = {}
+    for feature in features:
+        found = match_bank(feature, variables)
+        if found is not None and found[0] == "sign":
+            out[feature] = bank_feature("sign", variables[found[1]], found[2] * factor)
+    return out

@@ -28,7 +28,7 @@ def residual_statistics(model: Model, measurement: Measurement, *, alpha: float 
                         simulated: np.ndarray | None = None) -> dict[str, dict]:
     """Per coordinate name: ``rms`` (response units), ``nrms``, ``noise`` (the noise floor's
     ``sigma``, ``ratio`` = RMS/σ̂, ``band_hz``, ``p_excess``; ``None`` on a record too
-    short for it) and ``unexplained`` (the residual described, or ``None`` where it is
+    short for it; all ``None`` where the model diverges on the record) and ``unexplained`` (the residual described, or ``None`` where it is
     not far above its noise). ``simulated``: the model's (N, D) response if already
     computed (default: :meth:`Model.simulate` from the fitted initial states, reference
     solve).
@@ -46,6 +46,9 @@ def residual_statistics(model: Model, measurement: Measurement, *, alpha: float 
     for d, name in enumerate(model.coordinates):
         single = measurement.coordinate(d)
         residual = single.response - simulated[:, d]
+        if not np.all(np.isfinite(residual)):  # the reference solve failed: diverged
+            out[name] = {"rms": None, "nrms": None, "noise": None, "unexplained": None}
+            continue
         rms = float(np.sqrt(np.mean(residual ** 2)))
         floor = noise_floor(residual, single.dt, smoothing_cutoff_hz(single))
         unexplained = None
@@ -58,8 +61,15 @@ def residual_statistics(model: Model, measurement: Measurement, *, alpha: float 
     return out
 
 
+#: What to do where a coordinate's residual is far above its noise or the system diverges.
+HINT = ("the system misses physics or diverges: raise --population and --generations, or "
+        "widen --functions (several coordinates take add,sub,mul,sign,tanh,abs,sin,cos)")
+
+
 def summary_line(name: str, statistics: dict) -> str:
     """One line of a coordinate's residual statistics for the terminal."""
+    if statistics["rms"] is None:
+        return f"  residual of {name}: the fitted system diverges on its record  <- {HINT}"
     floor = statistics["noise"]
     noise = ("noise floor not estimable (record too short)" if floor is None else
              f"{floor['ratio']:.2f}× its noise floor σ̂ = {floor['sigma']:.3g} "
@@ -67,3 +77,14 @@ def summary_line(name: str, statistics: dict) -> str:
     flag = "  <- misses something" if statistics["unexplained"] is not None else ""
     return (f"  residual of {name}: RMS {statistics['rms']:.4g} (NRMS "
             f"{statistics['nrms']:.3%}), {noise}{flag}")
+
+
+def width_line(check: dict) -> str:
+    """One line of a system's smoothed-sign width check
+    (:func:`gpjax._system_final.width_check`)."""
+    verdict = ("converged: the constants do not carry the smoothing" if check["converged"]
+               else "NOT converged: the constants carry some of the smoothing (the sign's "
+               "width is fixed for several coordinates)")
+    return (f"  smoothed sign tanh(z/ε), ε = {check['width']:.0%} of RMS z: {check['narrowing']}× "
+            f"narrower changes the response by {check['ratio']:.2%} of the residual RMS "
+            f"(tolerance {check['tolerance']:.0%}), {verdict}")

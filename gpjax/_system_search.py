@@ -45,7 +45,7 @@ rings through the dynamics passes it; so a removal that predicts the held-out wi
 significantly better is taken without it. The chosen system is refitted at converged
 integration (:func:`gpjax._system_fit.fit_system`), and a term whose constant that fit
 cannot tell from 0 (a Wald test at ``selection_alpha`` with the interval's standard error)
-is dropped and the rest refitted, one at a time (:func:`_without_insignificant`), unless
+is dropped and the rest refitted, one at a time (:func:`without_insignificant`), unless
 the refit simulates significantly worse (the likelihood-ratio test above, on the reference
 solves): the Wald interval of a model that misses physics is wide, and does not show a
 term to be spurious.
@@ -65,28 +65,26 @@ from __future__ import annotations
 
 import dataclasses
 import itertools
-import math
 import time
-from functools import lru_cache
 
 import numpy as np
 import sympy as sp
-from scipy import stats
 
 from . import _progress
 from ._canonical import Symbols
 from ._coefficients import Coefficients, from_system_population, to_system_population
 from ._config import GPConfig, check_system_config
 from ._data import Measurement
-from ._diagnose_acceptance import long_run_variance, predictive_test
+from ._diagnose_acceptance import predictive_test
 from ._evaluator import PopulationEvaluator
-from ._operators import Grammar, crossover, initial_population, mutation, perturbation
+from ._operators import crossover, initial_population, mutation, perturbation
 from ._refine import Refiner
+from ._system_bank import kinds_for, sign_scales
 from ._system_couplings import (couple, coupled_least_squares, coupled_residual,
                                 fixed_columns, normalisation, tie_columns)
-from ._system_bank import (MAKERS, SYSTEM_FUNCTIONS, bank_feature, kinds_for, match_bank,
-                           sign_scales, system_variables)
+from ._system_final import better_fit_p, scaled_residual, width_check, without_insignificant
 from ._system_fit import SystemFit, SystemWeakForm, fit_system
+from ._system_grammar import Equations
 
 PENALTY = 1e12
 #: Systems per compiled refinement call.
@@ -96,196 +94,19 @@ REFINE_BATCH = 4
 @dataclasses.dataclass(frozen=True)
 class SearchResult:
     """The final fit of the reported system; per generation (0 first) its number, best
-    objective and seconds; and the seconds of the stages (``search_s``, ``selection_s``,
+    objective and seconds; its smoothed signs' width check
+    (:func:`gpjax._system_final.width_check`, ``None`` without a sign); and the seconds of the stages (``search_s``, ``selection_s``,
     ``convergence_s``: the final fit at converged integration and its uncertainty) and the
     seconds and count of the programs compiled or loaded (``compile_s``, ``compiles``)."""
 
     fit: SystemFit
     history: list[dict]
     timings: dict
+    sign_width: dict | None = None
 
     @property
     def model(self):
         return self.fit.model
-
-
-class _Equations:
-    """Terminals, tree reading and structure rules of every equation of one measurement;
-    ``functions`` beyond add, sub, mul make the bank's kinds (:mod:`gpjax._system_bank`),
-    the smoothed sign of variable z at θ = ``scales``' entry of z."""
-
-    def __init__(self, measurement: Measurement, max_degree: int, third_law: bool = False,
-                 functions=("add", "sub", "mul"), scales=None):
-        names = measurement.response_names
-        self.names, self.max_degree, self.third_law = names, max_degree, third_law
-        self.functions = ("add", "sub", "mul") + tuple(
-            f for f in functions if f in SYSTEM_FUNCTIONS and f not in ("add", "sub", "mul"))
-        self.kinds = kinds_for(self.functions)
-        self.inputs = tuple(sp.Symbol(u) for u in measurement.input_names)
-        self.t = sp.Symbol(measurement.time_name)
-        self.tables, self.meaning = [], []
-        for i, name in enumerate(names):
-            x, v, a = sp.symbols(f"{name} {name}_dot {name}_ddot")
-            table = {f"{name}": x, f"{name}_dot": v, f"{name}_ddot": a}
-            meaning = {x: x, v: v}
-            for j, other in enumerate(names):  # third law: a coupling lives in equation min(i, j)
-                if j > i or (j < i and not third_law):
-                    d, dv = sp.symbols(f"d_{name}_{other} d_{name}_{other}_dot")
-                    table[str(d)], table[str(dv)] = d, dv
-                    meaning[d] = x - sp.Symbol(other)
-                    meaning[dv] = v - sp.Symbol(f"{other}_dot")
-            self.tables.append(table)
-            self.meaning.append(meaning)
-        variables = system_variables(names)
-        scales = np.ones(2 * len(names) ** 2) if scales is None else scales
-        #: Per equation, the sign's θ of each of its variables.
-        self.scale_of = [{z: float(scales[i * len(zs) + p]) for p, z in enumerate(zs)}
-                         for i, zs in enumerate(variables)]
-        self.variables = variables
-
-    def grammar(self, i: int, config) -> Grammar:
-        variables = tuple(("s", name) for name in self.tables[i]) + tuple(
-            ("u", k) for k in range(len(self.inputs)))
-        return Grammar(functions=self.functions, variables=variables,
-                       named_constants=(), interval_constants={},
-                       real_interval=config.real_interval, int_interval=config.int_interval,
-                       max_depth=config.max_depth, max_size=config.max_size)
-
-    def structure(self, i: int, tree) -> tuple | None:
-        """(state features, forcing features) of equation ``i``, or ``None`` if invalid."""
-        return _structure(self, i, tree)
-
-    def feature(self, i: int, kind: str, z: sp.Expr) -> sp.Expr:
-        """Equation ``i``'s bank feature of ``kind`` of its variable ``z``."""
-        return bank_feature(kind, z, self.scale_of[i][z])
-
-    def tree(self, i: int, state, forcing):
-        """A tree whose structure is (``state``, ``forcing``) (for local search)."""
-        inverse = {m: s for s, m in self.meaning[i].items()}
-        name = self.names[i]
-        terms = [("s", f"{name}_ddot")]
-        for feature in state:
-            base, power = feature.as_base_exp()
-            if base in inverse:
-                leaf = ("s", str(inverse[base]))
-                term = leaf
-                for _ in range(int(power) - 1):
-                    term = ("mul", term, leaf)
-            else:
-                kind, position, _ = match_bank(feature, self.variables[i])
-                leaf = ("s", str(inverse[self.variables[i][position]]))
-                maker = next(f for f in MAKERS[kind] if f in self.functions)
-                term = ("mul", leaf, (maker, leaf)) if kind == "abs" else (maker, leaf)
-            terms.append(term)
-        for feature in forcing:
-            terms.append(("u", self.inputs.index(feature)) if feature in self.inputs
-                         else ("n", 1.0))
-        tree = terms[0]
-        for term in terms[1:]:
-            tree = ("add", tree, term)
-        return tree
-
-    def basis(self, i: int) -> tuple[list[sp.Expr], list[sp.Expr]]:
-        """Equation ``i``'s possible state and forcing features (local search)."""
-        state = [m ** k for m in self.meaning[i].values()
-                 for k in range(1, self.max_degree + 1)]
-        state += [self.feature(i, kind, m) for kind in self.kinds
-                  for m in self.meaning[i].values()]
-        return state, list(self.inputs) + [sp.Integer(1)]
-
-
-#: A tree's unary functions as sympy functions.
-_UNARY = {"sign": sp.sign, "tanh": sp.tanh, "abs": sp.Abs, "sin": sp.sin, "cos": sp.cos}
-
-
-def _bank_placeholders(expression: sp.Expr, states) -> tuple | None:
-    """``expression`` with every function of one state variable s (sign(c·s),
-    tanh(c·s): the smoothed sign of s times sign(c); |c·s|; sin(±s), cos(±s)) replaced by
-    a placeholder symbol, and {placeholder: (kind, s)}; ``None`` where a function has
-    another argument."""
-    replacements, table = {}, {}
-    for atom in expression.atoms(*_UNARY.values()):
-        argument = atom.args[0]
-        if len(argument.free_symbols) != 1 or not argument.free_symbols <= states:
-            return None
-        (s,) = argument.free_symbols
-        factor = sp.expand(argument / s)
-        if not factor.is_number or factor == 0:
-            return None
-        if isinstance(atom, (sp.sign, sp.tanh)):
-            kind, value = "sign", sp.sign(factor)
-        elif isinstance(atom, sp.Abs):
-            kind, value = "abs", abs(factor)
-        elif factor in (1, -1):
-            kind = "sin" if isinstance(atom, sp.sin) else "cos"
-            value = factor if kind == "sin" else 1
-        else:
-            return None
-        placeholder = sp.Symbol(f"_{kind}_{s}")
-        replacements[atom] = value * placeholder
-        table[placeholder] = (kind, s)
-    return expression.xreplace(replacements), table
-
-
-@lru_cache(maxsize=200_000)
-def _structure(equations: _Equations, i: int, tree) -> tuple | None:
-    table, meaning = equations.tables[i], equations.meaning[i]
-    expression = sp.expand(_expression(tree, table, equations.inputs, equations.t))
-    ddot = table[f"{equations.names[i]}_ddot"]
-    states = list(meaning)
-    replaced = _bank_placeholders(expression, set(states))
-    if replaced is None:
-        return None
-    expression, bank = sp.expand(replaced[0]), replaced[1]
-    generators = [ddot, *states, *bank, equations.t, *equations.inputs]
-    try:
-        terms = sp.Poly(expression, *generators).terms()
-    except sp.PolynomialError:
-        return None
-    mass, state, forcing = 0.0, [], []
-    for exponents, coefficient in terms:
-        used = [g for g, e in zip(generators, exponents) if e]
-        if abs(float(coefficient)) < 1e-12:
-            continue
-        powers = dict(zip(generators, exponents))
-        placeholders = [g for g in used if g in bank]
-        if ddot in used:
-            if used != [ddot] or exponents[0] != 1:
-                return None
-            mass += float(coefficient)
-        elif placeholders:
-            kind, s = bank[placeholders[0]]
-            alone = used == placeholders and kind != "abs"
-            drag = kind == "abs" and sorted(used, key=str) == sorted([placeholders[0], s], key=str)
-            if len(placeholders) > 1 or any(powers[g] != 1 for g in used) or not (alone or drag):
-                return None
-            state.append(equations.feature(i, kind, meaning[s]))
-        elif set(used) & set(states):
-            power = sum(exponents)
-            if len(used) > 1 or power > equations.max_degree:
-                return None
-            state.append(meaning[used[0]] ** power)
-        else:
-            forcing.append(sp.Mul(*(g ** e for g, e in zip(generators, exponents) if e)))
-    if mass == 0.0 or len(set(state)) < len(state):
-        return None
-    return tuple(sorted(state, key=str)), tuple(sorted(forcing, key=str))
-
-
-def _expression(tree, table, inputs, t):
-    head = tree[0]
-    if head in ("add", "sub", "mul"):
-        a, b = (_expression(c, table, inputs, t) for c in tree[1:])
-        return a + b if head == "add" else a - b if head == "sub" else a * b
-    if head in _UNARY:
-        return _UNARY[head](_expression(tree[1], table, inputs, t))
-    if head == "s":
-        return table[tree[1]]
-    if head == "u":
-        return inputs[tree[1]]
-    if head == "t":
-        return t
-    return sp.Float(tree[-1])
 
 
 def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
@@ -304,7 +125,7 @@ def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
     kinds = kinds_for(config.functions)
     scales = (sign_scales(measurement.response_names, weak.rms) if "sign" in kinds
               else None)
-    equations = _Equations(measurement, config.max_degree, config.third_law,
+    equations = Equations(measurement, config.max_degree, config.third_law,
                            config.functions, scales)
     count = len(equations.names)
     grammars = [equations.grammar(i, config) for i in range(count)]
@@ -357,26 +178,27 @@ def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
     fit = fit_system(measurement, scorer.normalised(best), max_degree=config.max_degree,
                      input_interpolation=config.input_interpolation, start=start,
                      tolerance=config.convergence_tolerance, third_law=config.third_law)
-    while (smaller := _without_insignificant(best, fit, config.selection_alpha)) is not None:
+    while (smaller := without_insignificant(best, fit, config.selection_alpha)) is not None:
         _progress.stage(f"dropping a term its converged fit does not demonstrate (Wald test "
                         f"at level {config.selection_alpha}), then fitting again")
         trial = fit_system(measurement, scorer.normalised(smaller), max_degree=config.max_degree,
                            input_interpolation=config.input_interpolation,
                            start=scorer.coefficients(smaller), first_substeps=fit.model.substeps,
                            tolerance=config.convergence_tolerance, third_law=config.third_law)
-        if _better_fit_p(_scaled_residual(trial, measurement), _scaled_residual(fit, measurement),
+        if better_fit_p(scaled_residual(trial, measurement), scaled_residual(fit, measurement),
                          1, config.convergence_tolerance) < config.selection_alpha:
             break  # the refit without it simulates significantly worse: the term stays
         best, fit = smaller, trial
+    width = width_check(fit, measurement, config.convergence_tolerance)
     programs = [scorer.evaluator, *scorer.refiners()]
     return SearchResult(fit, history, {
         "search_s": selecting - started, "selection_s": fitting - selecting,
         "convergence_s": time.perf_counter() - fitting,
         "compile_s": fit.compile_s + sum(p.compile_seconds for p in programs),
-        "compiles": fit.compiles + sum(p.compile_count for p in programs)})
+        "compiles": fit.compiles + sum(p.compile_count for p in programs)}, width)
 
 
-def _random_terms(i: int, equations: _Equations, rng) -> tuple:
+def _random_terms(i: int, equations: Equations, rng) -> tuple:
     """A random valid structure of equation ``i``: 1–4 state features, each input with
     probability 1/2, a constant force with probability 1/5."""
     state_basis, _ = equations.basis(i)
@@ -392,7 +214,7 @@ def _random_terms(i: int, equations: _Equations, rng) -> tuple:
 class _Scorer:
     """Objective of systems by structure, with least-squares and refined constants cached."""
 
-    def __init__(self, weak: SystemWeakForm, equations: _Equations,
+    def __init__(self, weak: SystemWeakForm, equations: Equations,
                  evaluator: PopulationEvaluator):
         self.equations, self.evaluator, self.weak = equations, evaluator, weak
         self.objective: dict[tuple, float] = {}
@@ -461,7 +283,7 @@ class _Scorer:
         residual = (responses - measured) / measured.std(axis=1, keepdims=True)  # (2, D, N)
         dropped = sum(len(a) + len(b) for a, b in current) - sum(
             len(a) + len(b) for a, b in simpler)
-        return _better_fit_p(residual[0], residual[1], dropped, resolution) < alpha
+        return better_fit_p(residual[0], residual[1], dropped, resolution) < alpha
 
     def coefficients(self, key) -> list[Coefficients]:
         if key in self.refined:
@@ -551,7 +373,7 @@ def _tournament(fitness, rng, size: int) -> int:
     return int(entrants[np.argmin(fitness[entrants])])
 
 
-def _local_search(trees, fitness, equations: _Equations, scorer: _Scorer,
+def _local_search(trees, fitness, equations: Equations, scorer: _Scorer,
                   config: GPConfig) -> list:
     """Descent by one-term changes from the ``local_search`` best distinct systems, at
     most ``local_steps`` steps each; every system it moves to, as trees."""
@@ -577,11 +399,11 @@ def _local_search(trees, fitness, equations: _Equations, scorer: _Scorer,
     return out
 
 
-def _as_trees(key, equations: _Equations) -> tuple:
+def _as_trees(key, equations: Equations) -> tuple:
     return tuple(equations.tree(i, *part) for i, part in enumerate(key))
 
 
-def _neighbours(key, equations: _Equations):
+def _neighbours(key, equations: Equations):
     for i, (state, forcing) in enumerate(key):
         state_basis, forcing_basis = equations.basis(i)
         for feature in state_basis:
@@ -647,69 +469,6 @@ def _survivors(pool, scores, scorer: _Scorer, count: int):
         seen.add(key)
     chosen = (first + repeats)[:count]
     return [pool[i] for i in chosen], scores[chosen]
-
-
-def _better_fit_p(simple, full, dropped: int, resolution: float) -> float:
-    """p-value that the (D, N) scaled residuals ``full`` fit significantly better than
-    ``simple``'s, which has ``dropped`` terms fewer (:meth:`_Scorer.simulates_better`'s
-    likelihood-ratio test); 1 where ``full`` is not finite or worsens the mean square by
-    at most ``resolution``, 0 where only ``simple`` is not finite."""
-    if not np.all(np.isfinite(full)):
-        return 1.0
-    if not np.all(np.isfinite(simple)):
-        return 0.0
-    if np.mean(simple ** 2) <= (1 + resolution) * np.mean(full ** 2):
-        return 1.0
-    ratio = 0.0
-    for s, f in zip(simple, full):
-        gamma0 = float(np.mean(f ** 2))
-        effective = f.size * gamma0 / max(long_run_variance(f)[0], gamma0 / f.size)
-        ratio += effective * math.log(float(np.mean(s ** 2)) / gamma0)
-    return float(stats.chi2.sf(ratio, max(dropped, 1)))
-
-
-def _scaled_residual(fit: SystemFit, measurement: Measurement) -> np.ndarray:
-    """(D, N) residuals of a fitted system's reference solve, each over its response's
-    standard deviation."""
-    measured = measurement.responses
-    simulated = np.reshape(fit.model.simulate(
-        measurement, initial_conditions=fit.model.initial_states), measured.shape)
-    return ((simulated - measured) / measured.std(axis=0)).T
-
-
-def _without_insignificant(key, fit: SystemFit, alpha: float):
-    """``key`` without its least significant term where the converged output-error fit's
-    Wald test (t = c/se with the interval's degrees of freedom, :mod:`gpjax._uncertainty`)
-    cannot tell its constant from 0 at level ``alpha``, else ``None``. Reason: the
-    selection before it runs at the search's step count, whose discretisation error a
-    spurious term can absorb (a stiff smoothed sign wants a damping term beside it at one
-    RK4 step per sample); only the converged fit says what the record demonstrates.
-    A removal that would empty an equation is not made."""
-    uncertainty = fit.uncertainty
-    if uncertainty is None:
-        return None
-    errors = uncertainty.standard_errors
-    worst, largest = None, alpha
-    for name, (i, part, feature) in fit.model.constant_names().items():
-        terms = {str(f): f for f in key[i][part == "forcing"]}  # the model's names are text
-        if part not in ("state", "forcing") or str(feature) not in terms:
-            continue
-        se = errors.get(name, math.inf)
-        if not 0 < se < math.inf:
-            continue
-        value = float(uncertainty.values[uncertainty.names.index(name)])
-        dof = float(uncertainty.dof[uncertainty.names.index(name)])
-        p = 2.0 * float(stats.t.sf(abs(value) / se, dof))
-        if p >= largest:
-            worst, largest = (i, part == "forcing", terms[str(feature)]), p
-    if worst is None:
-        return None
-    i, forcing, feature = worst
-    part = tuple(tuple(f for f in key[i][k] if not (k == forcing and f == feature))
-                 for k in (0, 1))
-    if not (part[0] or part[1]):
-        return None
-    return key[:i] + (part,) + key[i + 1:]
 
 
 def _simplest(best, scorer: _Scorer, alpha: float, resolution: float):

@@ -4,8 +4,8 @@ Each :class:`System` holds its true equations (sympy, one per coordinate, in the
 ``x, x_dot, x_ddot, u, t`` or ``x1, x2, …`` for chains), its true constants and how it is
 excited; :data:`SYSTEMS` is the catalogue (the nine single-coordinate systems of the
 physics benchmark, :data:`PHYSICS_SUITE`, two and three masses in a chain with cubic
-coupling springs, two with dry friction between them, and a drifting positioning stage in
-a PD loop). Records are made by
+coupling springs (with and without a ground spring on the last mass), two with dry
+friction between them, and a drifting positioning stage in a PD loop). Records are made by
 :mod:`gpjax._synthetic`.
 
 Units: x in m (rad for the pendulum), u in N (N·m), t in s, constants in SI.
@@ -168,22 +168,26 @@ def _single(name: str, description: str, forces: sp.Expr, constants: dict[str, f
                   excitation=Excitation(low=0.1, high=3.0, rms=rms), **fields)
 
 
-def _chain(n: int) -> System:
-    """n masses on ground springs and dampers, neighbours coupled by kc·d + k3·d³."""
+def _chain(n: int, grounded_last: bool = True) -> System:
+    """n masses on ground springs and dampers, neighbours coupled by kc·d + k3·d³;
+    ``grounded_last`` False: the last mass has a damper but no spring to ground."""
     names = tuple(f"x{i}" for i in range(1, n + 1))
     kc, k3 = sp.symbols("kc k3")
     equations = []
     for i, name in enumerate(names):
         x, x_dot, x_ddot = state_symbols(name)
-        lhs = sp.Symbol(f"m{i + 1}") * x_ddot + _c * x_dot + _k * x
+        lhs = sp.Symbol(f"m{i + 1}") * x_ddot + _c * x_dot
+        lhs += _k * x if grounded_last or i < n - 1 else 0
         for j in (i - 1, i + 1):
             if 0 <= j < n:
                 d = x - sp.Symbol(names[j])
                 lhs += kc * d + k3 * d ** 3
         equations.append(sp.Eq(lhs, U if i == 0 else 0))
     masses = {f"m{i + 1}": v for i, v in enumerate((1.0, 0.8, 1.2)[:n])}
-    return System(name=f"chain{n}", description=f"{n}-mass chain, cubic coupling springs, "
-                  "input on mass 1", equations=tuple(equations), coordinates=names,
+    return System(name=f"chain{n}" + ("" if grounded_last else "_free"),
+                  description=f"{n}-mass chain, cubic coupling springs, input on mass 1"
+                  + ("" if grounded_last else ", no ground spring on the last mass"),
+                  equations=tuple(equations), coordinates=names,
                   constants={**masses, "c": 0.8, "k": 30.0, "kc": 20.0, "k3": 300.0},
                   excitation=Excitation(low=0.1, high=3.0, rms=6.0))
 
@@ -243,6 +247,8 @@ def _catalogue() -> dict[str, System]:
                 {"c": 1.5, "F": 4.0, "v0": 0.2, "k": 30.0}, 6.0),
         _chain(2),
         _chain(3),
+        _chain(2, grounded_last=False),
+        _chain(3, grounded_last=False),
         _friction_chain(),
         System(name="stage", description="drifting positioning stage: m·x'' + c·x' + "
                "F·sign(x') + f0 = u, PD loop on a quantised encoder",

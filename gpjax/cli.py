@@ -278,11 +278,17 @@ def _fit(args) -> int:
                       **islands)
     print(identifier)
     if several:
-        from ._system_diagnose import summary_line
+        from ._system_diagnose import HINT, summary_line, width_line
 
         print("Residuals per coordinate (reference solve):")
-        for name, statistics in identifier.model_.metrics["residuals"].items():
+        residuals = identifier.model_.metrics["residuals"]
+        for name, statistics in residuals.items():
             print(summary_line(name, statistics))
+        if any(s["unexplained"] is not None for s in residuals.values()):
+            print(f"  hint: {HINT}")
+        width = identifier.model_.metrics.get("sign_width")
+        if width:
+            print(width_line(width))
     _timings(identifier, args.out)
     if identifier.stopped_by == "interrupted":
         return 130

@@ -17,7 +17,7 @@ from gpjax._coefficients import Coefficients, to_system_population
 from gpjax._config import check_system_config
 from gpjax._system_bank import (KINDS, bank_feature, bank_of, match_bank, sign_scales,
                                 system_variables)
-from gpjax._system_search import _Equations
+from gpjax._system_grammar import Equations
 from gpjax.engine import PopulationEvaluator
 from gpjax.systems import generate, get_system
 
@@ -122,7 +122,7 @@ def test_a_new_sign_scale_compiles_nothing():
 def test_structure_rules_read_bank_terms(tree, expected):
     measurement = _record(duration=1.0)
     scales = np.arange(1.0, 9.0)
-    equations = _Equations(measurement, 3, functions=("add", "sub", "mul", "sign", "tanh",
+    equations = Equations(measurement, 3, functions=("add", "sub", "mul", "sign", "tanh",
                                                       "abs", "sin"), scales=scales)
     found = equations.structure(0, tree)
     if expected is None:
@@ -182,3 +182,27 @@ def test_search_finds_dry_friction_between_two_masses(tmp_path):
     assert first.mass == pytest.approx(c["m1"], rel=0.03)
     assert second.state[-friction[0]] == pytest.approx(c["F"] / c["m2"], rel=0.03)
     assert second.state[X2 - X1] == pytest.approx(c["kc"] / c["m2"], rel=0.03)
+
+
+def test_a_diverged_coordinate_gets_a_hint():
+    from gpjax._system_diagnose import HINT, summary_line
+
+    line = summary_line("x2", {"rms": None, "nrms": None, "noise": None, "unexplained": None})
+    assert "diverges on its record" in line and HINT in line and "--functions" in HINT
+
+
+def test_width_check_compares_a_narrower_sign():
+    """The reported system's sign narrowed 4× (constants kept) against its own response,
+    over its residual: a ratio and a verdict; no sign, no check."""
+    from types import SimpleNamespace
+
+    from gpjax._system_final import width_check
+
+    measurement = _record(duration=2.0)
+    model = _model(_equations())
+    check = width_check(SimpleNamespace(model=model), measurement, 0.01)
+    assert check["narrowing"] == 4 and 0 < check["ratio"] < np.inf
+    assert check["converged"] == (check["ratio"] < 0.01)
+    plain = [e.replace(state={f: v for f, v in e.state.items() if not f.has(sp.tanh)})
+             for e in _equations()]
+    assert width_check(SimpleNamespace(model=_model(plain)), measurement, 0.01) is None

@@ -1,0 +1,106 @@
+"""The reported system at converged integration: a term its fit does not demonstrate is
+dropped (:func:`without_insignificant`, :func:`better_fit_p`), and the smoothed sign's width
+is checked (:func:`width_check`; :mod:`gpjax._system_bank`)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from scipy import stats
+
+from ._data import Measurement
+from ._diagnose_acceptance import long_run_variance
+from ._features import SIGN_WIDTH
+from ._model import Model
+from ._sign_width import NARROWING
+from ._system_bank import sharpened_features
+from ._system_fit import SystemFit
+
+
+def better_fit_p(simple, full, dropped: int, resolution: float) -> float:
+    """p-value that the (D, N) scaled residuals ``full`` fit significantly better than
+    ``simple``'s, which has ``dropped`` terms fewer (:meth:`_Scorer.simulates_better`'s
+    likelihood-ratio test); 1 where ``full`` is not finite or worsens the mean square by
+    at most ``resolution``, 0 where only ``simple`` is not finite."""
+    if not np.all(np.isfinite(full)):
+        return 1.0
+    if not np.all(np.isfinite(simple)):
+        return 0.0
+    if np.mean(simple ** 2) <= (1 + resolution) * np.mean(full ** 2):
+        return 1.0
+    ratio = 0.0
+    for s, f in zip(simple, full):
+        gamma0 = float(np.mean(f ** 2))
+        effective = f.size * gamma0 / max(long_run_variance(f)[0], gamma0 / f.size)
+        ratio += effective * math.log(float(np.mean(s ** 2)) / gamma0)
+    return float(stats.chi2.sf(ratio, max(dropped, 1)))
+
+
+def scaled_residual(fit: SystemFit, measurement: Measurement) -> np.ndarray:
+    """(D, N) residuals of a fitted system's reference solve, each over its response's
+    standard deviation."""
+    measured = measurement.responses
+    simulated = np.reshape(fit.model.simulate(
+        measurement, initial_conditions=fit.model.initial_states), measured.shape)
+    return ((simulated - measured) / measured.std(axis=0)).T
+
+
+def without_insignificant(key, fit: SystemFit, alpha: float):
+    """``key`` without its least significant term where the converged output-error fit's
+    Wald test (t = c/se with the interval's degrees of freedom, :mod:`gpjax._uncertainty`)
+    cannot tell its constant from 0 at level ``alpha``, else ``None``. Reason: the
+    selection before it runs at the search's step count, whose discretisation error a
+    spurious term can absorb (a stiff smoothed sign wants a damping term beside it at one
+    RK4 step per sample); only the converged fit says what the record demonstrates.
+    A removal that would empty an equation is not made."""
+    uncertainty = fit.uncertainty
+    if uncertainty is None:
+        return None
+    errors = uncertainty.standard_errors
+    worst, largest = None, alpha
+    for name, (i, part, feature) in fit.model.constant_names().items():
+        terms = {str(f): f for f in key[i][part == "forcing"]}  # the model's names are text
+        if part not in ("state", "forcing") or str(feature) not in terms:
+            continue
+        se = errors.get(name, math.inf)
+        if not 0 < se < math.inf:
+            continue
+        value = float(uncertainty.values[uncertainty.names.index(name)])
+        dof = float(uncertainty.dof[uncertainty.names.index(name)])
+        p = 2.0 * float(stats.t.sf(abs(value) / se, dof))
+        if p >= largest:
+            worst, largest = (i, part == "forcing", terms[str(feature)]), p
+    if worst is None:
+        return None
+    i, forcing, feature = worst
+    part = tuple(tuple(f for f in key[i][k] if not (k == forcing and f == feature))
+                 for k in (0, 1))
+    if not (part[0] or part[1]):
+        return None
+    return key[:i] + (part,) + key[i + 1:]
+
+
+def width_check(fit: SystemFit, measurement: Measurement, tolerance: float) -> dict | None:
+    """Whether the reported system depends on its smoothed signs' width (module docstring of
+    :mod:`gpjax._system_bank`): ``ratio``, the RMS change of its scaled reference response
+    with every sign :data:`gpjax._sign_width.NARROWING` times narrower (constants kept)
+    over its scaled RMS residual; ``converged`` when below ``tolerance``; ``width`` the
+    fraction of RMS z the signs were fitted at. ``None`` without a sign."""
+    model = fit.model
+    sharper = [c.replace(state={sharp.get(f, f): v for f, v in c.state.items()})
+               for i, c in enumerate(model.system)
+               for sharp in [sharpened_features(c.state, model.coordinates, i, NARROWING)]]
+    if all(s.state == c.state for s, c in zip(sharper, model.system)):
+        return None
+    narrowed = Model.from_equations(model.coordinates, model.time, model.inputs, sharper,
+                                    input_interpolation=model.input_interpolation,
+                                    substeps=model.substeps)
+    scale = measurement.responses.std(axis=0)
+    base, sharp = (np.reshape(m.simulate(measurement, initial_conditions=model.initial_states),
+                              measurement.responses.shape) for m in (model, narrowed))
+    change = float(np.sqrt(np.mean(((sharp - base) / scale) ** 2)))
+    residual = float(np.sqrt(np.mean(((base - measurement.responses) / scale) ** 2)))
+    ratio = change / residual if residual > 0 and math.isfinite(change) else math.inf
+    return {"width": SIGN_WIDTH, "narrowing": NARROWING, "ratio": ratio,
+            "tolerance": tolerance, "converged": ratio < tolerance}
