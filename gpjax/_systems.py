@@ -170,7 +170,11 @@ def _single(name: str, description: str, forces: sp.Expr, constants: dict[str, f
 
 def _chain(n: int, grounded_last: bool = True) -> System:
     """n masses on ground springs and dampers, neighbours coupled by kc·d + k3·d³;
-    ``grounded_last`` False: the last mass has a damper but no spring to ground."""
+    ``grounded_last`` False: the last mass has a damper but no spring to ground, excited at
+    4 N RMS instead of 6: at 6 the free chain's extrapolation record (× 1.2) is sensitive
+    to its constants — a 0.5 % change of one true constant moved it by up to 20 % NRMS
+    (seed 1) — and at 4 by at most 1 % (seeds 0–4), so an NRMS there measures the model,
+    not the record's sensitivity."""
     names = tuple(f"x{i}" for i in range(1, n + 1))
     kc, k3 = sp.symbols("kc k3")
     equations = []
@@ -189,7 +193,7 @@ def _chain(n: int, grounded_last: bool = True) -> System:
                   + ("" if grounded_last else ", no ground spring on the last mass"),
                   equations=tuple(equations), coordinates=names,
                   constants={**masses, "c": 0.8, "k": 30.0, "kc": 20.0, "k3": 300.0},
-                  excitation=Excitation(low=0.1, high=3.0, rms=6.0))
+                  excitation=Excitation(low=0.1, high=3.0, rms=6.0 if grounded_last else 4.0))
 
 
 def _friction_chain() -> System:
