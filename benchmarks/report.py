@@ -342,11 +342,13 @@ def front_door_rows(data: dict) -> str:
                      f"{sum(r['max_constant_error'] <= 0.02 for r in fitted)}/{n}",
                      f"{sum(w <= 0.02 for w in worst)}/{n}",
                      _pct(_median(worst)) if worst else "–",
-                     _span([r["seconds"] for r in chosen], "{:.0f}")])
+                     _span([r["seconds"] for r in chosen], "{:.0f}"),
+                     ", ".join(dict.fromkeys(r.get("revision", "not recorded")
+                                             for r in chosen))])
     return _table(["system", "structure right", "all constants within 2 %",
                    "every coordinate's extrapolation NRMS ≤ 2 %",
-                   "median of the worst coordinate's NRMS", "s per fit (whole process)"],
-                  rows, "lrrrrr")
+                   "median of the worst coordinate's NRMS", "s per fit (whole process)",
+                   "revision"], rows, "lrrrrrl")
 
 
 def systems_front_door() -> str:

@@ -18,7 +18,8 @@ separate ``gpjax fit … --response x1 --response x2 …`` process with the defa
   from the true initial state with the true input, against the true response.
 
 Resumable: rows already in ``--json`` (same system and seed) are kept and skipped. The
-JSON records the revision, command, date and machine (:mod:`benchmarks._provenance`).
+JSON records the revision, command, date and machine of the last run
+(:mod:`benchmarks._provenance`), and each row the revision it ran at.
 """
 
 from __future__ import annotations
@@ -104,24 +105,23 @@ def run_one(name: str, seed: int, folder: Path) -> dict:
     system = data.system
     path = folder / f"{name}_{seed}.csv"
     write_csv(data.fit, path)
-    command = [sys.executable, "-m", "gpjax", "fit", str(path), "--time", "t", "--input", "u",
-               "--out", str(folder / f"{name}_{seed}"), "--seed", str(seed)]
-    for c in system.coordinates:
-        command[6:6] = ["--response", c]
+    responses = [word for c in system.coordinates for word in ("--response", c)]
+    command = [sys.executable, "-m", "gpjax", "fit", str(path), "--time", "t", *responses,
+               "--input", "u", "--out", str(folder / f"{name}_{seed}"), "--seed", str(seed)]
     if name in FUNCTIONS:
         command += ["--functions", FUNCTIONS[name]]
     began = time.perf_counter()
     done = subprocess.run(command, capture_output=True, text=True)
     seconds = time.perf_counter() - began
     if done.returncode != 0:
-        return {"system": name, "seed": seed, "error": done.stderr.strip()[-500:],
-                "seconds": seconds}
+        return {"system": name, "seed": seed, "revision": provenance()["revision"],
+                "error": done.stderr.strip()[-500:], "seconds": seconds}
     model = gpjax.Model.load(folder / f"{name}_{seed}" / "model.json")
     truth = [truth_terms(system, i) for i in range(len(system.coordinates))]
     found = [found_terms(model, i) for i in range(len(system.coordinates))]
     structure, error, nrms = scored(model, found, truth, data.extrapolation)
-    return {"system": name, "seed": seed, "command": " ".join(["gpjax", "fit", "<record>"]
-                                                              + command[5:]),
+    return {"system": name, "seed": seed, "revision": provenance()["revision"],
+            "command": " ".join(["gpjax", "fit", "<record>"] + command[5:]),
             "structure_right": structure, "max_constant_error": error,
             "extrapolation_nrms": nrms.tolist(), "seconds": seconds,
             "equations": [str(e) for e in model.sympy()],

@@ -182,6 +182,8 @@ def test_search_finds_dry_friction_between_two_masses(tmp_path):
     assert first.mass == pytest.approx(c["m1"], rel=0.03)
     assert second.state[-friction[0]] == pytest.approx(c["F"] / c["m2"], rel=0.03)
     assert second.state[X2 - X1] == pytest.approx(c["kc"] / c["m2"], rel=0.03)
+    width = gpjax.Model.load(tmp_path / "run" / "model.json").metrics["sign_width"]
+    assert width["narrowing"] == 4 and np.isfinite(width["ratio"])
 
 
 def test_a_diverged_coordinate_gets_a_hint():
