@@ -94,17 +94,18 @@ class SystemWeakForm:
         """∫ψ_k·feature for every window of ``equation``'s coordinate (cached)."""
         key = (equation, feature)
         if key not in self._columns:
-            numbers = sp.lambdify(list(self._values), feature, modules="numpy")(
-                *self._values.values())
-            self._columns[key] = self._weak[equation]._integrate(
-                np.broadcast_to(numbers, self.measurement.time.shape), 0)
+            self._columns[key] = self._weak[equation]._integrate(self.values(feature), 0)
         return self._columns[key]
+
+    def values(self, expression: sp.Expr) -> np.ndarray:
+        """(N,) a function of the states, time and inputs on the smoothed record."""
+        numbers = sp.lambdify(list(self._values), expression, modules="numpy")(
+            *self._values.values())
+        return np.broadcast_to(numbers, self.measurement.time.shape)
 
     def rms(self, expression: sp.Expr) -> float:
         """RMS of a function of the states on the smoothed record."""
-        numbers = sp.lambdify(list(self._values), expression, modules="numpy")(
-            *self._values.values())
-        return float(np.sqrt(np.mean(np.square(numbers))))
+        return float(np.sqrt(np.mean(np.square(self.values(expression)))))
 
     def rows(self, d: int) -> int:
         """Test-function windows of equation ``d``."""

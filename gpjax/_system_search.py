@@ -178,6 +178,7 @@ def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
     fit = fit_system(measurement, scorer.normalised(best), max_degree=config.max_degree,
                      input_interpolation=config.input_interpolation, start=start,
                      tolerance=config.convergence_tolerance, third_law=config.third_law)
+    residual = None  # the current fit's scaled residual, solved once per fit
     while (smaller := without_insignificant(best, fit, config.selection_alpha)) is not None:
         _progress.stage(f"dropping a term its converged fit does not demonstrate (Wald test "
                         f"at level {config.selection_alpha}), then fitting again")
@@ -185,10 +186,13 @@ def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
                            input_interpolation=config.input_interpolation,
                            start=scorer.coefficients(smaller), first_substeps=fit.model.substeps,
                            tolerance=config.convergence_tolerance, third_law=config.third_law)
-        if better_fit_p(scaled_residual(trial, measurement), scaled_residual(fit, measurement),
-                         1, config.convergence_tolerance) < config.selection_alpha:
+        if residual is None:
+            residual = scaled_residual(fit, measurement)
+        trial_residual = scaled_residual(trial, measurement)
+        if better_fit_p(trial_residual, residual, 1,
+                        config.convergence_tolerance) < config.selection_alpha:
             break  # the refit without it simulates significantly worse: the term stays
-        best, fit = smaller, trial
+        best, fit, residual = smaller, trial, trial_residual
     width = width_check(fit, measurement, config.convergence_tolerance)
     programs = [scorer.evaluator, *scorer.refiners()]
     return SearchResult(fit, history, {
