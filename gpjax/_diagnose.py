@@ -98,7 +98,7 @@ import numpy as np
 from . import _progress
 from ._canonical import Symbols
 from ._convergence import (MAX_SUBSTEPS, Convergence, check_model, initial_substeps,
-                           next_substeps)
+                           needed_substeps, next_substeps)
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._diagnose_acceptance import accepted
 from ._diagnose_ambiguity import indistinguishable, separating_input
@@ -440,7 +440,7 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             result.convergence = check.to_json()
             result.uncertainty = _uncertainty(result, whole)
             return result
-        substeps = next_substeps(check)
+        substeps = needed_substeps(result.model(), measurement, check)
 
 
 def _uncertainty(result: Diagnosis, whole: FitProblem) -> Uncertainty:

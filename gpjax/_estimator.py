@@ -21,12 +21,13 @@ import numpy as np
 
 from . import _progress
 from ._config import GPConfig
-from ._convergence import MAX_SUBSTEPS, Convergence, check_model, next_substeps
+from ._convergence import MAX_SUBSTEPS, Convergence, check_model, needed_substeps
 from ._data import Measurement
 from ._errors import UserInputError
 from ._evolve import Evolution, RunState
 from ._evaluator import OK
 from ._fitness import Fitness, Record
+from ._refine import BATCH
 from ._model import Model
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
 from ._select import pareto_front, select
@@ -240,7 +241,8 @@ class Identifier:
                 if capped:
                     stopped = capped
                     break
-                refit = {"substeps": next_substeps(check), "sign_width": fitness.sign_width}
+                refit = {"substeps": needed_substeps(self.model_, self.measurement_, check),
+                         "sign_width": fitness.sign_width}
             else:
                 width = check_width(self.model_, self._reference, check.rms_reference,
                                     fitness, tolerance=tolerance)
@@ -262,7 +264,10 @@ class Identifier:
             _progress.stage(f"refitting {'the Pareto front' if front_too else 'the reported model'}"
                             f" at {refit['substeps']} substeps, smoothed-sign width "
                             f"{refit['sign_width']:.3g}")
-            new = Fitness(self.measurement_, self.config, **refit)
+            # The reported model alone: a refiner of one model per call (every call is
+            # padded to the refiner's batch).
+            new = Fitness(self.measurement_, self.config, **refit,
+                          refine_batch=BATCH if front_too else 1)
             fits.append(new)
             carried = {r.key: narrowed(r, fitness, new)
                        for r in (self._front if front_too else []) + [self._chosen]}

@@ -14,6 +14,24 @@ from ._coefficients import FlatLayout, Population
 from ._features import SLOTS, match
 from ._system_bank import match_bank, system_variables
 
+#: Forcing columns of a new evaluator's basis, then doubled as features arrive. Every
+#: doubling compiles each program again (~40 s on 2 cores with the wide function set's
+#: layouts), and a wide-set search registers 25–40 forcing features (u, |u|, sin u,
+#: tanh(a·u), …) on an 8,000-sample record; starting at 16 it compiled everything twice
+#: more. Where the basis at this capacity would exceed one call's stage array
+#: (:data:`gpjax._evaluator.STAGE_ELEMENTS_PER_CALL`: a record of ~200,000 samples) it
+#: starts at :data:`MIN_FORCING_CAPACITY`, as memory bounds everything else there.
+FIRST_FORCING_CAPACITY, MIN_FORCING_CAPACITY = 64, 16
+
+
+def first_forcing_capacity(n_stage: int) -> int:
+    """Forcing columns of a new basis of ``n_stage`` RK4 stage rows (see
+    :data:`FIRST_FORCING_CAPACITY`)."""
+    from ._evaluator import STAGE_ELEMENTS_PER_CALL
+
+    fits = n_stage * FIRST_FORCING_CAPACITY <= STAGE_ELEMENTS_PER_CALL
+    return FIRST_FORCING_CAPACITY if fits else MIN_FORCING_CAPACITY
+
 
 class Columns:
     """Mixin of :class:`gpjax._evaluator.PopulationEvaluator` (uses its ``symbols``,
@@ -106,7 +124,7 @@ class Columns:
             self._forcing_index[feature] = len(self._forcing_features)
             self._forcing_features.append(feature)
             self._forcing_columns.append(values)
-            capacity = _capacity(len(self._forcing_features))
+            capacity = _capacity(len(self._forcing_features), self.stage_times.size)
             basis = np.zeros((self.stage_times.size, capacity))
             basis[:, :len(self._forcing_columns)] = np.stack(self._forcing_columns, axis=1)
             self._forcing_basis = basis
@@ -203,8 +221,8 @@ class Columns:
         return np.broadcast_to(np.asarray(values, dtype=np.float64), times.shape).copy()
 
 
-def _capacity(count: int) -> int:
-    capacity = 16
+def _capacity(count: int, n_stage: int) -> int:
+    capacity = first_forcing_capacity(n_stage)
     while capacity < count:
         capacity *= 2
     return capacity

@@ -23,7 +23,7 @@ from ._data import Measurement
 from ._evaluator import INVALID_STRUCTURE, OK, PENALTY, PopulationEvaluator, Scores
 from ._features import INNER_GRID, SIGN_WIDTH, Family, families_for, match, smoothed_sign
 from ._memory import check_fit_memory
-from ._refine import Refiner
+from ._refine import BATCH, Refiner
 from ._trees import Tree
 from ._weak_form import (WeakForm, least_squares, least_squares_residual, smoothed_derivatives,
                          smoothing_cutoff_hz)
@@ -120,6 +120,8 @@ class Fitness:
             the data's bandwidth rule, :func:`gpjax._convergence.initial_substeps`).
         sign_width: width ε of the smoothed sign tanh(z/ε), as a fraction of RMS z
             (:mod:`gpjax._features`; narrowed by :mod:`gpjax._sign_width`).
+        refine_batch: models per compiled refinement call (1 where only one model is
+            refitted: every call is padded to it).
 
     Raises:
         UserInputError: the run's estimated memory (:mod:`gpjax._memory`) exceeds what is
@@ -127,7 +129,8 @@ class Fitness:
     """
 
     def __init__(self, measurement: Measurement, config: GPConfig, *,
-                 substeps: int | None = None, sign_width: float = SIGN_WIDTH):
+                 substeps: int | None = None, sign_width: float = SIGN_WIDTH,
+                 refine_batch: int = BATCH):
         if substeps is None:
             substeps = (initial_substeps(measurement) if config.substeps == "auto"
                         else config.substeps)
@@ -154,7 +157,7 @@ class Fitness:
         # continuation (for poor starts) would only double the compile. Tree constants are
         # poor starts: a wrong stiffness wraps the phase over the full record.
         self.refiner = Refiner(self.evaluator, iterations=config.refine_iterations,
-                               horizons=(1.0,) if config.coefficients == "least_squares"
+                               batch=refine_batch, horizons=(1.0,) if config.coefficients == "least_squares"
                                else (0.25, 1.0))
         #: RMS of x and x' on the data: the scales of the bank's default inner constants
         self.scales = {role: float(np.sqrt(np.mean(z ** 2))) or 1.0 for role, z in

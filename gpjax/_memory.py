@@ -1,7 +1,7 @@
 """Memory a fit needs, estimated before it allocates, against what the machine has free.
 
 Model (float64 numbers, 8 bytes each; N samples, S = 2·(N − 1)·substeps + 1 RK4 stage
-times, C = 16 forcing columns — the evaluator's smallest forcing capacity). The peak is
+times, C forcing columns — the evaluator's first forcing capacity). The peak is
 what stays for the whole fit plus the larger of one evaluator call and one refiner call
 (they run one after the other):
 
@@ -26,10 +26,10 @@ import os
 
 from ._errors import UserInputError
 from ._evaluator import STAGE_ELEMENTS_PER_CALL
+from ._evaluator_columns import first_forcing_capacity
 from ._refine import BATCH, MAX_FREE, refine_batch
 
 FLOAT_BYTES = 8
-FORCING_COLUMNS = 16
 EVALUATOR_ARRAYS = 6
 REFINER_COPIES = 4
 RECORD_ARRAYS = 32
@@ -44,7 +44,7 @@ def fit_bytes(*, n_samples: int, substeps: int, population: int) -> int:
     stages = 2 * (n_samples - 1) * substeps + 1
     batch = max(1, min(population, 512, STAGE_ELEMENTS_PER_CALL // stages))
     models = refine_batch(BATCH, n_samples=n_samples, substeps=substeps, max_free=MAX_FREE)
-    held = 2 * stages * FORCING_COLUMNS + RECORD_ARRAYS * n_samples
+    held = 2 * stages * first_forcing_capacity(stages) + RECORD_ARRAYS * n_samples
     evaluator = EVALUATOR_ARRAYS * stages * batch + n_samples * batch
     refiner = REFINER_COPIES * models * MAX_FREE * (stages + n_samples)
     return BASE_BYTES + FLOAT_BYTES * (held + max(evaluator, refiner))

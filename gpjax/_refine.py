@@ -8,11 +8,17 @@ scaled by their starting magnitudes, so constants spanning nine orders of magnit
 under ``vmap``; a model whose solve fails keeps its start values (status returned, never
 raised).
 
-The Jacobian has one column per free constant of the call's widest model (rounded up to
-an even number, at most ``max_free``), and the augmented solve of a call is one population
-scan (``custom_vmap``), split over the evaluator's devices like its evaluations: on the
-gear example (64 models, 10 iterations, 2 host devices) 1.9× the models/s of one padded
-8-column Jacobian per model under ``vmap`` (benchmarks/bench_population.py, ``--baseline``).
+The Jacobian has ``max_free`` columns whatever a call's models need (unused ones have
+scale 0; a refiner of batch 1, which refits one model, sizes it to that model), and every
+call is padded to the refiner's batch: one compiled program per
+layout, not one per Jacobian width and batch size. With the wide function set the
+program of the families' layout takes ~20 s to compile on 2 cores, far more than the
+narrower columns and smaller calls it would save (a cold 8,000-sample fit compiled seven
+refinement programs, 150 s of 262 s; now two). The augmented solve of a call is one
+population scan (``custom_vmap``), split over the evaluator's devices like its
+evaluations: on the gear example (64 models, 10 iterations, 2 host devices) 1.9× the
+models/s of one padded 8-column Jacobian per model under ``vmap``
+(benchmarks/bench_population.py, ``--baseline``).
 
 The fit grows its horizon (continuation): Levenberg–Marquardt first matches a leading part
 of the record, then the whole. A wrong stiffness shifts the phase in proportion to the time
@@ -97,14 +103,15 @@ class Refiner(CompileFigures):
         evaluator: supplies the simulation and the measured response.
         iterations: maximum Levenberg–Marquardt steps.
         batch: models refined per compiled call (padded; split over the evaluator's
-            devices when it divides evenly among them); a model refined alone (a
-            convergence loop's reported model) runs in a call of one. Capped so one call's forcing
+            devices when it divides evenly among them); every call is padded to it (a
+            convergence loop that refines one model makes a refiner of batch 1). Capped so one call's forcing
             directions (stages × ``max_free`` × models) hold at most
             :data:`gpjax._evaluator.STAGE_ELEMENTS_PER_CALL` numbers (on a 10⁶-sample
             record one model per call: 2.2 GB peak instead of 5.5 GB for eight).
-        max_free: most free constants per model (further ones stay at their start values).
-            A call's Jacobian has :meth:`width` columns, so the cost of a step grows with
-            the free constants of its widest model.
+        max_free: free constants per model, the Jacobian's columns (further ones stay at
+            their start values). A refiner of one model per call sizes the Jacobian to
+            the model's free constants instead (rounded up to even): a refitted model
+            keeps its structure, so that is one program too.
         horizons: increasing fractions of the record fitted in turn, each for up to
             ``iterations`` steps; the last should be 1.
         jacobian: ``"variational"`` (default: the variational equations in the scan, see
@@ -149,11 +156,6 @@ class Refiner(CompileFigures):
                             name="refine",
                             key=fingerprint(evaluator.time_key, iterations, self.horizon_samples,
                                             self.batch, max_free, jacobian))
-
-    def width(self, free: int) -> int:
-        """Jacobian columns for a call whose models have at most ``free`` free constants:
-        the next even number, at most ``max_free`` (one compile per width used)."""
-        return min(self.max_free, free + free % 2)
 
     def refine(self, population: Population, fixed_forcing: np.ndarray,
                held_inner: np.ndarray | None = None, *, ties=None) -> Refinement:
@@ -200,7 +202,7 @@ class Refiner(CompileFigures):
                held_inner: np.ndarray, ties=None):
         """(layout, flat start (P, W), moves) of ``population``'s free constants, as
         :meth:`_refine_one` and :meth:`sensitivity` take them: ``moves`` = (index,
-        index_scale[, mirror, mirror_sign]), one row per model of :meth:`width` columns
+        index_scale[, mirror, mirror_sign]), one row per model of ``max_free`` columns
         (:func:`_moved`); padding columns have scale 0."""
         ev = self.evaluator
         count = len(population)
@@ -229,7 +231,8 @@ class Refiner(CompileFigures):
                 used[:, None] & ~held_inner[:, slots]
         scale = np.where(scale > 0, scale, 1.0)
         # Only free parameters are differentiated: index (P, width), padded with scale 0.
-        width = self.width(int(free.sum(axis=1).max()))
+        most = int(free.sum(axis=1).max())
+        width = self.max_free if self.batch > 1 else min(self.max_free, most + most % 2)
         index = np.zeros((count, width), dtype=np.int32)
         index_scale = np.zeros((count, width))
         for i, row in enumerate(free):
@@ -254,7 +257,7 @@ class Refiner(CompileFigures):
         layout, start, moves = self._moves(population, fixed_forcing, plain, held_inner, ties)
         outputs = []
         basis = jnp.asarray(ev.forcing_basis)
-        for size, chunk in padded_chunks((start, *moves), (1, self.batch)):
+        for size, chunk in padded_chunks((start, *moves), self.batch):
             out = jax.block_until_ready(self._run(chunk[0], tuple(chunk[1:]), basis,
                                                   ev.time_record, self.horizon_limits))
             outputs.append([np.asarray(o)[:size] for o in out])
@@ -275,7 +278,7 @@ class Refiner(CompileFigures):
         over the whole record, one augmented solve); arguments as :meth:`refine`'s,
         ``forcing_basis`` another reconstruction of the inputs
         (:meth:`~PopulationEvaluator.forcing_basis_as`). One compiled program per
-        :meth:`width`."""
+        layout."""
         ev = self.evaluator
         ev.check_forcing_bank(population)
         if len(population) != 1:

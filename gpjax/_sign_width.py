@@ -44,7 +44,7 @@ import numpy as np
 import sympy as sp
 
 from ._coefficients import Coefficients
-from ._convergence import check_model, next_substeps
+from ._convergence import check_model, needed_substeps
 from ._fitness import Fitness, Record, structure_key
 from ._model import Model
 
@@ -170,7 +170,8 @@ def narrowed_steps(model: Model, fitness: Fitness, *, tolerance: float) -> int:
     sign's steepness."""
     sharper = sharpened(model, fitness, NARROWING)
     check, _ = check_model(sharper, fitness.measurement, tolerance=tolerance)
-    return model.substeps if check.converged else next_substeps(check)
+    return (model.substeps if check.converged else
+            needed_substeps(sharper, fitness.measurement, check))
 
 
 def check_width(model: Model, reference: np.ndarray, rms_reference: float,

@@ -1,6 +1,7 @@
 """Converged integration: the reference solve, the step-count rule and the model check
 (the check of a whole fit, and ``gpjax simulate``: tests/test_demo_run.py)."""
 
+import dataclasses
 import math
 
 import numpy as np
@@ -8,7 +9,7 @@ from scipy.linalg import expm
 
 from gpjax import Model, Symbols
 from gpjax._convergence import (Convergence, bandwidth_hz, check_model, initial_substeps,
-                                next_substeps)
+                                needed_substeps, next_substeps)
 from gpjax._data import Measurement
 
 S = Symbols("x", "t", ("u",))
@@ -78,3 +79,22 @@ def test_a_coarse_model_fails_the_check_and_a_fine_one_passes():
     fine, _ = check_model(_model("hold", initial_conditions=(0.01, -0.2), substeps=8), noisy,
                           tolerance=0.01)
     assert fine.converged and fine.ratio < 0.01
+
+
+def test_the_step_count_is_measured_where_the_fourth_order_law_does_not_hold_yet():
+    """A sharp smoothed sign (tanh(200·x')): the h⁴ law from the check at one step asks for
+    2 steps, which still fail; the measured count passes with half the tolerance."""
+    record = _held_record()
+    noisy = Measurement(time=record.time, response=record.response + np.random.default_rng(0)
+                        .normal(0, 0.02 * np.std(record.response), record.n_samples),
+                        inputs=record.inputs, time_name="t", response_name="x")
+    model = Model.single(S, mass=M, state={"x": K, "x_dot": C, "tanh(200*x_dot)": 20.0},
+                         forcing={"u": 1.0}, input_interpolation="hold",
+                         initial_conditions=(0.01, -0.2))
+    check, _ = check_model(model, noisy, tolerance=0.01)
+    law = next_substeps(check)
+    at_law, _ = check_model(dataclasses.replace(model, substeps=law), noisy, tolerance=0.01)
+    assert not check.converged and not at_law.converged
+    steps = needed_substeps(model, noisy, check)
+    passed, _ = check_model(dataclasses.replace(model, substeps=steps), noisy, tolerance=0.01)
+    assert steps > law and passed.ratio < 0.005

@@ -158,8 +158,19 @@ def test_unknown_jacobian_is_refused(refiner):
         Refiner(refiner.evaluator, jacobian="finite differences")
 
 
-def test_jacobian_width_is_the_next_even_count_of_free_constants(refiner):
-    assert [refiner.width(k) for k in (1, 2, 5, 6, 8, 11)] == [2, 2, 6, 6, 8, 8]
+def test_one_program_serves_every_call_size_and_count_of_free_constants(refiner):
+    """A call of one model, and models with fewer free constants (k2 absent), run the
+    same compiled program: a width or batch of its own would compile again."""
+    evaluator = refiner.evaluator
+    fixed = np.full(4, evaluator.forcing_index(S.u[0]))
+    full = _models(evaluator, np.full(4, 0.05), np.random.default_rng(3))
+    refiner.refine(full, fixed)
+    before = refiner.compile_count
+    fewer = full.rows([0])
+    fewer.state[:, 1] = 0.0
+    out = refiner.refine(fewer, fixed[:1]).population
+    assert refiner.compile_count == before
+    assert out.state[0, 1] == 0.0 and len(out) == 1
 
 
 #: Refines four models of this file's problem with the augmented solve split over two
