@@ -38,6 +38,10 @@ RECORDS = (("duffing", 79.9), ("pendulum", 78.0), ("quadratic_drag", 77.0),
 #: The run summary's whole seconds and compile seconds, in the older and the newer wording.
 SUMMARIES = (re.compile(r"([\d.]+) s in all, ([\d.]+) s of it compiling or loading (\d+)"),
              re.compile(r"([\d.]+) s in all: .*Of these, ([\d.]+) s compiling or loading (\d+)"))
+#: The summary's stages (seconds), where it names them.
+STAGES = {"search_s": re.compile(r"search \([^)]*\) ([\d.]+) s"),
+          "selection_s": re.compile(r"final model selection ([\d.]+) s"),
+          "convergence_s": re.compile(r"convergence check ([\d.]+) s")}
 
 
 def _write_records(folder: Path, count: int) -> list[Path]:
@@ -73,10 +77,13 @@ def _fit_all(tree: Path, records: list[Path], cache: Path, args) -> list[dict]:
         whole = time.perf_counter() - began
         found = next((m for m in (p.search(run.stdout) for p in SUMMARIES) if m), None)
         equation = run.stdout.splitlines()[0] if run.stdout else run.stderr[-300:]
+        stages = {name: (float(m[1]) if (m := pattern.search(run.stdout)) else None)
+                  for name, pattern in STAGES.items()}
         rows.append({"record": path.stem, "exit": run.returncode, "whole_s": whole,
                      "fit_s": float(found[1]) if found else None,
                      "compile_s": float(found[2]) if found else None,
-                     "programs": int(found[3]) if found else None, "equation": equation})
+                     "programs": int(found[3]) if found else None, "equation": equation}
+                    | stages)
     return rows
 
 

@@ -570,6 +570,32 @@ def select_cost() -> str:
                    "lrrrrl") + "\n\n" + _stamp(data))
 
 
+def new_record() -> str:
+    """benchmarks/new_record.json: whole-process wide-set fits of four records of one length
+    bucket, one cache folder per tree (the first record cold, the others after a different
+    record), the baseline and this tree in one run."""
+    data = _load("benchmarks/new_record.json")
+    baseline, current = data["results"]
+    rows = []
+    for before, after in zip(data["results"][baseline], data["results"][current]):
+        def cell(r):
+            if r["exit"] == "timeout":
+                return f"> {r['whole_s']:.0f}"
+            return f"{r['whole_s']:.0f} ({r['compile_s']:.0f})"
+        ratio = ("–" if "timeout" in (before["exit"], after["exit"])
+                 else f"{before['whole_s'] / after['whole_s']:.2f}")
+        share = (f"{after['selection_s']:.0f} ({after['selection_s'] / after['fit_s']:.0%})"
+                 if after.get("selection_s") is not None and after.get("fit_s") else "–")
+        converge = (f"{after['convergence_s']:.0f}" if after.get("convergence_s") is not None
+                    else "–")
+        same = "yes" if before["equation"].split("   with")[0] == after["equation"].split(
+            "   with")[0] else "no"
+        rows.append([after["record"], cell(before), cell(after), ratio, share, converge, same])
+    return (_table(["record", f"{baseline}: s (compiling)", f"{current}: s (compiling)",
+                    "speed-up", "selection s (share of the fit)", "convergence s",
+                    "same structure"], rows, "lrrrrrl") + "\n\n" + _stamp(data))
+
+
 TABLES = {
     "coverage": coverage_table,
     "band-coverage": band_coverage,
@@ -605,6 +631,7 @@ TABLES = {
     "reference-cost": reference_cost,
     "many-fits": many_fits,
     "select-cost": select_cost,
+    "new-record": new_record,
 }
 
 

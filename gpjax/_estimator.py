@@ -27,7 +27,6 @@ from ._errors import UserInputError
 from ._evolve import Evolution, RunState
 from ._evaluator import OK
 from ._fitness import Fitness, Record
-from ._refine import BATCH
 from ._model import Model
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
 from ._select import pareto_front, select
@@ -253,9 +252,14 @@ class Identifier:
                     stopped = ("fixed substeps" if not auto else "narrowest sign"
                                if narrowings == MAX_NARROWINGS else "width not converging")
                     break
-                narrowings, front_too = narrowings + 1, False
-                refit = {"substeps": narrowed_steps(self.model_, fitness, tolerance=tolerance),
-                         "sign_width": fitness.sign_width / NARROWING}
+                # As many narrowings at once as the measured rate projects (at least
+                # one, at most those left): the constants barely move between widths,
+                # and each intermediate refit is a whole fit at more steps.
+                jump = int(min(MAX_NARROWINGS - narrowings, max(1, width.narrowings_needed)))
+                narrowings, front_too = narrowings + jump, False
+                refit = {"substeps": narrowed_steps(self.model_, fitness, tolerance=tolerance,
+                                                    factor=NARROWING ** jump),
+                         "sign_width": fitness.sign_width / NARROWING ** jump}
             refits += 1
             # The structures were ranked at the coarser step or wider sign (the ranking,
             # unlike the constants, barely moves); the front and the reported model are
@@ -264,10 +268,7 @@ class Identifier:
             _progress.stage(f"refitting {'the Pareto front' if front_too else 'the reported model'}"
                             f" at {refit['substeps']} substeps, smoothed-sign width "
                             f"{refit['sign_width']:.3g}")
-            # The reported model alone: a refiner of one model per call (every call is
-            # padded to the refiner's batch).
-            new = Fitness(self.measurement_, self.config, **refit,
-                          refine_batch=BATCH if front_too else 1)
+            new = Fitness(self.measurement_, self.config, **refit, single=not front_too)
             fits.append(new)
             carried = {r.key: narrowed(r, fitness, new)
                        for r in (self._front if front_too else []) + [self._chosen]}

@@ -120,8 +120,9 @@ class Fitness:
             the data's bandwidth rule, :func:`gpjax._convergence.initial_substeps`).
         sign_width: width ε of the smoothed sign tanh(z/ε), as a fraction of RMS z
             (:mod:`gpjax._features`; narrowed by :mod:`gpjax._sign_width`).
-        refine_batch: models per compiled refinement call (1 where only one model is
-            refitted: every call is padded to it).
+        single: the fitness refits one model only (the reported model at a narrower
+            sign): its evaluator and refiner compile calls of one model, where a call is
+            otherwise padded to 16 and 8 models.
 
     Raises:
         UserInputError: the run's estimated memory (:mod:`gpjax._memory`) exceeds what is
@@ -130,7 +131,7 @@ class Fitness:
 
     def __init__(self, measurement: Measurement, config: GPConfig, *,
                  substeps: int | None = None, sign_width: float = SIGN_WIDTH,
-                 refine_batch: int = BATCH):
+                 single: bool = False):
         if substeps is None:
             substeps = (initial_substeps(measurement) if config.substeps == "auto"
                         else config.substeps)
@@ -146,7 +147,7 @@ class Fitness:
             families=families_for(config.functions, config.variables, config.max_degree),
             substeps=substeps,
             n_bins=config.n_bins, w_time=config.w_time, w_freq=config.w_freq,
-            batch=min(config.population, 512),
+            batch=1 if single else min(config.population, 512),
             fit_initial_conditions=config.initial_conditions is None,
             input_interpolation=config.input_interpolation)
         self.derivatives = smoothed_derivatives(
@@ -157,7 +158,7 @@ class Fitness:
         # continuation (for poor starts) would only double the compile. Tree constants are
         # poor starts: a wrong stiffness wraps the phase over the full record.
         self.refiner = Refiner(self.evaluator, iterations=config.refine_iterations,
-                               batch=refine_batch, horizons=(1.0,) if config.coefficients == "least_squares"
+                               batch=1 if single else BATCH, horizons=(1.0,) if config.coefficients == "least_squares"
                                else (0.25, 1.0))
         #: RMS of x and x' on the data: the scales of the bank's default inner constants
         self.scales = {role: float(np.sqrt(np.mean(z ** 2))) or 1.0 for role, z in

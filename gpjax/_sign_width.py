@@ -16,19 +16,21 @@ smoothing's error absorbed into the constants, as a coarse RK4 step's would be
   sharper sign would not change what the model predicts, so a refit at it would not move
   the constants either: the objective is the same function of them.
 * **Refit** (:func:`narrowed`, in :meth:`gpjax.Identifier.fit`): otherwise ε is divided by
-  :data:`NARROWING` — the smoothed signs of the Pareto front and of the reported model
-  rewritten, held at the narrower scale — at the RK4 steps per sample that the narrower
-  sign needs by the step check (:func:`narrowed_steps`: measured on the model with the
-  sharper sign; multiplying them by NARROWING each time, as before, cost a Coulomb fit of
-  8,000 samples 5 minutes at 64 steps where 6 passed the check), and the reported model
-  is refitted to convergence. Only with ``substeps="auto"``, at most
-  :data:`MAX_NARROWINGS` times.
+  :data:`NARROWING` to the power k — the reported model's smoothed signs rewritten and held at
+  the narrower scale — at the RK4 steps per sample that the narrower sign needs by the
+  step check (:func:`narrowed_steps`: measured on the model with the sharper sign), and
+  the reported model alone is refitted to convergence (a sign's width moves the constants
+  of the models that have one, not the ranking). k is the number of narrowings the rate
+  below projects, at least one and at most those left: the constants barely move between
+  widths, and every intermediate refit is a fit at more steps (on a Coulomb + viscous
+  record of 8,000 samples one at 12 steps per sample took 2.5 minutes). Only with
+  ``substeps="auto"``, at most :data:`MAX_NARROWINGS` narrowings in all.
 * **Rate** (:attr:`WidthCheck.narrowings_needed`): the check also compares the sign
-  NARROWING and NARROWING² times narrower, so it knows how fast its change falls. Once
-  that rate says the check cannot pass within the narrowings left, only the reported
-  model is refitted at the narrower signs (its constants still shed smoothing bias), not
-  the whole front. A model left unconverged is reported with a warning that gives the
-  rate, like an unconverged step.
+  NARROWING and NARROWING² times narrower, so it knows how fast its change falls and
+  how many narrowings the check needs (geometric convergence, as the step check projects
+  its order). Where the change does not fall as the sign narrows the loop stops, and a
+  model left unconverged is reported with a warning that gives the rate, like an
+  unconverged step.
 
 A smoothed sign is a tanh(a·z) whose scale is the width's, a = 1/(ε·RMS z) (a tanh law
 whose scale was fitted is a law of its own and stays). Beyond the paper, which has no
@@ -163,12 +165,13 @@ def sharpened(model: Model, fitness: Fitness, factor: float) -> Model | None:
                                    substeps=model.substeps)
 
 
-def narrowed_steps(model: Model, fitness: Fitness, *, tolerance: float) -> int:
-    """RK4 steps per sample for ``model`` with its signs :data:`NARROWING` times narrower:
+def narrowed_steps(model: Model, fitness: Fitness, *, tolerance: float,
+                   factor: float = NARROWING) -> int:
+    """RK4 steps per sample for ``model`` with its signs ``factor`` times narrower:
     its own step count if the step check (:func:`gpjax._convergence.check_model`) passes
     there, else the count that check asks for — measured, not assumed to grow with the
     sign's steepness."""
-    sharper = sharpened(model, fitness, NARROWING)
+    sharper = sharpened(model, fitness, factor)
     check, _ = check_model(sharper, fitness.measurement, tolerance=tolerance)
     return (model.substeps if check.converged else
             needed_substeps(sharper, fitness.measurement, check))

@@ -98,3 +98,20 @@ def test_the_step_count_is_measured_where_the_fourth_order_law_does_not_hold_yet
     steps = needed_substeps(model, noisy, check)
     passed, _ = check_model(dataclasses.replace(model, substeps=steps), noisy, tolerance=0.01)
     assert steps > law and passed.ratio < 0.005
+
+
+def test_models_differing_only_in_a_features_numbers_share_one_reference_solve():
+    """A sign narrowed for the width check, or another sin frequency, is a value of the
+    compiled reference solve, not a new program; exponents stay in the structure."""
+    from gpjax._reference import _structure
+
+    def structure(scale, frequency):
+        model = Model.single(S, mass=M, state={"x**3": K, f"tanh({scale}*x_dot)": 2.0,
+                                               f"sin({frequency}*x)": 1.0},
+                             forcing={"u": 1.0})
+        return _structure(model.system)
+
+    (a, names_a, values_a), (b, names_b, values_b) = structure(500, 1.5), structure(2000, 2.5)
+    assert a == b and names_a == names_b
+    assert sorted(set(values_b) - set(values_a)) == [2.5, 2000.0]
+    assert a[0].has(S.x ** 3)
