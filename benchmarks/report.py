@@ -588,8 +588,9 @@ def new_record() -> str:
                  if after.get("selection_s") is not None and after.get("fit_s") else "–")
         converge = (f"{after['convergence_s']:.0f}" if after.get("convergence_s") is not None
                     else "–")
-        same = "yes" if before["equation"].split("   with")[0] == after["equation"].split(
-            "   with")[0] else "no"
+        same = ("–" if "timeout" in (before["exit"], after["exit"]) else "yes"
+                if before["equation"].split("   with")[0] == after["equation"].split(
+                    "   with")[0] else "no")
         rows.append([after["record"], cell(before), cell(after), ratio, share, converge, same])
     return (_table(["record", f"{baseline}: s (compiling)", f"{current}: s (compiling)",
                     "speed-up", "selection s (share of the fit)", "convergence s",
