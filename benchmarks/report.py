@@ -303,8 +303,12 @@ def silverbox() -> str:
     hand = data["hand_fit_mV"]
     rows.append(["hand fit, same Duffing structure", f"{hand['arrow_full']:g}",
                  f"{hand['arrow_no_extrapolation']:g}", f"{hand['multisine']:g}", "–"])
+    cost = ""
+    if data.get("peak_rss_mb") is not None:
+        cost = (f"The whole `gpjax fit --diagnose` process took {data['seconds']:.0f} s at a peak "
+                f"RSS of {data['peak_rss_mb'] / 1024:.1f} GB.\n\n")
     return (_table(["model", "arrow full (mV)", "arrow, no extrapolation (mV)", "multisine (mV)",
-                    "RK4 steps per sample"], rows, "lrrrr") + "\n\n" + _stamp(data))
+                    "RK4 steps per sample"], rows, "lrrrr") + "\n\n" + cost + _stamp(data))
 
 
 # ---------------------------------------------------------------- systems

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import subprocess
 import sys
 import time
@@ -30,6 +31,9 @@ from gpjax._data import Measurement, bandlimited_spline
 from gpjax._model import Model
 from gpjax._weak_form import estimate_initial_conditions
 from gpjax._silverbox import SEGMENTS, WARMUP, silverbox_segments
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _provenance import provenance  # noqa: E402
 
 #: Published test RMS in mV (multisine, arrow full, arrow no extrapolation), from the data's
 #: README (Champneys et al. 2024).
@@ -91,7 +95,7 @@ def main() -> None:
     command = [sys.executable, "-m", "gpjax", "fit", str(work / "estimation.csv"), "--time",
                "t", "--response", "V2", "--input", "V1", "--diagnose",
                "--input-interpolation", args.interpolation, "--out", str(run)]
-    seconds = None
+    seconds = peak_rss_mb = None
     if not args.reuse:
         estimation = segments["estimation"]
         np.savetxt(work / "estimation.csv", np.column_stack(
@@ -100,6 +104,7 @@ def main() -> None:
         began = time.perf_counter()
         subprocess.run(command, check=True)
         seconds = time.perf_counter() - began
+        peak_rss_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
     rows = []
     for label, path in (("gpjax fit (GP)", run / "model.json"),
                         ("gpjax fit --diagnose (final)", run / "diagnosis" / "model.json")):
@@ -110,7 +115,8 @@ def main() -> None:
                      "substeps": model.substeps, "convergence_ratio": check.get("ratio"),
                      "estimation_rms_reference_mV": 1e3 * check.get("rms_reference", np.nan),
                      **{f"{name}_rms_mV": rms[name] for name in TESTS}})
-    report = {"command": " ".join(command[1:]), "seconds": seconds,
+    report = {**provenance(), "fit_command": " ".join(command[1:]), "seconds": seconds,
+              "peak_rss_mb": peak_rss_mb,
               "input_interpolation": args.interpolation, "segments": SEGMENTS,
               "scorer": "scipy solve_ivp DOP853, rtol 1e-10, atol 1e-13, max_step = dt",
               "table": rows, "published_mV_multisine_arrowfull_arrownoextrap": PUBLISHED,
@@ -127,7 +133,7 @@ def main() -> None:
     print(f"| hand fit, converged RK4 (DESIGN.md) | | | {HAND_FIT['arrow_full']} | "
           f"{HAND_FIT['arrow_no_extrapolation']} | {HAND_FIT['multisine']} |")
     if seconds is not None:
-        print(f"gpjax fit --diagnose took {seconds:.0f} s")
+        print(f"gpjax fit --diagnose took {seconds:.0f} s, peak RSS {peak_rss_mb:.0f} MB")
 
 
 if __name__ == "__main__":
