@@ -440,9 +440,13 @@ def fit_many() -> str:
     rows = [[data["records"], data["ok"], data["failed"], data["eq14_structure"], data["exit_status"],
              f"{data['fit_many_wall_s']:.0f}", f"{data['median_record_s']:.0f}",
              " / ".join(f"{x:.1f}" for x in data["load_average_after"])]]
-    return (_table(["records", "fitted", "failed", "eq. 14 structure", "exit status", "wall s",
-                    "median s per record", "load average after"], rows, "rrrrrrrr")
-            + "\n\n" + _stamp(data))
+    header = ["records", "fitted", "failed", "eq. 14 structure", "exit status", "wall s",
+              "median s per record", "load average after"]
+    if data.get("compile_share"):
+        header.append("compiling or loading, records after each worker's first (largest share)")
+        rows[0].append(f"{data['compile_s_after_first']:.1f} s ("
+                       f"{_pct(data['compile_share_after_first_max'], 1)})")
+    return _table(header, rows, "r" * len(header)) + "\n\n" + _stamp(data)
 
 
 def cache_demo() -> str:

@@ -435,12 +435,13 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         if chosen_mode != "simulation":
             result.uncertainty = _equation_error_uncertainty(result)
             return result
-        check, _ = check_model(result.model(), measurement, tolerance=convergence_tolerance)
+        check, reference = check_model(result.model(), measurement,
+                                       tolerance=convergence_tolerance)
         if check.converged or not automatic or substeps >= MAX_SUBSTEPS:
             result.convergence = check.to_json()
             result.uncertainty = _uncertainty(result, whole)
             return result
-        substeps = needed_substeps(result.model(), measurement, check)
+        substeps = needed_substeps(result.model(), measurement, check, reference)
 
 
 def _uncertainty(result: Diagnosis, whole: FitProblem) -> Uncertainty:

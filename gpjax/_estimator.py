@@ -240,7 +240,8 @@ class Identifier:
                 if capped:
                     stopped = capped
                     break
-                refit = {"substeps": needed_substeps(self.model_, self.measurement_, check),
+                refit = {"substeps": needed_substeps(self.model_, self.measurement_, check,
+                                                       self._reference),
                          "sign_width": fitness.sign_width}
             else:
                 width = check_width(self.model_, self._reference, check.rms_reference,

@@ -55,7 +55,7 @@ from ._evaluator_systems import SystemTerms, system_state_features
 from ._features import SLOTS, Family, match
 from ._integrate import enable_float64
 from ._objective import _amplitude, _dft_matrix, _objective_parts, default_n_bins
-from ._record import RecordArrays, RecordContext, padded_length, padded_rows
+from ._record import RecordArrays, RecordContext, padded_bins, padded_length, padded_rows
 
 
 class Status(enum.IntEnum):
@@ -234,7 +234,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         #: unpadded where the spectrum is an rfft (:mod:`gpjax._record`).
         self.n_padded = padded_length(n) if pad_to_bucket and dft.shape[0] > 1 else n
         #: DFT bins the programs hold (the record's :attr:`n_bins`, zero-padded).
-        self.n_bins_padded = min(padded_length(self.n_bins), self.n_padded // 2 + 1)
+        self.n_bins_padded = min(padded_bins(self.n_bins), self.n_padded // 2 + 1)
         n_stage = self.stage_rows(self.n_padded)
         batch = max(1, min(batch, STAGE_ELEMENTS_PER_CALL // n_stage))
         self.batch = -(-batch // len(self.devices)) * len(self.devices)

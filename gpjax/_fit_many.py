@@ -3,8 +3,10 @@
 Each record is read on the client (a file that cannot be read is a failed row at once),
 fitted on a worker into a temporary folder whose files come back with the result, and
 written to ``OUT/<record>/``; ``OUT/summary.csv`` has one row per record (record,
-equation, constants, rms, seconds, error; several coordinates: equations joined by ``;``
-and the RMS per coordinate), rewritten as results arrive. A record that
+equation, constants, rms, seconds, compile_s, error; several coordinates: equations joined
+by ``;`` and the RMS per coordinate; ``compile_s``: of ``seconds``, those compiling or
+loading programs, which a worker's second record of a length bucket should not need),
+rewritten as results arrive. A record that
 fails gets its one-line error in the ``error`` column; the others go on.
 """
 
@@ -25,7 +27,7 @@ from ._errors import UserInputError
 from ._report import check_out_folder, history_csv, write_bytes_atomic, write_text_atomic
 
 SUMMARY = "summary.csv"
-COLUMNS = ("record", "equation", "constants", "rms", "seconds", "error")
+COLUMNS = ("record", "equation", "constants", "rms", "seconds", "compile_s", "error")
 
 
 def record_paths(source: str | Path) -> list[Path]:
@@ -73,7 +75,8 @@ def fit_record(measurement: Measurement, config: GPConfig, seed: int) -> dict:
             "rms": ("; ".join(f"{k}=diverged" if v is None else f"{k}={v:.6g}"
                               for k, v in rms.items())
                     if isinstance(rms, dict) else rms),
-            "seconds": time.perf_counter() - began, "error": ""}
+            "seconds": time.perf_counter() - began,
+            "compile_s": identifier.timings_["compile_s"], "error": ""}
 
 
 def fit_many(source: str | Path, *, time: str, response: str | Sequence[str],

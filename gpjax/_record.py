@@ -11,11 +11,20 @@ Buckets (:func:`padded_length`): the record's N samples are padded to the next o
 :data:`BUCKETS_PER_OCTAVE` lengths per octave (…, 1024, 1280, 1536, 1792, 2048, …), so a
 program serves every length from one bucket to the next and a record integrates at most
 25 % (on average ~12 %) more samples than it has. The padded samples hold the last input
-value; they are masked out of every sum (:attr:`RecordArrays.valid`), so the objective,
-the fitted initial states and the refined constants are those of the unpadded record
-exactly (tested). The spectral part of the objective is a DFT-matrix product whose columns
-past N are zero and whose rows are the record's own bins j/N, padded with zero rows to a
-bucket of bins. Records too long for a DFT matrix (the rfft path of
+value; they are masked out of every sum (:attr:`RecordArrays.valid`), so the objective, the
+fitted initial states and the refined constants are those of the unpadded record exactly
+(tested). The spectral part of the objective is a DFT-matrix product whose columns past N
+are zero and whose rows are the record's own bins j/N, padded with zero rows to the next
+power of two (:func:`padded_bins`). The bins a record needs follow its band, not its length
+(eq. 9's 99 % energy rule), so records of one length differ in them: on issue 43's four
+records, 7,601–7,991 samples, they ranged over 136–203 bins, three buckets at four per
+octave (160, 192, 224), and two of the three records after the first compiled their
+population programs again (~16 s each); at one bucket per octave all four hold 256. The
+price is up to twice the rows of the product: at 8,192 samples, 256 bins take 75 ms per 500
+models on 2 cores (the cost is proportional to the rows), against 4.4–4.8 s a generation of
+a wide-set fit; at the paper's 1,334 samples 58 bins hold 64 either way. (A chirp-z
+transform, whose cost does not grow with the bins, ran 2–3× slower than the product at both
+sizes on XLA's CPU FFT.) Records too long for a DFT matrix (the rfft path of
 :mod:`gpjax._objective`) are not padded: their programs serve records of the same length.
 """
 
@@ -40,6 +49,12 @@ def padded_length(n: int) -> int:
     octave = 1 << max(0, (n - 1).bit_length() - 1)  # largest power of two below n (or n)
     step = max(1, octave // BUCKETS_PER_OCTAVE)
     return -(-n // step) * step
+
+
+def padded_bins(n_bins: int) -> int:
+    """The bins the programs hold for a record's ``n_bins``: the next power of two, at least
+    :data:`SMALLEST_BUCKET` (the module docstring says why one bucket per octave)."""
+    return 1 << (max(int(n_bins), SMALLEST_BUCKET) - 1).bit_length()
 
 
 def padded_rows(array: np.ndarray, rows: int) -> np.ndarray:

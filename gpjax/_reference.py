@@ -11,7 +11,11 @@ falls on an interval's end, and the inputs are functions of continuous time:
 * ``linear``: straight lines between samples;
 * ``hold``: each interval sees its first sample's value (the left limit at its end);
 * ``bandlimited``: the cubic spline of :func:`gpjax._data.bandlimited_spline`, the same
-  function the RK4 stage values are taken from.
+  function the RK4 stage values are taken from. Its third derivative jumps at each of its
+  knots, :data:`~gpjax._data.BANDLIMITED_FACTOR` per interval, and at these tolerances the
+  step control paid for every jump with rejected steps: the steps end on the knots instead
+  (diffrax ``ClipStepSizeController``), ~3× faster (Silverbox's first 8,000 samples: 2.8 s
+  for 8.0 s warm; the two responses agree to 1e-11 of their range).
 
 The state is scaled by the response's and its derivative's spread, so one absolute
 tolerance serves both. A solve that fails (a model that blows up, or more steps than an
@@ -150,13 +154,19 @@ def _solve_program(expressions: tuple[sp.Expr, ...], names: tuple, constants: tu
 
     term = diffrax.ODETerm(field)
     controller = diffrax.PIDController(rtol=solver.rtol, atol=solver.atol)
+    knots = jnp.arange(BANDLIMITED_FACTOR + 1) / BANDLIMITED_FACTOR  # of one interval
 
     def solve(values, path, ts, y0, scale):
         def advance(y, k):
+            # The band-limited input is a cubic between knots 1/BANDLIMITED_FACTOR of an
+            # interval apart, its third derivative jumping at each: steps end on them
+            # (module docstring).
+            steps = controller if method != "bandlimited" else diffrax.ClipStepSizeController(
+                controller, step_ts=ts[k] + (ts[k + 1] - ts[k]) * knots)
             solution = diffrax.diffeqsolve(
                 term, diffrax.Dopri8(), t0=ts[k], t1=ts[k + 1], dt0=None, y0=y,
                 args=(values, path[k] if hold else path, scale),
-                saveat=diffrax.SaveAt(t1=True), stepsize_controller=controller,
+                saveat=diffrax.SaveAt(t1=True), stepsize_controller=steps,
                 max_steps=solver.max_steps_per_sample, throw=False)
             ok = (solution.result == diffrax.RESULTS.successful) & jnp.all(
                 jnp.isfinite(solution.ys[-1]))

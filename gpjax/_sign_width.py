@@ -172,9 +172,9 @@ def narrowed_steps(model: Model, fitness: Fitness, *, tolerance: float,
     there, else the count that check asks for — measured, not assumed to grow with the
     sign's steepness."""
     sharper = sharpened(model, fitness, factor)
-    check, _ = check_model(sharper, fitness.measurement, tolerance=tolerance)
+    check, reference = check_model(sharper, fitness.measurement, tolerance=tolerance)
     return (model.substeps if check.converged else
-            needed_substeps(sharper, fitness.measurement, check))
+            needed_substeps(sharper, fitness.measurement, check, reference))
 
 
 def check_width(model: Model, reference: np.ndarray, rms_reference: float,

@@ -91,11 +91,11 @@ def test_the_step_count_is_measured_where_the_fourth_order_law_does_not_hold_yet
     model = Model.single(S, mass=M, state={"x": K, "x_dot": C, "tanh(200*x_dot)": 20.0},
                          forcing={"u": 1.0}, input_interpolation="hold",
                          initial_conditions=(0.01, -0.2))
-    check, _ = check_model(model, noisy, tolerance=0.01)
+    check, reference = check_model(model, noisy, tolerance=0.01)
     law = next_substeps(check)
     at_law, _ = check_model(dataclasses.replace(model, substeps=law), noisy, tolerance=0.01)
     assert not check.converged and not at_law.converged
-    steps = needed_substeps(model, noisy, check)
+    steps = needed_substeps(model, noisy, check, reference)
     passed, _ = check_model(dataclasses.replace(model, substeps=steps), noisy, tolerance=0.01)
     assert steps > law and passed.ratio < 0.005
 

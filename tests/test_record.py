@@ -11,7 +11,7 @@ import sympy as sp
 from gpjax import Measurement, Symbols
 from gpjax._coefficients import Coefficients, to_population
 from gpjax._evaluator import PopulationEvaluator
-from gpjax._record import BUCKETS_PER_OCTAVE, padded_length
+from gpjax._record import BUCKETS_PER_OCTAVE, padded_bins, padded_length
 from gpjax._refine import Refiner
 
 S = Symbols("x", "t", ("u",))
@@ -24,6 +24,15 @@ def test_buckets_hold_every_length_with_at_most_a_quarter_more():
     assert np.all(padded >= lengths) and np.all(padded[15:] <= 1.25 * lengths[15:])
     assert len(set(padded[(lengths > 4096) & (lengths <= 8192)])) == BUCKETS_PER_OCTAVE
     assert padded_length(1024) == 1024 and padded_length(1025) == 1280
+
+
+def test_records_of_one_length_whose_bins_differ_within_an_octave_share_the_programs():
+    """The bins follow a record's band: 136 and 203 (issue 43's pendulum and Duffing) lie
+    in one bucket, so their evaluators have one program key."""
+    assert padded_bins(136) == padded_bins(203) == 256 and padded_bins(257) == 512
+    record = _record(0, 2000)
+    keys = {PopulationEvaluator(record, S, max_degree=3, n_bins=bins).key for bins in (136, 203)}
+    assert len(keys) == 1
 
 
 def _record(seed: int, n: int) -> Measurement:
