@@ -442,10 +442,10 @@ def fit_many() -> str:
              " / ".join(f"{x:.1f}" for x in data["load_average_after"])]]
     header = ["records", "fitted", "failed", "eq. 14 structure", "exit status", "wall s",
               "median s per record", "load average after"]
-    if data.get("compile_share"):
-        header.append("compiling or loading, records after each worker's first (largest share)")
-        rows[0].append(f"{data['compile_s_after_first']:.1f} s ("
-                       f"{_pct(data['compile_share_after_first_max'], 1)})")
+    if data.get("loaded_records") is not None:
+        header += ["records that compiled", "records that only loaded: largest load s (share)"]
+        rows[0] += [data["compiled_records"], f"{data['loaded_records']}: "
+                    f"{data['loaded_max_s']:.2f} ({_pct(data['loaded_max_share'], 1)})"]
     return _table(header, rows, "r" * len(header)) + "\n\n" + _stamp(data)
 
 
