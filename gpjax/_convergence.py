@@ -112,10 +112,10 @@ def needed_substeps(model, measurement: Measurement, check: Convergence,
     check of a failed ``check`` with half its tolerance as margin, measured (module
     docstring): :func:`next_substeps` of the last trial until one passes or the steps
     reach :data:`MAX_SUBSTEPS`. ``reference``: the reference response that ``check``
-    solved (:func:`check_model`), which no step count changes (on Silverbox's 65,062
-    samples that solve takes about a minute)."""
+    solved (:func:`check_model`), which no step count changes, so it is not solved
+    again."""
     steps = next_substeps(check)
-    while steps < MAX_SUBSTEPS:  # the reference response does not depend on the steps
+    while steps < MAX_SUBSTEPS:
         trial, reference = check_model(dataclasses.replace(model, substeps=steps),
                                        measurement, tolerance=check.tolerance,
                                        reference=reference)

@@ -5,7 +5,8 @@ fitted on a worker into a temporary folder whose files come back with the result
 written to ``OUT/<record>/``; ``OUT/summary.csv`` has one row per record (record,
 equation, constants, rms, seconds, compile_s, error; several coordinates: equations joined
 by ``;`` and the RMS per coordinate; ``compile_s``: of ``seconds``, those compiling or
-loading programs, which a worker's second record of a length bucket should not need),
+loading programs, only loading where an earlier record of the cache folder had the same
+shapes and settings),
 rewritten as results arrive. A record that
 fails gets its one-line error in the ``error`` column; the others go on.
 """
