@@ -46,16 +46,17 @@ class Dynamics:
         return (jnp.swapaxes(self._coordinates(mass, -1), -1, -2), self._coordinates(state, -2),
                 self._coordinates(forcing_matrix, -2), self._coordinates(y0, -2))
 
-    def _acceleration_fn(self, mass, state, inner):
+    def _acceleration_fn(self, mass, state, inner, *, families: bool = True):
         """x''(x, v, force, t) for all models, states clipped; ``mass`` (D, P), ``state``
         (P, D, F). One coordinate: x, x' and the force as one-element sequences of (P,)
         arrays, the acceleration returned likewise (the scan carries no stacked state: faster
         for D = 1). D > 1: (D, P) arrays in and out (one stacked Horner sum).
 
-        The one right-hand side both integrators use (:meth:`_restoring_fn`).
+        The one right-hand side both integrators use (:meth:`_restoring_fn`; ``families``
+        False: without the families' terms).
         """
         inverse_mass = 1.0 / mass
-        rows = self._restoring_fn(state, inner, stacked=False)
+        rows = self._restoring_fn(state, inner, stacked=False, families=families)
         bounds = self.record.bounds
         if self.n_coordinates > 1:  # (D, P) arrays in and out
             def clipped(z, which):  # row by row: faster than one broadcast clip in scan_jvp
@@ -75,14 +76,15 @@ class Dynamics:
 
         return acceleration
 
-    def _restoring_fn(self, state, inner, *, stacked: bool = True):
+    def _restoring_fn(self, state, inner, *, stacked: bool = True, families: bool = True):
         """Σ c·φ per equation for coefficients ``state`` of shape (..., P, D, F) and the
         families' inner constants ``inner`` (P, F_inner): Horner sums over the powers of each
         equation's variables (:func:`system_state_features`), plus, for D = 1, the compiled
         extra features and families. The function takes the positions and velocities as
         (D, P) arrays or sequences of D (P,) arrays and returns (..., D, P) (``stacked``
         False: a list of D (..., P) arrays). A family no model of the call uses is skipped
-        (``lax.cond`` on a loop-invariant flag)."""
+        (``lax.cond`` on a loop-invariant flag); ``families`` False: the families' terms are
+        left out (:meth:`_family_pass` adds them)."""
         if self.n_coordinates > 1:
             return self._system_restoring(state, stacked=stacked)
         d = self.max_degree
@@ -91,7 +93,9 @@ class Dynamics:
         n_poly, n_extra = 2 * d, len(self._extra_fns)
         extra = jnp.moveaxis(state[..., 0, n_poly:n_poly + n_extra], -1, 0)
         bank = jnp.moveaxis(state[..., 0, n_poly + n_extra:], -1, 0)
+        bank = bank if families else bank[:0]
         used = [jnp.any(c != 0) for c in bank]
+        thetas = [inner[..., slots] for slots in self._inner_slots]  # sliced outside the scan
 
         def horner(c, z):
             total = c[d - 1]
@@ -104,10 +108,10 @@ class Dynamics:
             total = horner(position, x) + horner(velocity, v)
             for c, fn in zip(extra, self._extra_fns):
                 total = total + c * fn(x, v, t)
-            for c, flag, family, slots in zip(bank, used, self.families, self._inner_slots):
+            for c, flag, family, theta in zip(bank, used, self.families, thetas):
                 z = x if family.role == "x" else v
-                term = jax.lax.cond(flag, lambda z=z, c=c, family=family, slots=slots:
-                                    c * family(z, inner[..., slots]),
+                term = jax.lax.cond(flag, lambda z=z, c=c, family=family, theta=theta:
+                                    c * family(z, theta),
                                     lambda c=c: jnp.zeros(jnp.broadcast_shapes(c.shape, x.shape)))
                 total = total + term
             return [total]
@@ -191,9 +195,15 @@ class Dynamics:
             d_state = self._coordinates(d_state, -2)
         d_forcing = (jnp.zeros((forcing_matrix.shape[0], 1, 1, 1)) if d_forcing is None
                      else self._coordinates(d_forcing, -2))
-        acceleration = self._acceleration_fn(mass, state, inner)
-        restoring = self._restoring_fn(state, inner)
-        d_restoring = self._restoring_fn(d_state, inner) if d_state is not None else None
+        # One coordinate with families: their terms, slopes and directional derivatives in
+        # one pass per stage (one ``lax.cond`` per family instead of five).
+        fused = self._has_families(state)
+        acceleration = self._acceleration_fn(mass, state, inner, families=not fused)
+        restoring = self._restoring_fn(state, inner, families=not fused)
+        d_restoring = (self._restoring_fn(d_state, inner, families=not fused)
+                       if d_state is not None else None)
+        family_pass = (self._family_pass(state, inner, d_state, d_inner, d_y0.shape[0])
+                       if fused else None)
         inverse_mass = 1.0 / mass
         count = self.n_coordinates
         system_partials = self._system_partials(state) if count > 1 else None
@@ -219,11 +229,13 @@ class Dynamics:
             r_x, r_v = (system_partials(xs, vs) if count > 1 else
                         (partials(xs, vs, t, 0), partials(xs, vs, t, 1)))
             explicit = df
+            if family_pass is not None:
+                value, slope_x, slope_v, family_explicit = family_pass(x[0], v[0])
+                a = a - value * inverse_mass
+                r_x, r_v = [r_x[0] + slope_x], [r_v[0] + slope_v]
+                explicit = explicit - family_explicit[:, None]
             if d_restoring is not None:
                 explicit = explicit - d_restoring(x, v, t)
-            if d_inner is not None and self.families:
-                explicit = explicit - jax.vmap(lambda d: jax.jvp(
-                    lambda th: restoring_at(th, x, v, t), (inner,), (d,))[1])(d_inner)
             if d_mass is not None:
                 explicit = explicit - a * d_mass
             for j, r in enumerate(r_x):
@@ -233,9 +245,6 @@ class Dynamics:
             dw = explicit * inverse_mass
             return (jnp.stack([jnp.concatenate([v[None], w]),
                                jnp.concatenate([a[None], jnp.broadcast_to(dw, s.shape)])]),)
-
-        def restoring_at(theta, x, v, t):
-            return self._restoring_fn(state, theta)(x, v, t)
 
         # One carried array [[x, s], [x', w]], (2, 1 + Q, D, P): fewer loops and copies per
         # step than four separate states (the initial-condition step runs ~2× faster).
@@ -251,6 +260,55 @@ class Dynamics:
         if count == 1:
             return path[:, 0, 0], path[:, 1:, 0]
         return path[:, 0], jnp.swapaxes(path[:, 1:], 1, 2)
+
+    def _has_families(self, state) -> bool:
+        """Whether ``state`` (internal, (..., P, D, F)) is of one coordinate and holds the
+        families' columns (not the plain layout)."""
+        return (self.n_coordinates == 1 and bool(self.families)
+                and state.shape[-1] > 2 * self.max_degree + len(self._extra_fns))
+
+    def _family_pass(self, state, inner, d_state, d_inner, count: int):
+        """``terms(x, v)`` for one coordinate: Σ c·g over the families (g at the clipped
+        state, as :meth:`_acceleration_fn` takes it), its slopes by x and by x' ((P,)
+        each), and along each of the ``count`` directions Σ (dc·g + c·∂g/∂θ·dθ) ((Q, P)).
+        One ``lax.cond`` per family, skipping a family neither the call's models nor its
+        directions use; each branch captures only its family's columns (sliced here,
+        outside the scan: a branch's captures are copied in at every call)."""
+        start = 2 * self.max_degree + len(self._extra_fns)
+        bank = jnp.moveaxis(state[..., 0, start:], -1, 0)  # (F, P)
+        d_bank = None if d_state is None else jnp.moveaxis(d_state[..., 0, start:], -1, 0)
+        used = [jnp.any(bank[k] != 0) | (False if d_bank is None else jnp.any(d_bank[k] != 0))
+                for k in range(len(self.families))]
+        bx, bv = self.record.bounds[0, 0], self.record.bounds[0, 1]
+
+        parts = [(family, bank[k], None if d_bank is None else d_bank[k], inner[..., slots],
+                  None if d_inner is None or slots.stop == slots.start else d_inner[..., slots])
+                 for k, (family, slots) in enumerate(zip(self.families, self._inner_slots))]
+
+        def terms(x, v):
+            x, v = jnp.clip(x, -bx, bx), jnp.clip(v, -bv, bv)
+            zero = jnp.zeros_like(x)
+            value, explicit = zero, jnp.zeros((count,) + x.shape)
+            slopes = {"x": zero, "x_dot": zero}
+            for (family, c, dc, theta, d_theta), flag in zip(parts, used):
+                def on(family=family, c=c, dc=dc, theta=theta, d_theta=d_theta,
+                       z=x if family.role == "x" else v):
+                    g, g_z = jax.jvp(lambda z: family(z, theta), (z,), (jnp.ones_like(z),))
+                    moved = jnp.zeros((count,) + z.shape)
+                    if dc is not None:
+                        moved = moved + dc * g
+                    if d_theta is not None:
+                        moved = moved + c * jax.vmap(lambda d: jax.jvp(
+                            lambda th: family(z, th), (theta,), (d,))[1])(d_theta)
+                    return c * g, c * g_z, moved
+
+                term, slope, moved = jax.lax.cond(
+                    flag, on, lambda: (zero, zero, jnp.zeros((count,) + x.shape)))
+                value, explicit = value + term, explicit + moved
+                slopes[family.role] = slopes[family.role] + slope
+            return value, slopes["x"], slopes["x_dot"], explicit
+
+        return terms
 
     def unpack(self, constants, forcing_basis):
         """Flat constant vectors (:attr:`layout`), one model's (W,) or a population's

@@ -131,10 +131,11 @@ STRIBECK = sp.exp(-(4.0 * V) ** 2) * sp.tanh(30.0 * V)
 
 
 @pytest.mark.slow  # 20-30 s: CI's slow step; the fast tier stays within 5 min on 2 cores
-def test_variational_sensitivities_to_inner_constants_match_autodiff(pendulum):
-    """The variational Jacobian in the inner constants of sin(a·x + b) and of a Stribeck
-    member equals forward-mode autodiff through the solve (both families in one call, so
-    each side compiles once)."""
+def test_variational_sensitivities_of_a_family_model_match_autodiff(pendulum):
+    """The variational Jacobian of a model with two families — in the inner constants of
+    sin(a·x + b) and of a Stribeck member, and in every constant it uses (mass, the
+    families' and the powers' coefficients, forcing, initial state) — equals forward-mode
+    autodiff through the solve (one call, so each side compiles once)."""
     _, evaluator = pendulum
     evaluator.forcing_index(U)
     model = _truth()
@@ -145,7 +146,8 @@ def test_variational_sensitivities_to_inner_constants_match_autodiff(pendulum):
                for k in range(evaluator.inner_of(feature)[0].start,
                               evaluator.inner_of(feature)[0].stop)]
     assert len(columns) == 4
-    at = jnp.array(columns)
+    at = jnp.array(sorted(set(columns) | set(np.flatnonzero(np.asarray(constants)).tolist())))
+    assert at.size > 8
     _, jacobian = evaluator.constant_jacobian(constants, jnp.eye(constants.size)[at], basis)
     reference = jax.jacfwd(lambda q: evaluator.scan_solve(*evaluator.unpack(
         constants.at[at].set(q), basis))[:, 0])(constants[at])
