@@ -92,8 +92,7 @@ class Dynamics:
                               for k in (0, 1))
         n_poly, n_extra = 2 * d, len(self._extra_fns)
         extra = jnp.moveaxis(state[..., 0, n_poly:n_poly + n_extra], -1, 0)
-        bank = jnp.moveaxis(state[..., 0, n_poly + n_extra:], -1, 0)
-        bank = bank if families else bank[:0]
+        bank = self._bank_columns(state) if families else jnp.zeros((0,))
         used = [jnp.any(c != 0) for c in bank]
         thetas = [inner[..., slots] for slots in self._inner_slots]  # sliced outside the scan
 
@@ -261,11 +260,16 @@ class Dynamics:
             return path[:, 0, 0], path[:, 1:, 0]
         return path[:, 0], jnp.swapaxes(path[:, 1:], 1, 2)
 
+    def _bank_columns(self, state):
+        """One coordinate's family coefficients of ``state`` (internal, (..., P, 1, F)),
+        family first: (F_bank, ..., P); none on the plain layout."""
+        return jnp.moveaxis(state[..., 0, 2 * self.max_degree + len(self._extra_fns):], -1, 0)
+
     def _has_families(self, state) -> bool:
-        """Whether ``state`` (internal, (..., P, D, F)) is of one coordinate and holds the
-        families' columns (not the plain layout)."""
+        """Whether ``state`` (internal) is of one coordinate and holds the families'
+        columns (not the plain layout)."""
         return (self.n_coordinates == 1 and bool(self.families)
-                and state.shape[-1] > 2 * self.max_degree + len(self._extra_fns))
+                and self._bank_columns(state).shape[0] > 0)
 
     def _family_pass(self, state, inner, d_state, d_inner, count: int):
         """``terms(x, v)`` for one coordinate: Σ c·g over the families (g at the clipped
@@ -274,9 +278,8 @@ class Dynamics:
         One ``lax.cond`` per family, skipping a family neither the call's models nor its
         directions use; each branch captures only its family's columns (sliced here,
         outside the scan: a branch's captures are copied in at every call)."""
-        start = 2 * self.max_degree + len(self._extra_fns)
-        bank = jnp.moveaxis(state[..., 0, start:], -1, 0)  # (F, P)
-        d_bank = None if d_state is None else jnp.moveaxis(d_state[..., 0, start:], -1, 0)
+        bank = self._bank_columns(state)  # (F, P)
+        d_bank = None if d_state is None else self._bank_columns(d_state)  # (F, Q, P)
         used = [jnp.any(bank[k] != 0) | (False if d_bank is None else jnp.any(d_bank[k] != 0))
                 for k in range(len(self.families))]
         bx, bv = self.record.bounds[0, 0], self.record.bounds[0, 1]
