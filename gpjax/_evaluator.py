@@ -331,20 +331,18 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
     def _batched(self, population: Population, *, responses: bool):
         """Scores (and responses) of ``population`` in padded batches, models that use no
         family apart on :attr:`plain_layout` (one more compile;
-        ``benchmarks/bench_feature_bank.py``)."""
+        ``benchmarks/bench_feature_bank.py``), the others by the families they use
+        (:meth:`layout_groups`)."""
         self.check_forcing_bank(population)
         count = len(population)
         if count == 0:
             empty = np.zeros(0)
             return (Scores(empty, empty, empty, empty, empty.astype(int),
                            self.empty(0).y0), np.zeros((0, 0)))
-        plain = self.plain_rows(population)
         parts, paths, order = [], [], []
-        for rows in (np.flatnonzero(plain), np.flatnonzero(~plain)):
-            if not rows.size:
-                continue
+        for rows, plain in self.layout_groups(population):
             part = population.rows(rows)
-            part = self.narrowed(part) if plain[rows[0]] else part
+            part = self.narrowed(part) if plain else part
             forcing = _pad_columns(part.forcing, self.forcing_capacity)
             for size, chunk in padded_chunks((part.mass, part.state, forcing, part.y0,
                                               part.inner), self.batch_sizes):

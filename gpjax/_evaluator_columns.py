@@ -166,6 +166,18 @@ class Columns:
         used = population.state[..., self.plain_layout.n_state:] != 0
         return ~np.any(used.reshape(len(population), -1), axis=1)
 
+    def layout_groups(self, population: Population) -> list[tuple[np.ndarray, bool]]:
+        """``population``'s rows by layout, as (rows, plain): the models that use no family
+        (:meth:`plain_rows`), then the others ordered by the families they use, so that
+        models using the same families share a batch and each batch evaluates few of them
+        (:meth:`~gpjax._evaluator_dynamics.Dynamics._family_sum`); empty groups left out."""
+        plain = self.plain_rows(population)
+        rows = np.flatnonzero(~plain)
+        if rows.size:
+            used = population.state[rows][..., self.plain_layout.n_state:] != 0
+            rows = rows[np.lexsort(used.reshape(rows.size, -1).T[::-1])]
+        return [(r, p) for r, p in ((np.flatnonzero(plain), True), (rows, False)) if r.size]
+
     def narrowed(self, population: Population) -> Population:
         """``population`` on :attr:`plain_layout` (its family columns dropped)."""
         return dataclasses.replace(population,

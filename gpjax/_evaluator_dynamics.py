@@ -83,7 +83,7 @@ class Dynamics:
         extra features and families. The function takes the positions and velocities as
         (D, P) arrays or sequences of D (P,) arrays and returns (..., D, P) (``stacked``
         False: a list of D (..., P) arrays). A family no model of the call uses is skipped
-        (``lax.cond`` on a loop-invariant flag); ``families`` False: the families' terms are
+        (:meth:`_family_sum`); ``families`` False: the families' terms are
         left out (:meth:`_family_pass` adds them)."""
         if self.n_coordinates > 1:
             return self._system_restoring(state, stacked=stacked)
@@ -93,8 +93,7 @@ class Dynamics:
         n_poly, n_extra = 2 * d, len(self._extra_fns)
         extra = jnp.moveaxis(state[..., 0, n_poly:n_poly + n_extra], -1, 0)
         bank = self._bank_columns(state) if families else jnp.zeros((0,))
-        used = [jnp.any(c != 0) for c in bank]
-        thetas = [inner[..., slots] for slots in self._inner_slots]  # sliced outside the scan
+        family_sum = self._family_sum(bank, inner) if bank.shape[0] else None
 
         def horner(c, z):
             total = c[d - 1]
@@ -107,12 +106,8 @@ class Dynamics:
             total = horner(position, x) + horner(velocity, v)
             for c, fn in zip(extra, self._extra_fns):
                 total = total + c * fn(x, v, t)
-            for c, flag, family, theta in zip(bank, used, self.families, thetas):
-                z = x if family.role == "x" else v
-                term = jax.lax.cond(flag, lambda z=z, c=c, family=family, theta=theta:
-                                    c * family(z, theta),
-                                    lambda c=c: jnp.zeros(jnp.broadcast_shapes(c.shape, x.shape)))
-                total = total + term
+            if family_sum is not None:
+                total = total + family_sum(x, v)
             return [total]
 
         if stacked:
@@ -271,45 +266,69 @@ class Dynamics:
         return (self.n_coordinates == 1 and bool(self.families)
                 and self._bank_columns(state).shape[0] > 0)
 
+    def _family_sum(self, bank, inner):
+        """``terms(x, v)``: Σ c·g over the families for coefficients ``bank``
+        (:meth:`_bank_columns`, (F, ..., P)) and inner constants ``inner`` (P, F_inner),
+        one ``lax.switch`` per family the call's models use (:func:`_used_first`)."""
+        thetas = [inner[..., slots] for slots in self._inner_slots]  # sliced outside the scan
+        order, count = _used_first(bank)
+
+        def branch(family, c, theta):
+            return lambda x, v: c * family(x if family.role == "x" else v, theta)
+
+        branches = [branch(*p) for p in zip(self.families, bank, thetas)]
+
+        def terms(x, v):
+            zero = jnp.zeros(jnp.broadcast_shapes(bank.shape[1:], x.shape))
+            return jax.lax.fori_loop(
+                0, count, lambda i, total: total + jax.lax.switch(order[i], branches, x, v),
+                zero)
+
+        return terms
+
     def _family_pass(self, state, inner, d_state, d_inner, count: int):
         """``terms(x, v)`` for one coordinate: Σ c·g over the families (g at the clipped
         state, as :meth:`_acceleration_fn` takes it), its slopes by x and by x' ((P,)
         each), and along each of the ``count`` directions Σ (dc·g + c·∂g/∂θ·dθ) ((Q, P)).
-        One ``lax.cond`` per family, skipping a family neither the call's models nor its
-        directions use; each branch captures only its family's columns (sliced here,
-        outside the scan: a branch's captures are copied in at every call)."""
+        One ``lax.switch`` per family that the call's models or its directions use
+        (:func:`_used_first`)."""
         bank = self._bank_columns(state)  # (F, P)
         d_bank = None if d_state is None else self._bank_columns(d_state)  # (F, Q, P)
-        used = [jnp.any(bank[k] != 0) | (False if d_bank is None else jnp.any(d_bank[k] != 0))
-                for k in range(len(self.families))]
+        order, used = _used_first(bank if d_bank is None else
+                                  jnp.concatenate([bank[:, None], d_bank], axis=1))
         bx, bv = self.record.bounds[0, 0], self.record.bounds[0, 1]
 
-        parts = [(family, bank[k], None if d_bank is None else d_bank[k], inner[..., slots],
-                  None if d_inner is None or slots.stop == slots.start else d_inner[..., slots])
-                 for k, (family, slots) in enumerate(zip(self.families, self._inner_slots))]
+        def branch(k, family, slots):
+            c, theta = bank[k], inner[..., slots]
+            dc = None if d_bank is None else d_bank[k]
+            d_theta = (None if d_inner is None or slots.stop == slots.start
+                       else d_inner[..., slots])
+
+            def on(x, v):
+                z = x if family.role == "x" else v
+                g, g_z = jax.jvp(lambda z: family(z, theta), (z,), (jnp.ones_like(z),))
+                moved = jnp.zeros((count,) + z.shape)
+                if dc is not None:
+                    moved = moved + dc * g
+                if d_theta is not None:
+                    moved = moved + c * jax.vmap(lambda d: jax.jvp(
+                        lambda th: family(z, th), (theta,), (d,))[1])(d_theta)
+                zero = jnp.zeros_like(z)
+                slope = c * g_z
+                return (c * g, *((slope, zero) if family.role == "x" else (zero, slope)),
+                        moved)
+
+            return on
+
+        branches = [branch(k, family, slots) for k, (family, slots)
+                    in enumerate(zip(self.families, self._inner_slots))]
 
         def terms(x, v):
             x, v = jnp.clip(x, -bx, bx), jnp.clip(v, -bv, bv)
             zero = jnp.zeros_like(x)
-            value, explicit = zero, jnp.zeros((count,) + x.shape)
-            slopes = {"x": zero, "x_dot": zero}
-            for (family, c, dc, theta, d_theta), flag in zip(parts, used):
-                def on(family=family, c=c, dc=dc, theta=theta, d_theta=d_theta,
-                       z=x if family.role == "x" else v):
-                    g, g_z = jax.jvp(lambda z: family(z, theta), (z,), (jnp.ones_like(z),))
-                    moved = jnp.zeros((count,) + z.shape)
-                    if dc is not None:
-                        moved = moved + dc * g
-                    if d_theta is not None:
-                        moved = moved + c * jax.vmap(lambda d: jax.jvp(
-                            lambda th: family(z, th), (theta,), (d,))[1])(d_theta)
-                    return c * g, c * g_z, moved
-
-                term, slope, moved = jax.lax.cond(
-                    flag, on, lambda: (zero, zero, jnp.zeros((count,) + x.shape)))
-                value, explicit = value + term, explicit + moved
-                slopes[family.role] = slopes[family.role] + slope
-            return value, slopes["x"], slopes["x_dot"], explicit
+            start = (zero, zero, zero, jnp.zeros((count,) + x.shape))
+            return jax.lax.fori_loop(0, used, lambda i, sums: tuple(
+                a + b for a, b in zip(sums, jax.lax.switch(order[i], branches, x, v))), start)
 
         return terms
 
@@ -392,6 +411,15 @@ def _forcing_rows(forcing_basis, forcing):
     if forcing.ndim == 2:
         return forcing_basis @ forcing.T
     return jnp.einsum("sk,pdk->sdp", forcing_basis, forcing)
+
+
+def _used_first(bank):
+    """(order, count): the indices of the families (rows of ``bank``, (F, ...)) with a
+    nonzero coefficient first, and how many there are — a loop over ``order[:count]``
+    evaluates only the families a call uses, at one dispatch each (a ``lax.cond`` per
+    family cost every call all F dispatches per RK4 stage)."""
+    flags = jnp.any(bank.reshape(bank.shape[0], -1) != 0, axis=1)
+    return jnp.argsort(~flags, stable=True), jnp.sum(flags)
 
 
 def _no_inner(inner, mass):

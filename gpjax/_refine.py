@@ -180,19 +180,18 @@ class Refiner(CompileFigures):
         """
         ev = self.evaluator
         ev.check_forcing_bank(population)
-        plain = ev.plain_rows(population)
+        groups = ev.layout_groups(population)
         if ties is not None and not any(ties):
             ties = None
         if held_inner is None:
             held_inner = np.zeros(population.inner.shape, dtype=bool)
-        if plain.all() or not plain.any():
-            return self._refine(population, fixed_forcing, bool(plain[0]), held_inner, ties)
+        if len(groups) <= 1 and all(plain for _, plain in groups):
+            return self._refine(population, fixed_forcing, True, held_inner, ties)
         if ties is not None:
             raise ValueError("tied coefficients are for systems, which use no family")
-        rows = [np.flatnonzero(plain), np.flatnonzero(~plain)]
-        parts = [self._refine(population.rows(r), np.asarray(fixed_forcing)[r],
-                              bool(plain[r[0]]), held_inner[r]) for r in rows]
-        back = np.argsort(np.concatenate(rows))
+        parts = [self._refine(population.rows(r), np.asarray(fixed_forcing)[r], plain,
+                              held_inner[r]) for r, plain in groups]
+        back = np.argsort(np.concatenate([r for r, _ in groups]))
         merged = Population.concatenate(p.population for p in parts)
         return Refinement(population=merged.rows(back),
                           succeeded=np.concatenate([p.succeeded for p in parts])[back],
