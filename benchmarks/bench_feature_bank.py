@@ -9,7 +9,8 @@ Measured in one run, on the bundled gear example (P = 500, 1,334 samples, one de
   today's fast path — and on the same evaluator with every family compiled but unused;
 * the same polynomial population on the engine of ``--baseline`` (a git revision before the
   bank), run from a temporary worktree in a child process, interleaved with the above;
-* models/s of a population whose models use sin, x'·|x'| and tanh features;
+* models/s of a population whose models use sin, x'·|x'| and tanh features, and of a
+  GP-like mix: the polynomial models plus one family member each, the members taking turns;
 * compiles per GP run (population evaluator and refiner shapes): the demo protocol, and a
   fit of ``gpjax.systems``' pendulum (seed 0) with sin in the function set.
 
@@ -22,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import subprocess
 import sys
 import time
@@ -31,6 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from _baseline import baseline_tree
+from _provenance import provenance
 
 REPEATS = 7
 ROOT = Path(__file__).resolve().parent.parent
@@ -114,10 +115,17 @@ def bank_rates(repeats: int) -> dict:
                          state={sp.sin(spread(1.0) * x): spread(truth["K1"]),
                                 v * sp.Abs(v): spread(1e-6), sp.tanh(spread(50.0) * v): 1e-4},
                          forcing={u: 1.0}, y0=y0) for _ in range(500)]
+    # a GP population's mix: the polynomial stiffness plus one family member each, the
+    # members taking turns (each model uses another family than its neighbours)
+    members = [sp.sin(x), sp.cos(x), sp.tanh(50.0 * v), v * sp.Abs(v), x * sp.Abs(x),
+               sp.exp(x), sp.sinh(x), sp.cosh(x), sp.exp(-v ** 2) * sp.tanh(50.0 * v)]
+    mixed = [model.replace(state={**model.state, members[i % len(members)]: spread(1e-6)})
+             for i, model in enumerate(polynomial)]
     rates = {}
     for name, fams, models in (("polynomial_fast_path", (), polynomial),
                                ("polynomial_with_bank", families, polynomial),
-                               ("bank_population", families, bank)):
+                               ("bank_population", families, bank),
+                               ("bank_mixed", families, mixed)):
         ev = PopulationEvaluator(measurement, symbols, max_degree=4, batch=500, families=fams,
                                  devices=None)
         pop = to_population(models, ev)
@@ -138,8 +146,7 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=REPEATS)
     args = parser.parse_args()
     os.environ.setdefault("JAX_PLATFORMS", "cpu")
-    result = {"machine": platform.platform(), "cpus": os.cpu_count(), "P": 500,
-              "command": " ".join(["python", *sys.argv])}
+    result = {**provenance(), "P": 500}
     result["rates"] = bank_rates(args.repeats)
     fast = result["rates"]["polynomial_fast_path"]["models_per_s"]
     if args.baseline:

@@ -519,10 +519,14 @@ def feature_bank() -> str:
     base = "polynomial_fast_path"
     labels = {"polynomial_fast_path": "polynomial population, evaluator without families",
               "polynomial_with_bank": "the same population, every family compiled (unused)",
-              "bank_population": "models using sin(a·x), x'·|x'| and tanh(a·x')"}
+              "bank_population": "models using sin(a·x), x'·|x'| and tanh(a·x')",
+              "bank_mixed": "the polynomial models plus one family member each, nine in turn"}
     rows = []
     for key, label in labels.items():
-        ratios = [r["rates"][key]["models_per_s"] / r["rates"][base]["models_per_s"] for r in runs]
+        if key not in first["rates"]:
+            continue
+        ratios = [r["rates"][key]["models_per_s"] / r["rates"][base]["models_per_s"]
+                  for r in runs if key in r["rates"]]
         rows.append([label, f"{first['rates'][key]['models_per_s']:,.0f}", f"{ratios[0]:.2f}",
                      f"{_median(ratios):.2f} ({min(ratios):.2f}–{max(ratios):.2f})"])
     ratios = [r["baseline"]["current_over_baseline"] for r in runs]

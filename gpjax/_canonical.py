@@ -280,9 +280,9 @@ def _check_terms(terms: tuple[tuple[float, sp.Expr], ...], symbols: Symbols,
     norm = norm if norm != 0.0 else mass
     form = CanonicalForm(
         mass=mass / norm,
-        state=tuple(sorted(((f, c / norm) for f, c in state.items()), key=lambda p: _name(p[0]))),
+        state=tuple(sorted(((f, c / norm) for f, c in state.items()), key=lambda p: feature_name(p[0]))),
         forcing=tuple(sorted(((f, g / norm) for f, g in forcing.items()),
-                             key=lambda p: _name(p[0]))))
+                             key=lambda p: feature_name(p[0]))))
     return StructureCheck(True, "", form)
 
 
@@ -304,7 +304,9 @@ def _free_symbols(feature: sp.Expr) -> frozenset:
 
 
 @lru_cache(maxsize=100_000)
-def _name(feature: sp.Expr) -> str:
+def feature_name(feature: sp.Expr) -> str:
+    """``str(feature)``, cached: keys, sort orders and checkpoints print every record's
+    features, and sympy's printer is slow."""
     return str(feature)
 
 

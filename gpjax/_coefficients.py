@@ -26,7 +26,7 @@ from typing import Iterable, Protocol, Sequence
 import numpy as np
 import sympy as sp
 
-from ._canonical import CanonicalForm
+from ._canonical import CanonicalForm, feature_name
 from ._features import inner_constants
 
 
@@ -72,8 +72,9 @@ class Coefficients:
 
     def to_json(self) -> dict:
         """Plain JSON: feature text -> value (a checkpoint or model file part)."""
-        return {"mass": self.mass, "state": {str(f): v for f, v in self.state.items()},
-                "forcing": {str(f): v for f, v in self.forcing.items()}, "y0": list(self.y0)}
+        return {"mass": self.mass, "state": {feature_name(f): v for f, v in self.state.items()},
+                "forcing": {feature_name(f): v for f, v in self.forcing.items()},
+                "y0": list(self.y0)}
 
     @classmethod
     def from_json(cls, data: dict, names: set[str]) -> "Coefficients":

@@ -15,7 +15,7 @@ import dataclasses
 import numpy as np
 import sympy as sp
 
-from ._canonical import CanonicalForm, Symbols, check_tree
+from ._canonical import CanonicalForm, Symbols, check_tree, feature_name
 from ._coefficients import Coefficients, Population, from_population, to_population
 from ._config import GPConfig
 from ._convergence import initial_substeps
@@ -98,8 +98,8 @@ def structure_key(form: CanonicalForm, with_coefficients: bool) -> str:
     """Text key of a canonical form: its features, and its coefficients if asked."""
     def part(pairs):
         if with_coefficients:
-            return ", ".join(f"{f}:{c!r}" for f, c in pairs)
-        return ", ".join(str(f) for f, _ in pairs)
+            return ", ".join(f"{feature_name(f)}:{c!r}" for f, c in pairs)
+        return ", ".join(feature_name(f) for f, _ in pairs)
     mass = f"{form.mass!r}" if with_coefficients else "m"
     return f"{mass} | {part(form.state)} | {part(form.forcing)}"
 
@@ -220,7 +220,7 @@ class Fitness:
                 feature = found[0].feature(self.symbols, found[1])
             state[feature] = state.get(feature, 0.0) + value
         state = _hyperbolic_pairs(state)
-        return dataclasses.replace(form, state=tuple(sorted(state.items(), key=lambda p: str(p[0]))))
+        return dataclasses.replace(form, state=tuple(sorted(state.items(), key=lambda p: feature_name(p[0]))))
 
     def records_for(self, trees: list[Tree]) -> list[Record]:
         """Score every tree (new structures in one batch) and return their records."""
