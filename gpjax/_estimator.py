@@ -24,7 +24,7 @@ from ._config import GPConfig
 from ._convergence import MAX_SUBSTEPS, Convergence, check_model, needed_substeps
 from ._data import Measurement
 from ._errors import UserInputError
-from ._evolve import Evolution, RunState
+from ._evolve import Evolution, RunState, evolution_for
 from ._evaluator import OK
 from ._fitness import Fitness, Record
 from ._model import Model
@@ -94,26 +94,15 @@ class Identifier:
                 generations, 2 migrants).
 
         Several responses are a system, one equation per coordinate
-        (:mod:`gpjax._estimator_systems`).
+        (:class:`gpjax._system_search.SystemEvolution`, run by the same loop, checkpoints
+        and islands; reported by :mod:`gpjax._estimator_systems`).
 
         Raises:
             UserInputError: resuming without a checkpoint, or with other data or settings;
-                bad island settings or an unreachable scheduler; islands or resume with
-                several responses.
+                bad island settings or an unreachable scheduler.
         """
         if isinstance(seed, bool) or not isinstance(seed, (int, np.integer)) or seed < 0:
             raise UserInputError(f"seed must be a non-negative integer, got {seed!r}")
-        if measurement.n_coordinates > 1:
-            if resume or islands is not None or scheduler is not None or migration is not None:
-                raise UserInputError(
-                    f"islands and resume take one response for now; drop them to identify "
-                    f"the system of {measurement.n_coordinates} responses "
-                    f"({', '.join(measurement.response_names)})")
-            from ._estimator_systems import fit_systems
-
-            fit_systems(self, measurement, seed=int(seed),
-                        out=Path(out) if out is not None else None)
-            return self
         if islands is not None or scheduler is not None or migration is not None:
             from ._islands import fit_islands
 
@@ -122,15 +111,12 @@ class Identifier:
                                progress=progress)
         began = time.perf_counter()
         out = Path(out) if out is not None else None
-        fitness = Fitness(measurement, self.config)
-        evolution = Evolution(fitness, self.config)
+        evolution = evolution_for(measurement, self.config)
         fingerprint = measurement.fingerprint()
         if resume:
-            state, seed = self._load_checkpoint(out, fitness, fingerprint)
+            state, seed = self._load_checkpoint(out, evolution, fingerprint)
             _progress.stage(f"resuming {out / CHECKPOINT} after generation {state.generation}")
         else:
-            _progress.stage(f"generation 0: compiling (or loading) the population evaluator, "
-                            f"scoring {self.config.population} candidates")
             state = evolution.start(seed)
         self.measurement_ = measurement
 
@@ -138,7 +124,7 @@ class Identifier:
             """Checkpoint (with a run folder) and log a finished generation."""
             if out is not None:
                 payload = {"config": self.config.to_dict(), "seed": seed, "data": fingerprint,
-                           "state": state.to_json(fitness)}
+                           "state": evolution.state_json(state)}
                 write_text_atomic(out / CHECKPOINT, json.dumps(payload))
             last = state.history[-1]
             _progress.generation(last.generation, self.config.generations,
@@ -156,8 +142,21 @@ class Identifier:
                     bar.set_postfix(best=f"{state.history[-1].best_objective:.4g}")
             finally:
                 bar.close()
-        return self._finish(fitness, seed, state, began=began, out=out,
-                            interrupted=stop.requested)
+        return self._conclude(evolution, seed, state, began=began, out=out,
+                              interrupted=stop.requested)
+
+    def _conclude(self, evolution, seed: int, state: RunState, *, began: float,
+                  out: Path | None, interrupted: bool) -> "Identifier":
+        """The reported model of a finished search by ``evolution`` (one coordinate:
+        :meth:`_finish`; several: :func:`gpjax._estimator_systems.finish_system`)."""
+        if isinstance(evolution, Evolution):
+            return self._finish(evolution.fitness, seed, state, began=began, out=out,
+                                interrupted=interrupted)
+        from ._estimator_systems import finish_system
+
+        finish_system(self, evolution, seed, state, began=began, out=out,
+                      interrupted=interrupted)
+        return self
 
     def _finish(self, fitness: Fitness, seed: int, state: RunState, *, began: float,
                 out: Path | None, interrupted: bool) -> "Identifier":
@@ -190,7 +189,7 @@ class Identifier:
                          "generations": state.generation, "finished_at": time.time()}
         return self
 
-    def _load_checkpoint(self, out: Path | None, fitness: Fitness, fingerprint: str):
+    def _load_checkpoint(self, out: Path | None, evolution, fingerprint: str):
         if out is None or not (out / CHECKPOINT).is_file():
             raise UserInputError(f"no checkpoint to resume in {out}; run without --resume first")
         try:
@@ -204,7 +203,7 @@ class Identifier:
             if payload["config"] != self.config.to_dict():
                 raise UserInputError(f"{out / CHECKPOINT} was written with other settings; resume "
                                      "with the same configuration")
-            return RunState.from_json(payload["state"], fitness), int(payload["seed"])
+            return evolution.load_state(payload["state"]), int(payload["seed"])
         except (KeyError, TypeError, ValueError, json.JSONDecodeError) as err:
             if isinstance(err, UserInputError):
                 raise

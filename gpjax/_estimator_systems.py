@@ -1,13 +1,14 @@
-""":meth:`gpjax.Identifier.fit` on a measurement of several coordinates.
+""":meth:`gpjax.Identifier.fit` on a measurement of several coordinates: the report.
 
-The GP over systems (:func:`gpjax._system_search.search_system`: one equation per
-coordinate, the final model selection and the fit at converged integration) fills the same
-attributes and run folder as one coordinate: ``model_`` (a :class:`gpjax.Model` of D
+The GP over systems (:class:`gpjax._system_search.SystemEvolution`: one equation per
+coordinate) runs in :meth:`gpjax.Identifier.fit`'s loop, with its checkpoints, resume and
+islands; :func:`finish_system` then runs its final model selection and the fit at
+converged integration, and fills the same attributes and run folder as one coordinate:
+``model_`` (a :class:`gpjax.Model` of D
 equations, its metrics per coordinate), ``history_``, ``equations_`` (the reported system,
 one row), ``convergence_``, ``stopped_by`` and ``timings_``; the folder holds
 ``model.json``, ``history.csv``, ``equations.csv``, ``equations.json``, ``config.json``
-and ``fit.png`` (one row of panels per coordinate). Islands and resume take one coordinate
-for now.
+and ``fit.png`` (one row of panels per coordinate).
 """
 
 from __future__ import annotations
@@ -24,21 +25,22 @@ from ._data import Measurement
 from ._report import history_csv, write_bytes_atomic, write_text_atomic
 
 
-def fit_systems(identifier, measurement: Measurement, *, seed: int,
-                out: Path | None) -> None:
-    """Identify the system of ``measurement``'s coordinates into ``identifier``
-    (module docstring); ``out``: the run folder or ``None``."""
+def finish_system(identifier, evolution, seed: int, state, *, began: float,
+                  out: Path | None, interrupted: bool) -> None:
+    """Report the system of a finished search into ``identifier`` (module docstring):
+    ``evolution`` the :class:`gpjax._system_search.SystemEvolution` holding its scores,
+    ``state`` its last generation, ``began`` the run's start; ``out``: the run folder or
+    ``None``."""
     from ._system_diagnose import residual_statistics
-    from ._system_search import search_system
 
-    began = time.perf_counter()
-    config = identifier.config
-    result = search_system(measurement, config=config, seed=seed)
-    finished = time.perf_counter()
+    config, measurement = identifier.config, evolution.measurement
+    selecting = time.perf_counter()
+    result = evolution.finish(state)
     fit = result.fit
     residuals = residual_statistics(fit.model, measurement)
     history = result.history
-    identifier.stopped_by = ("epsilon" if history[-1]["best_objective"] <= config.epsilon
+    identifier.stopped_by = ("interrupted" if interrupted else
+                             "epsilon" if history[-1]["best_objective"] <= config.epsilon
                              else "generations")
     identifier.model_ = dataclasses.replace(
         fit.model, uncertainty=fit.uncertainty, convergence=fit.checks[-1].to_json(),
@@ -48,7 +50,7 @@ def fit_systems(identifier, measurement: Measurement, *, seed: int,
                  **({"sign_width": result.sign_width} if result.sign_width else {})},
         provenance={"seed": seed, "generations": history[-1]["generation"],
                     "stopped_by": identifier.stopped_by, "population": config.population,
-                    "data": measurement.fingerprint()})
+                    "data": measurement.fingerprint(), **identifier._provenance})
     identifier.measurement_ = measurement
     identifier.history_ = [dict(row) for row in history]
     identifier.convergence_ = list(fit.checks)
@@ -67,9 +69,9 @@ def fit_systems(identifier, measurement: Measurement, *, seed: int,
     ended = time.perf_counter()
     timings = result.timings
     identifier.timings_ = {
-        "total_s": ended - began, "search_s": timings["search_s"],
+        "total_s": ended - began, "search_s": selecting - began,
         "selection_s": timings["selection_s"],
-        "convergence_s": timings["convergence_s"] + writing - finished,  # and the residuals
+        "convergence_s": writing - selecting - timings["selection_s"],  # and the residuals
         "writing_s": ended - writing, "compile_s": timings["compile_s"],
         "compiles": timings["compiles"], "generations": history[-1]["generation"],
         "finished_at": time.time()}

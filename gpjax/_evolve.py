@@ -25,7 +25,7 @@ import time
 import numpy as np
 import sympy as sp
 
-from . import _trees
+from . import _progress, _trees
 from ._config import GPConfig
 from ._evaluator import OK
 from ._expressions import parse_expression
@@ -86,6 +86,16 @@ def _rank_key(record: Record, tree: tuple) -> tuple:
     return (record.objective, record.n_terms if record.valid else 10**6, _trees.size(tree))
 
 
+def evolution_for(measurement, config: GPConfig):
+    """The GP engine of ``measurement``: :class:`Evolution` for one coordinate, else
+    :class:`gpjax._system_search.SystemEvolution` (the same interface)."""
+    if measurement.n_coordinates > 1:
+        from ._system_search import SystemEvolution
+
+        return SystemEvolution(measurement, config)
+    return Evolution(Fitness(measurement, config), config)
+
+
 class Evolution:
     """Runs GP on one measurement. ``fitness`` holds the caches; ``state`` the population."""
 
@@ -93,12 +103,44 @@ class Evolution:
         self.fitness = fitness
         self.config = config
         self.grammar = Grammar.from_config(config, len(fitness.measurement.inputs))
+        self.fresh_columns = self.forcing_columns()
+
+    # --- checkpoints and islands (the interface SystemEvolution shares) ----------------
+    def state_json(self, state: RunState) -> dict:
+        """``state`` and the scored records as plain JSON."""
+        return state.to_json(self.fitness)
+
+    def load_state(self, data: dict) -> RunState:
+        """Inverse of :meth:`state_json` (the records go into the fitness cache)."""
+        return RunState.from_json(data, self.fitness)
+
+    def emigrants(self, state: RunState, count: int) -> list[dict]:
+        """The head of the ranked population's usable structures as ``{"tree", "record"}``."""
+        head = state.population[:count]  # ranked, distinct structures first
+        return [{"tree": _trees.to_json(tree), "record": record.to_json()}
+                for tree, record in zip(head, self.fitness.records_for(head))
+                if record.valid and record.status == OK]
+
+    def forcing_columns(self) -> list[str]:
+        """The evaluator's forcing columns, as text."""
+        return [str(f) for f in self.fitness.evaluator.forcing_features]
+
+    def reset(self) -> None:
+        """Forget every scored record (a reused island engine)."""
+        self.fitness.records.clear()
+
+    @property
+    def compile_seconds(self) -> float:
+        """Seconds spent compiling or loading this engine's programs so far."""
+        return self.fitness.evaluator.compile_seconds + self.fitness.refiner.compile_seconds
 
     def start(self, seed: int) -> RunState:
         """Generation 0: a ramped half-and-half population with the linear model in place
         of its last tree (least-squares coefficients; :meth:`_linear_tree`), scored and
         refined."""
         rng = np.random.default_rng(seed)
+        _progress.stage(f"generation 0: compiling (or loading) the population evaluator, "
+                        f"scoring {self.config.population} candidates")
         began = time.perf_counter()
         population = initial_population(self.grammar, rng, self.config.population,
                                         self.config.init_depth)

@@ -1,10 +1,12 @@
 """Island-model GP on Dask: ``Identifier(config).fit(measurement, islands=K)``.
 
 The population is split into K islands (sizes differ by at most one), each the ordinary
-:class:`~gpjax._evolve.Evolution` with its own seed from
+GP engine (:func:`~gpjax._evolve.evolution_for`: one coordinate's
+:class:`~gpjax._evolve.Evolution` or a system's
+:class:`~gpjax._system_search.SystemEvolution`) with its own seed from
 ``numpy.random.SeedSequence(seed).spawn(K)``. An *epoch* runs ``Migration.every``
 generations of every island as one Dask task, ``(data, config, island state) -> island
-state``, the state being the JSON-ready checkpoint of :class:`~gpjax._evolve.RunState`.
+state``, the state being the engine's JSON-ready checkpoint (``state_json``).
 Between epochs, on the client, each island's best ``migrants`` distinct structures (the
 head of its ranked population, with their records) replace the worst of the next island:
 ring ``i -> i + 1``, or a ring in a random order drawn from (seed, epoch). All islands are
@@ -31,14 +33,12 @@ from pathlib import Path
 
 import numpy as np
 
-from . import _progress, _trees
+from . import _progress
 from ._cluster import dask_client, worker_address
 from ._config import GPConfig
 from ._data import Measurement
 from ._errors import UserInputError
-from ._evolve import Evolution, GenerationStats, RunState
-from ._evaluator import OK
-from ._fitness import Fitness
+from ._evolve import GenerationStats, evolution_for
 from ._island_settings import Migration, island_plan, island_seeds
 from ._report import write_text_atomic
 
@@ -50,9 +50,9 @@ ENGINES_PER_WORKER = 8
 _ENGINES: collections.OrderedDict = collections.OrderedDict()
 
 
-def _engine(measurement: Measurement, config: GPConfig, island: int,
-            state: dict | None) -> tuple[Evolution, bool]:
-    """This worker's Evolution for ``island`` and whether it was built now.
+def _engine(measurement: Measurement, config: GPConfig, island: int, state: dict | None):
+    """This worker's GP engine (:func:`gpjax._evolve.evolution_for`) for ``island`` and
+    whether it was built now.
 
     A kept engine is reused only when its forcing columns are those ``state`` recorded
     (a fresh engine's, for a new island), so reuse gives bit for bit what a fresh engine
@@ -61,15 +61,13 @@ def _engine(measurement: Measurement, config: GPConfig, island: int,
     key = (measurement.fingerprint(), json.dumps(config.to_dict(), sort_keys=True), island)
     evolution = _ENGINES.pop(key, None)
     if evolution is not None:
-        columns = [str(f) for f in evolution.fitness.evaluator.forcing_features]
-        expected = state["forcing_features"] if state else [str(u) for u in
-                                                            evolution.fitness.symbols.u[:1]]
-        if columns != expected:
+        expected = state["forcing_features"] if state else evolution.fresh_columns
+        if evolution.forcing_columns() != expected:
             evolution = None
     built = evolution is None
     if built:
-        evolution = Evolution(Fitness(measurement, config), config)
-    evolution.fitness.records.clear()
+        evolution = evolution_for(measurement, config)
+    evolution.reset()
     _ENGINES[key] = evolution
     while len(_ENGINES) > ENGINES_PER_WORKER:
         _ENGINES.popitem(last=False)
@@ -89,21 +87,15 @@ def run_epoch(measurement: Measurement, config: GPConfig, island: int, seed: int
     """
     began = time.perf_counter()
     evolution, built = _engine(measurement, config, island, state)
-    fitness = evolution.fitness
-    compiled = fitness.evaluator.compile_seconds + fitness.refiner.compile_seconds
-    run = evolution.start(seed) if state is None else RunState.from_json(state, fitness)
+    compiled = evolution.compile_seconds
+    run = evolution.start(seed) if state is None else evolution.load_state(state)
     first = run.generation if state is not None else -1
     while run.generation < until and not run.done:
         run = evolution.step(run)
-    head = run.population[:migrants]  # ranked, distinct structures first
-    emigrants = [{"tree": _trees.to_json(tree), "record": record.to_json()}
-                 for tree, record in zip(head, fitness.records_for(head))
-                 if record.valid and record.status == OK]
-    return {"state": run.to_json(fitness), "emigrants": emigrants, "worker": worker_address(),
-            "built": built, "generations": run.generation - first,
-            "seconds": time.perf_counter() - began,
-            "compile_s": (fitness.evaluator.compile_seconds + fitness.refiner.compile_seconds
-                          - compiled)}
+    return {"state": evolution.state_json(run), "emigrants": evolution.emigrants(run, migrants),
+            "worker": worker_address(), "built": built,
+            "generations": run.generation - first, "seconds": time.perf_counter() - began,
+            "compile_s": evolution.compile_seconds - compiled}
 
 
 # --- client side ----------------------------------------------------------------------
@@ -244,11 +236,12 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
                 _progress.generation(row["generation"], config.generations,
                                      row["best_objective"], row["seconds"])
             logged = len(history)
-    fitness = Fitness(measurement, configs[0])
-    state = RunState.from_json(merged_state(states), fitness)
+    evolution = evolution_for(measurement, configs[0])
+    state = evolution.load_state(merged_state(states))
     identifier.measurement_ = measurement
     identifier._provenance = {"islands": islands} | settings
-    identifier._finish(fitness, seed, state, began=began, out=out, interrupted=stop.requested)
+    identifier._conclude(evolution, seed, state, began=began, out=out,
+                         interrupted=stop.requested)
     identifier.timings_ |= {"epochs": epoch, "island_tasks": tasks, "epoch_timings": epochs,
                             "worker_compile_s": sum(t["compile_s"] for t in tasks)}
     return identifier

@@ -20,7 +20,7 @@ from ._system_fit import SystemFit
 
 def better_fit_p(simple, full, dropped: int, resolution: float) -> float:
     """p-value that the (D, N) scaled residuals ``full`` fit significantly better than
-    ``simple``'s, which has ``dropped`` terms fewer (:meth:`_Scorer.simulates_better`'s
+    ``simple``'s, which has ``dropped`` terms fewer (:meth:`SystemScorer.simulates_better`'s
     likelihood-ratio test); 1 where ``full`` is not finite or worsens the mean square by
     at most ``resolution``, 0 where only ``simple`` is not finite."""
     if not np.all(np.isfinite(full)):

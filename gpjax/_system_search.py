@@ -39,7 +39,7 @@ in an equation that the data do not need, or a coupling term, goes unless the he
 windows demonstrate it. Where the held-out test cannot tell the two apart either way (the
 equation error has little power where the states' smoothing blurs a term's effect: a
 gear's mesh damping), the removal must also not simulate significantly worse
-(:meth:`_Scorer.simulates_better`: a likelihood-ratio test on the refined systems' simulated
+(:meth:`SystemScorer.simulates_better`: a likelihood-ratio test on the refined systems' simulated
 residuals). That guard is in-sample, and a term that fits the measured input's noise as it
 rings through the dynamics passes it; so a removal that predicts the held-out windows
 significantly better is taken without it. The chosen system is refitted at converged
@@ -61,6 +61,7 @@ that shape one coordinate's grammar (:data:`gpjax._config.ONE_COORDINATE`) must 
 defaults.
 """
 
+
 from __future__ import annotations
 
 import dataclasses
@@ -70,34 +71,30 @@ import time
 import numpy as np
 import sympy as sp
 
-from . import _progress
-from ._canonical import Symbols
-from ._coefficients import Coefficients, from_system_population, to_system_population
+from . import _progress, _trees
+from ._canonical import Symbols, feature_name
 from ._config import GPConfig, check_system_config
 from ._data import Measurement
 from ._diagnose_acceptance import predictive_test
-from ._evaluator import PopulationEvaluator
+from ._evaluator import PENALTY, PopulationEvaluator
+from ._evolve import GenerationStats, RunState
+from ._expressions import parse_expression
 from ._operators import crossover, initial_population, mutation, perturbation
-from ._refine import Refiner
 from ._system_bank import kinds_for, sign_scales
-from ._system_couplings import (couple, coupled_least_squares, coupled_residual,
-                                fixed_columns, normalisation, tie_columns)
 from ._system_final import better_fit_p, scaled_residual, width_check, without_insignificant
 from ._system_fit import SystemFit, SystemWeakForm, fit_system
 from ._system_grammar import Equations
-
-PENALTY = 1e12
-#: Systems per compiled refinement call.
-REFINE_BATCH = 4
+from ._system_scorer import SystemScorer, as_trees, key_text
 
 
 @dataclasses.dataclass(frozen=True)
 class SearchResult:
-    """The final fit of the reported system; per generation (0 first) its number, best
-    objective and seconds; its smoothed signs' width check
-    (:func:`gpjax._system_final.width_check`, ``None`` without a sign); and the seconds of the stages (``search_s``, ``selection_s``,
-    ``convergence_s``: the final fit at converged integration and its uncertainty) and the
-    seconds and count of the programs compiled or loaded (``compile_s``, ``compiles``)."""
+    """The final fit of the reported system; per generation (0 first) its
+    :class:`gpjax._evolve.GenerationStats` as a dict; its smoothed signs' width check
+    (:func:`gpjax._system_final.width_check`, ``None`` without a sign); and the seconds of
+    the stages (``search_s``, ``selection_s``, ``convergence_s``: the final fit at converged
+    integration and its uncertainty) and the seconds and count of the programs compiled or
+    loaded (``compile_s``, ``compiles``)."""
 
     fit: SystemFit
     history: list[dict]
@@ -111,95 +108,208 @@ class SearchResult:
 
 def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
                   seed: int = 0) -> SearchResult:
-    """Identify one equation per coordinate of ``measurement`` by GP (module docstring),
-    stopping after ``config.generations`` or once the best objective is at most its
-    ``epsilon``.
+    """Identify one equation per coordinate of ``measurement`` by GP (module docstring) in
+    this process, without checkpoints (:meth:`gpjax.Identifier.fit` runs the same
+    :class:`SystemEvolution` with them).
 
     Raises:
         ConfigError: a :data:`gpjax._config.ONE_COORDINATE` field changed.
         ValueError: no valid system was found.
     """
-    check_system_config(config)
-    rng = np.random.default_rng(seed)
-    weak = SystemWeakForm(measurement)
-    kinds = kinds_for(config.functions)
-    scales = (sign_scales(measurement.response_names, weak.rms) if "sign" in kinds
-              else None)
-    equations = Equations(measurement, config.max_degree, config.third_law,
-                           config.functions, scales)
-    count = len(equations.names)
-    grammars = [equations.grammar(i, config) for i in range(count)]
-    evaluator = PopulationEvaluator(
-        measurement, Symbols(equations.names[0], measurement.time_name,
-                             measurement.input_names),
-        max_degree=config.max_degree, fit_initial_conditions=True, n_bins=config.n_bins,
-        w_time=config.w_time, w_freq=config.w_freq,
-        input_interpolation=config.input_interpolation, batch=config.population,
-        kinds=kinds, sign_scales=scales)
-    scorer = _Scorer(weak, equations, evaluator)
-    trees = list(zip(*(initial_population(g, rng, config.population, config.init_depth)
-                       for g in grammars)))
-    for k in range(0, len(trees), 2):  # half of them sums of valid terms (see the docstring)
-        trees[k] = _as_trees(tuple(_random_terms(i, equations, rng) for i in range(count)),
-                             equations)
-    _progress.stage(f"generation 0: compiling (or loading) the evaluator of {count} "
-                    f"equations, scoring {config.population} systems")
-    started = began = time.perf_counter()
-    fitness = scorer(trees)
-    history = [{"generation": 0, "best_objective": float(fitness.min()),
-                "seconds": time.perf_counter() - began}]
-    _progress.generation(0, config.generations, history[-1]["best_objective"],
-                         history[-1]["seconds"])
-    for generation in range(1, config.generations + 1):
+    began = time.perf_counter()
+    evolution = SystemEvolution(measurement, config)
+    state = evolution.start(seed)
+    while not state.done:
+        state = evolution.step(state)
+        last = state.history[-1]
+        _progress.generation(last.generation, config.generations, last.best_objective,
+                             last.seconds)
+    searched = time.perf_counter()
+    result = evolution.finish(state)
+    result.timings["search_s"] = searched - began
+    return result
+
+
+class SystemEvolution:
+    """GP over the systems of one measurement (module docstring), a generation at a time
+    with the interface of :class:`gpjax._evolve.Evolution` (``start``, ``step``,
+    ``state_json``, ``load_state``, ``emigrants``): one driver runs either with
+    checkpoints, resume and islands. The population is a list of D-tuples of trees.
+
+    Raises:
+        ConfigError: a :data:`gpjax._config.ONE_COORDINATE` field changed.
+    """
+
+    def __init__(self, measurement: Measurement, config: GPConfig):
+        check_system_config(config)
+        self.measurement, self.config = measurement, config
+        weak = SystemWeakForm(measurement)
+        kinds = kinds_for(config.functions)
+        scales = (sign_scales(measurement.response_names, weak.rms) if "sign" in kinds
+                  else None)
+        self.equations = Equations(measurement, config.max_degree, config.third_law,
+                                   config.functions, scales)
+        self.grammars = [self.equations.grammar(i, config)
+                         for i in range(len(self.equations.names))]
+        evaluator = PopulationEvaluator(
+            measurement, Symbols(self.equations.names[0], measurement.time_name,
+                                 measurement.input_names),
+            max_degree=config.max_degree, fit_initial_conditions=True, n_bins=config.n_bins,
+            w_time=config.w_time, w_freq=config.w_freq,
+            input_interpolation=config.input_interpolation, batch=config.population,
+            kinds=kinds, sign_scales=scales)
+        self.scorer = SystemScorer(weak, self.equations, evaluator)
+        self.fresh_columns = self.forcing_columns()
+
+    # --- the generations ------------------------------------------------------------
+    def start(self, seed: int) -> RunState:
+        """Generation 0: half ramped half-and-half trees, half random sums of valid terms
+        (module docstring), scored."""
+        rng = np.random.default_rng(seed)
+        count, config = len(self.grammars), self.config
+        trees = list(zip(*(initial_population(g, rng, config.population, config.init_depth)
+                           for g in self.grammars)))
+        for k in range(0, len(trees), 2):
+            trees[k] = as_trees(tuple(_random_terms(i, self.equations, rng)
+                                      for i in range(count)), self.equations)
+        _progress.stage(f"generation 0: compiling (or loading) the evaluator of {count} "
+                        f"equations, scoring {config.population} systems")
         began = time.perf_counter()
-        offspring = [_offspring(trees, fitness, grammars, rng, config)
+        state = RunState(generation=0, population=trees, rng_state={}, history=[])
+        return self._finished(state, self.scorer(trees), rng, began)
+
+    def step(self, state: RunState) -> RunState:
+        """One generation: offspring, local search, refinement of the best, survivors."""
+        began = time.perf_counter()
+        rng = np.random.default_rng()
+        rng.bit_generator.state = state.rng_state
+        config, scorer, trees = self.config, self.scorer, state.population
+        fitness = scorer(trees)
+        offspring = [_offspring(trees, fitness, self.grammars, rng, config)
                      for _ in range(config.population)]
-        offspring += _local_search(trees, fitness, equations, scorer, config)
+        offspring += _local_search(trees, fitness, self.equations, scorer, config)
         pool = trees + offspring
         scores = np.concatenate([fitness, scorer(offspring)])
         scorer.refine_best(pool, scores, config.refine_top)
-        scores = scorer(pool)
-        trees, fitness = _survivors(pool, scores, scorer, config.population)
-        history.append({"generation": generation, "best_objective": float(fitness.min()),
-                        "seconds": time.perf_counter() - began})
-        _progress.generation(generation, config.generations, history[-1]["best_objective"],
-                             history[-1]["seconds"])
-        if history[-1]["best_objective"] <= config.epsilon:
-            break
-    best = scorer.key(trees[int(np.argmin(fitness))])
-    if best is None:
-        raise ValueError("no valid system was found; widen the search")
-    selecting = time.perf_counter()
-    _progress.stage("final model selection: one-term removals by the held-out test at "
-                    f"level {config.selection_alpha}")
-    best = _simplest(best, scorer, config.selection_alpha, config.convergence_tolerance)
-    start = scorer.coefficients(best)
-    fitting = time.perf_counter()
-    fit = fit_system(measurement, scorer.normalised(best), max_degree=config.max_degree,
-                     input_interpolation=config.input_interpolation, start=start,
-                     tolerance=config.convergence_tolerance, third_law=config.third_law)
-    residual = None  # the current fit's scaled residual, solved once per fit
-    while (smaller := without_insignificant(best, fit, config.selection_alpha)) is not None:
-        _progress.stage(f"dropping a term its converged fit does not demonstrate (Wald test "
-                        f"at level {config.selection_alpha}), then fitting again")
-        trial = fit_system(measurement, scorer.normalised(smaller), max_degree=config.max_degree,
-                           input_interpolation=config.input_interpolation,
-                           start=scorer.coefficients(smaller), first_substeps=fit.model.substeps,
-                           tolerance=config.convergence_tolerance, third_law=config.third_law)
-        if residual is None:
-            residual = scaled_residual(fit, measurement)
-        trial_residual = scaled_residual(trial, measurement)
-        if better_fit_p(trial_residual, residual, 1,
-                        config.convergence_tolerance) < config.selection_alpha:
-            break  # the refit without it simulates significantly worse: the term stays
-        best, fit, residual = smaller, trial, trial_residual
-    width = width_check(fit, measurement, config.convergence_tolerance)
-    programs = [scorer.evaluator, *scorer.refiners()]
-    return SearchResult(fit, history, {
-        "search_s": selecting - started, "selection_s": fitting - selecting,
-        "convergence_s": time.perf_counter() - fitting,
-        "compile_s": fit.compile_s + sum(p.compile_seconds for p in programs),
-        "compiles": fit.compiles + sum(p.compile_count for p in programs)}, width)
+        trees, fitness = _survivors(pool, scorer(pool), scorer, config.population)
+        state = RunState(generation=state.generation + 1, population=trees, rng_state={},
+                         history=state.history)
+        return self._finished(state, fitness, rng, began)
+
+    def _finished(self, state: RunState, fitness: np.ndarray, rng, began: float) -> RunState:
+        """``state`` with the generator's state, its history row and stop flag."""
+        keys = [self.scorer.key(s) for s in state.population]
+        valid = fitness < PENALTY
+        best = int(np.argmin(fitness))
+        state.rng_state = rng.bit_generator.state
+        state.history.append(GenerationStats(
+            generation=state.generation, best_objective=float(fitness[best]),
+            median_objective=float(np.median(fitness[valid])) if valid.any() else None,
+            valid_fraction=float(valid.mean()),
+            unique_structures=len({k for k in keys if k is not None}), seconds=
+            time.perf_counter() - began,
+            best_key=key_text(keys[best]) if keys[best] is not None else ""))
+        state.done = bool(state.generation >= self.config.generations
+                          or fitness[best] <= self.config.epsilon)
+        return state
+
+    # --- checkpoints and islands -------------------------------------------------------
+    def state_json(self, state: RunState) -> dict:
+        """``state`` as plain JSON, with the refined structures' records and the
+        evaluator's forcing columns (:meth:`load_state` reads it)."""
+        return {"generation": state.generation,
+                "population": [[_trees.to_json(t) for t in s] for s in state.population],
+                "rng_state": state.rng_state,
+                "history": [dataclasses.asdict(h) for h in state.history],
+                "done": state.done, "records": self.scorer.records(),
+                "forcing_features": self.forcing_columns()}
+
+    def load_state(self, data: dict) -> RunState:
+        """Inverse of :meth:`state_json` (the records go into the scorer's caches)."""
+        names = {*self.equations.names, *(f"{n}_dot" for n in self.equations.names),
+                 self.measurement.time_name, *self.measurement.input_names}
+        for text in data["forcing_features"]:
+            self.scorer.evaluator.forcing_index(parse_expression(text, names))
+        self.scorer.load(data["records"])
+        return RunState(generation=data["generation"],
+                        population=[tuple(_trees.from_json(t) for t in s)
+                                    for s in data["population"]],
+                        rng_state=data["rng_state"],
+                        history=[GenerationStats(**h) for h in data["history"]],
+                        done=data["done"])
+
+    def emigrants(self, state: RunState, count: int) -> list[dict]:
+        """The population's ``count`` best valid systems as ``{"tree", "record"}``."""
+        scores = self.scorer(state.population)
+        out = []
+        for index in np.argsort(scores, kind="stable")[:count]:
+            key = self.scorer.key(state.population[index])
+            if key is not None and scores[index] < PENALTY:
+                out.append({"tree": [_trees.to_json(t) for t in state.population[index]],
+                            "record": self.scorer.record(key)})
+        return out
+
+    def forcing_columns(self) -> list[str]:
+        """The evaluator's forcing columns, as text."""
+        return [feature_name(f) for f in self.scorer.evaluator.forcing_features]
+
+    def reset(self) -> None:
+        """Forget every scored structure (a reused island engine)."""
+        self.scorer.clear()
+
+    @property
+    def compile_seconds(self) -> float:
+        """Seconds spent compiling or loading this engine's programs so far."""
+        return sum(p.compile_seconds for p in self._programs())
+
+    def _programs(self) -> list:
+        return [self.scorer.evaluator, *self.scorer.refiners()]
+
+    # --- the reported system -------------------------------------------------------------
+    def finish(self, state: RunState) -> SearchResult:
+        """The reported system of a finished search: the population's best, simplified by
+        the held-out test, fitted at converged integration, terms its fit cannot tell from
+        0 dropped (module docstring).
+
+        Raises:
+            ValueError: the population holds no valid system.
+        """
+        config, scorer, measurement = self.config, self.scorer, self.measurement
+        fitness = scorer(state.population)
+        best = scorer.key(state.population[int(np.argmin(fitness))])
+        if best is None:
+            raise ValueError("no valid system was found; widen the search")
+        selecting = time.perf_counter()
+        _progress.stage("final model selection: one-term removals by the held-out test at "
+                        f"level {config.selection_alpha}")
+        best = _simplest(best, scorer, config.selection_alpha, config.convergence_tolerance)
+        fitting = time.perf_counter()
+        settings = dict(max_degree=config.max_degree, third_law=config.third_law,
+                        input_interpolation=config.input_interpolation,
+                        tolerance=config.convergence_tolerance)
+        fit = fit_system(measurement, scorer.normalised(best), start=scorer.coefficients(best),
+                         **settings)
+        residual = None  # the current fit's scaled residual, solved once per fit
+        while (smaller := without_insignificant(best, fit, config.selection_alpha)) is not None:
+            _progress.stage(f"dropping a term its converged fit does not demonstrate (Wald "
+                            f"test at level {config.selection_alpha}), then fitting again")
+            trial = fit_system(measurement, scorer.normalised(smaller),
+                               start=scorer.coefficients(smaller),
+                               first_substeps=fit.model.substeps, **settings)
+            if residual is None:
+                residual = scaled_residual(fit, measurement)
+            trial_residual = scaled_residual(trial, measurement)
+            if better_fit_p(trial_residual, residual, 1,
+                            config.convergence_tolerance) < config.selection_alpha:
+                break  # the refit without it simulates significantly worse: the term stays
+            best, fit, residual = smaller, trial, trial_residual
+        width = width_check(fit, measurement, config.convergence_tolerance)
+        programs = self._programs()
+        return SearchResult(fit, [dataclasses.asdict(h) for h in state.history], {
+            "selection_s": fitting - selecting,
+            "convergence_s": time.perf_counter() - fitting,
+            "compile_s": fit.compile_s + sum(p.compile_seconds for p in programs),
+            "compiles": fit.compiles + sum(p.compile_count for p in programs)}, width)
 
 
 def _random_terms(i: int, equations: Equations, rng) -> tuple:
@@ -211,148 +321,6 @@ def _random_terms(i: int, equations: Equations, rng) -> tuple:
     forcing = [u for u in equations.inputs if rng.random() < 0.5]
     forcing += [sp.Integer(1)] if rng.random() < 0.2 else []
     return state, tuple(sorted(forcing, key=str))
-
-
-
-
-class _Scorer:
-    """Objective of systems by structure, with least-squares and refined constants cached."""
-
-    def __init__(self, weak: SystemWeakForm, equations: Equations,
-                 evaluator: PopulationEvaluator):
-        self.equations, self.evaluator, self.weak = equations, evaluator, weak
-        self.objective: dict[tuple, float] = {}
-        self.refined: dict[tuple, list[Coefficients]] = {}
-        self._refiners: dict[int, Refiner] = {}
-        self._residuals: dict[tuple, float] = {}
-
-    def key(self, system) -> tuple | None:
-        parts = [self.equations.structure(i, tree) for i, tree in enumerate(system)]
-        return None if any(p is None for p in parts) else tuple(parts)
-
-    def normalised(self, key):
-        """``key`` as a :data:`gpjax._system_fit.Structure`: the forcing held at 1 marked
-        (:func:`gpjax._system_couplings.normalisation`)."""
-        ties = self.coupled(key)[1]
-        held = normalisation(key, ties, self.equations.inputs)
-        return tuple((state, {f: 1.0 if f == h else None for f in forcing})
-                     for (state, forcing), h in zip(key, held))
-
-    def coupled(self, key):
-        """(structure with every coupling's mirror, ties): with the third law
-        (:func:`gpjax._system_couplings.couple`), else (``key``, ())."""
-        if not self.equations.third_law:
-            return key, ()
-        return couple(key, self.equations.names)
-
-    def residual(self, key, i: int, part) -> float:
-        """Weak-form equation error of ``key`` with equation ``i`` as ``part`` (state,
-        forcing features): that equation's own (:meth:`SystemWeakForm.residual`), or with
-        the third law that of all equations together
-        (:func:`gpjax._system_couplings.coupled_residual`)."""
-        if not self.equations.third_law:
-            return self.weak.residual(i, *part)
-        changed = key[:i] + (tuple(tuple(p) for p in part),) + key[i + 1:]
-        if changed not in self._residuals:
-            self._residuals[changed] = coupled_residual(self.weak, changed,
-                                                        self.equations.names)
-        return self._residuals[changed]
-
-    def held_out(self, key) -> np.ndarray:
-        """Held-out weak-form residual of ``key`` with every coupling's mirror
-        (:meth:`gpjax._system_fit.SystemWeakForm.held_out`)."""
-        return self.weak.held_out(self.coupled(key)[0])
-
-    def simulates_better(self, current, simpler, alpha: float, resolution: float) -> bool:
-        """Whether ``current``'s simulated responses fit the measured ones significantly
-        better than ``simpler``'s at level ``alpha``, both refined: a likelihood-ratio test,
-        χ² with one degree of freedom per dropped term, each coordinate's Gaussian
-        log-likelihood counted with its residual's effective sample size
-        n·γ₀/LRV (Newey–West, :func:`gpjax._diagnose_acceptance.long_run_variance`; a
-        simulated residual is strongly autocorrelated). Not the held-out test's
-        Diebold–Mariano: the two systems are nested and fitted to the same samples, so
-        their loss differential is positive by construction and that test's null does not
-        hold (a 2-mass chain kept two quartic terms that improved its objective by 0.14 %).
-        The guard exists because the equation error is blind where the states' smoothing
-        blurs a weak term's effect: a gear's mesh damping at 5 % of critical, whose removal
-        moves the fitted inertia by 80 %. A worsening of the simulated mean square by less
-        than ``resolution`` (the run's ``convergence_tolerance``: the accuracy to which the
-        fixed-step objective is claimed, :mod:`gpjax._convergence`) is not evidence
-        either."""
-        trees = [_as_trees(k, self.equations) for k in (simpler, current)]
-        self.refine_best(trees, self(trees), 2)
-        responses, _ = self.evaluator.simulate(to_system_population(
-            [self.coefficients(k) for k in (simpler, current)], self.evaluator))
-        measured = self.evaluator.measurement.responses.T
-        residual = (responses - measured) / measured.std(axis=1, keepdims=True)  # (2, D, N)
-        dropped = sum(len(a) + len(b) for a, b in current) - sum(
-            len(a) + len(b) for a, b in simpler)
-        return better_fit_p(residual[0], residual[1], dropped, resolution) < alpha
-
-    def coefficients(self, key) -> list[Coefficients]:
-        if key in self.refined:
-            return self.refined[key]
-        structure, ties = self.coupled(self.normalised(key))
-        if ties:
-            return coupled_least_squares(self.weak, structure, ties)
-        return [self.weak.equation(i, state, forcing)
-                for i, (state, forcing) in enumerate(structure)]
-
-    def __call__(self, systems) -> np.ndarray:
-        keys = [self.key(s) for s in systems]
-        new = list({k for k in keys if k is not None and k not in self.objective})
-        if new:
-            starts = [self.coefficients(k) for k in new]
-            usable = [all(np.isfinite(c.mass) and all(np.isfinite(list(c.state.values())))
-                          for c in start) for start in starts]
-            chosen = [k for k, ok in zip(new, usable) if ok]
-            for k, ok in zip(new, usable):
-                if not ok:
-                    self.objective[k] = PENALTY
-            if chosen:
-                population = to_system_population([self.coefficients(k) for k in chosen],
-                                                  self.evaluator)
-                scores = self.evaluator.score(population)
-                for k, value in zip(chosen, scores.objective):
-                    self.objective[k] = float(value)
-        return np.array([PENALTY if k is None else self.objective[k] for k in keys])
-
-    def refiners(self) -> list:
-        """The refiners compiled so far (one per Jacobian width)."""
-        return list(self._refiners.values())
-
-    def refine_best(self, systems, scores, top: int) -> None:
-        """Levenberg–Marquardt on the best ``top`` distinct systems not refined yet."""
-        chosen = []
-        for index in np.argsort(scores):
-            key = self.key(systems[index])
-            if scores[index] >= PENALTY or len(chosen) == top:
-                break
-            if key is not None and key not in self.refined and key not in chosen:
-                chosen.append(key)
-        if not chosen:
-            return
-        starts = [self.coefficients(k) for k in chosen]
-        population = to_system_population(starts, self.evaluator)
-        coupled = [self.coupled(self.normalised(k)) for k in chosen]
-        fixed = np.array([fixed_columns(structure, ties, self.evaluator.forcing_index)
-                          for structure, ties in coupled])
-        free = max(sum(1 + len(s) + len(f) + 2 for s, f in structure)
-                   for structure, _ in coupled)
-        width = -(-free // 8) * 8  # few distinct Jacobian widths: few compiles
-        if width not in self._refiners:
-            self._refiners[width] = Refiner(self.evaluator, iterations=20, max_free=width,
-                                            batch=REFINE_BATCH)
-        ties = [tie_columns(t, self.evaluator) for _, t in coupled]
-        refined = self._refiners[width].refine(population, fixed, ties=ties).population
-        scores = self.evaluator.score(refined)
-        for k, start, coefficients, value in zip(
-                chosen, starts, from_system_population(refined, self.evaluator, starts),
-                scores.objective):
-            if value < self.objective[k]:
-                self.refined[k], self.objective[k] = coefficients, float(value)
-            else:
-                self.refined[k] = start
 
 
 def _offspring(trees, fitness, grammars, rng, config: GPConfig):
@@ -377,7 +345,7 @@ def _tournament(fitness, rng, size: int) -> int:
     return int(entrants[np.argmin(fitness[entrants])])
 
 
-def _local_search(trees, fitness, equations: Equations, scorer: _Scorer,
+def _local_search(trees, fitness, equations: Equations, scorer: SystemScorer,
                   config: GPConfig) -> list:
     """Descent by one-term changes from the ``local_search`` best distinct systems, at
     most ``local_steps`` steps each; every system it moves to, as trees."""
@@ -393,18 +361,14 @@ def _local_search(trees, fitness, equations: Equations, scorer: _Scorer,
         for _ in range(config.local_steps):
             changed = list(dict.fromkeys([*_neighbours(current, equations),
                                           *_equation_error_steps(current, scorer)]))
-            as_trees = [_as_trees(c, equations) for c in changed]
-            scores = scorer(as_trees)
+            candidates = [as_trees(c, equations) for c in changed]
+            scores = scorer(candidates)
             best = int(np.argmin(scores))
             if not scores[best] < value * (1 - 1e-3):
                 break
             current, value = changed[best], scores[best]
-            out.append(as_trees[best])
+            out.append(candidates[best])
     return out
-
-
-def _as_trees(key, equations: Equations) -> tuple:
-    return tuple(equations.tree(i, *part) for i, part in enumerate(key))
 
 
 def _neighbours(key, equations: Equations):
@@ -421,7 +385,7 @@ def _neighbours(key, equations: Equations):
         yield from _removals(key, i)
 
 
-def _equation_error_steps(key, scorer: "_Scorer", steps: int = 4, longest: int = 8):
+def _equation_error_steps(key, scorer: SystemScorer, steps: int = 4, longest: int = 8):
     """Multi-term moves by weak-form equation error, which is separable per equation and
     never gets worse with a term more: per equation, forward selection from the equation as
     it is and from nothing, every equation along the way (the others kept); and jointly,
@@ -442,9 +406,9 @@ def _equation_error_steps(key, scorer: "_Scorer", steps: int = 4, longest: int =
     yield from itertools.product(*joint)
 
 
-def _forward(scorer: "_Scorer", key, i: int, state: list, forcing: list, steps: int):
+def _forward(scorer: SystemScorer, key, i: int, state: list, forcing: list, steps: int):
     """Equation ``i`` of ``key`` grown one feature at a time by the least weak-form
-    residual (:meth:`_Scorer.residual`)."""
+    residual (:meth:`SystemScorer.residual`)."""
     state_basis, forcing_basis = scorer.equations.basis(i)
     for _ in range(steps):
         options = [([*state, f], forcing) for f in state_basis if f not in state]
@@ -463,7 +427,7 @@ def _removals(key, i: int):
         yield key[:i] + ((state, forcing[:k] + forcing[k + 1:]),) + key[i + 1:]
 
 
-def _survivors(pool, scores, scorer: _Scorer, count: int):
+def _survivors(pool, scores, scorer: SystemScorer, count: int):
     """The best ``count`` of ``pool``: distinct structures first, then repeats."""
     order = np.argsort(scores, kind="stable")
     seen, first, repeats = set(), [], []
@@ -475,12 +439,12 @@ def _survivors(pool, scores, scorer: _Scorer, count: int):
     return [pool[i] for i in chosen], scores[chosen]
 
 
-def _simplest(best, scorer: _Scorer, alpha: float, resolution: float):
+def _simplest(best, scorer: SystemScorer, alpha: float, resolution: float):
     """From ``best``, one-term removals by the held-out test (module docstring), tried in
     the order of their held-out mean square. A removal replaces the current system when
     it predicts the held-out windows significantly better (level ``alpha``: the term
     demonstrably hurts), or when neither predicts significantly better and it does not
-    simulate significantly worse once refined (:meth:`_Scorer.simulates_better`). Ends when
+    simulate significantly worse once refined (:meth:`SystemScorer.simulates_better`). Ends when
     no removal qualifies."""
     current = best
     while True:

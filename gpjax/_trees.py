@@ -7,6 +7,8 @@ Node forms:
                                                     unary functions (sqrt, log protected)
     ("x",) ("x_dot",) ("x_ddot",) ("t",)            response, its derivatives, time
     ("u", k)                                        k-th input column
+    ("s", name)                                     a system equation's named variable
+                                                    (x_i, x_i', d_ij, ...: gpjax._system_grammar)
     ("c", name)                                     named constant (fixed value)
     ("k", name, value)                              interval constant with its drawn value
     ("n", value)                                    ephemeral random number
@@ -89,8 +91,8 @@ def from_json(data: list) -> Tree:
         return (head,)
     if head == "u" and len(data) == 2 and isinstance(data[1], int):
         return ("u", data[1])
-    if head == "c" and len(data) == 2 and isinstance(data[1], str):
-        return ("c", data[1])
+    if head in ("c", "s") and len(data) == 2 and isinstance(data[1], str):
+        return (head, data[1])
     if head == "k" and len(data) == 3 and isinstance(data[1], str) and _is_real(data[2]):
         return ("k", data[1], float(data[2]))
     if head == "n" and len(data) == 2 and _is_real(data[1]):

@@ -7,7 +7,7 @@ import subprocess
 import sys
 
 import pytest
-from _runs import wait_for_generation
+from _runs import kill_and_resume, wait_for_generation
 
 from gpjax import GPConfig, Identifier, load_csv
 from gpjax.gear import Torque, generate_gear_example
@@ -50,16 +50,8 @@ def test_resume_after_sigkill_gives_the_same_model(tmp_path):
                    capture_output=True)
     expected = (tmp_path / "full" / "model.json").read_text()
     for trial, generation in enumerate((1, 2, 3)):  # kill at several generations
-        run = tmp_path / f"killed{trial}"
-        process = subprocess.Popen(base + ["--out", str(run)], env=env,
-                                   stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-        wait_for_generation(run, generation, process)
-        process.send_signal(signal.SIGKILL)
-        process.wait()
-        assert not (run / "model.json").exists()
-        subprocess.run(base + ["--out", str(run), "--resume"], check=True, env=env,
-                       capture_output=True)
-        assert (run / "model.json").read_text() == expected, f"kill after generation {generation}"
+        resumed = kill_and_resume(base, tmp_path / f"killed{trial}", generation, env)
+        assert resumed == expected, f"kill after generation {generation}"
 
 
 @pytest.mark.slow

@@ -2,14 +2,13 @@
 extensions and named-constant inertias, recovery of eq. 14, reproducibility and resume."""
 
 import os
-import signal
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 import sympy as sp
-from _runs import wait_for_generation
+from _runs import kill_and_resume
 
 from gpjax import GPConfig, Identifier
 from gpjax.engine import Coefficients
@@ -138,12 +137,4 @@ def test_tree_mode_is_bit_reproducible_and_resumes_after_sigkill(tmp_path):
                        capture_output=True)
     expected = (tmp_path / "a" / "model.json").read_text()
     assert (tmp_path / "b" / "model.json").read_text() == expected
-    run = tmp_path / "killed"
-    process = subprocess.Popen(base + ["--out", str(run)], env=env,
-                               stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
-    wait_for_generation(run, 1, process)
-    process.send_signal(signal.SIGKILL)
-    process.wait()
-    subprocess.run(base + ["--out", str(run), "--resume"], check=True, env=env,
-                   capture_output=True)
-    assert (run / "model.json").read_text() == expected
+    assert kill_and_resume(base, tmp_path / "killed", 1, env) == expected
