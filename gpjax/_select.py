@@ -121,6 +121,7 @@ import math
 
 import numpy as np
 
+from ._coefficients import Coefficients
 from ._diagnose_acceptance import predictive_test
 from ._diagnose_fits import blocked_cv_residual
 from ._evaluator import OK
@@ -158,17 +159,24 @@ def selection_weak_form(fitness: Fitness, reference: Record) -> WeakForm:
                     fitness.weak_form.half_width)
 
 
-def _neighbour_records(fitness: Fitness, current: Record) -> list[Record]:
-    """The neighbours of ``current``, scored (new ones in one batch) at their least-squares
-    start; :func:`_first_replacing` refines them as its test reaches them."""
+def _neighbour_records(fitness: Fitness, current: Record, simpler: bool) -> list[Record]:
+    """The neighbours of ``current`` that are simpler than it (``simpler``) or not, scored
+    (new ones in one batch) at their least-squares start; :func:`_first_replacing` refines
+    them as its test reaches them, and asks for the others only once no simpler one
+    replaces ``current`` (a step down never needs them)."""
     tree_mode = fitness.config.coefficients == "tree"
     mass = current.coefficients.mass
     keys, new, held, kept = [], {}, {}, {}
     for m in neighbours(fitness, current):
+        form = m.form(mass)
+        shape = Record(key="", valid=True, coefficients=Coefficients.from_canonical(form),
+                       held=m.held, held_signs=fitness.held_signs(m.held))
+        if (shape.complexity < current.complexity) != simpler:
+            continue
         key = move_key(m, mass, tree_mode)
         keys.append(key)
         if key not in fitness.records:
-            new[key], held[key], kept[key] = m.form(mass), m.held, m.kept
+            new[key], held[key], kept[key] = form, m.held, m.kept
     if new:
         fitness.score_forms(new, held, kept)
     return [fitness.records[k] for k in dict.fromkeys(keys)]
@@ -218,26 +226,37 @@ def simplify(fitness: Fitness, best: Record, alpha: float, *, options=None,
     current, path, seen = best, [best], {best.key}
     while True:
         if options is None:
-            candidates = _neighbour_records(fitness, current)
+            candidates = _neighbour_records(fitness, current, simpler=True)
             below = _refine_below(fitness, current, refine_below)
+
+            def others(current=current):
+                return _neighbour_records(fitness, current, simpler=False)
         else:
-            candidates, below = options(current), -math.inf
+            everything = options(current)
+            below = -math.inf
+            candidates = [r for r in everything if r.complexity < current.complexity]
+
+            def others(current=current, everything=everything):
+                return [r for r in everything if r.complexity >= current.complexity]
         candidates = [r for r in candidates if r.key not in seen]
+
+        def rest(seen=seen, others=others):
+            return [r for r in others() if r.key not in seen]
+
         base = held_out_residual(fitness, current, weak)
-        chosen = _first_replacing(fitness, candidates, current, base, alpha, simulated, below,
-                                  weak)
+        chosen = _first_replacing(fitness, candidates, rest, current, base, alpha, simulated,
+                                  below, weak)
         if chosen is None:
             # Before the walk ends here: the simpler neighbours' constants (and the current
             # model's) refined to convergence, then the same test again — a swapped
             # function's inner constant can stop short of its basin after one round.
-            unconverged = [r for r in candidates if r.refined and not r.converged
-                           and r.complexity < current.complexity]
+            unconverged = [r for r in candidates if r.refined and not r.converged]
             if not unconverged:
                 return current, path
             fitness.refine(unconverged + [current], to_convergence=True)
             base = held_out_residual(fitness, current, weak)
-            chosen = _first_replacing(fitness, candidates, current, base, alpha, simulated,
-                                      below, weak)
+            chosen = _first_replacing(fitness, candidates, rest, current, base, alpha,
+                                      simulated, below, weak)
             if chosen is None:
                 return current, path
         seen.add(chosen.key)
@@ -245,20 +264,22 @@ def simplify(fitness: Fitness, best: Record, alpha: float, *, options=None,
         path.append(current)
 
 
-def _first_replacing(fitness: Fitness, candidates: list[Record], current: Record,
+def _first_replacing(fitness: Fitness, simpler: list[Record], rest, current: Record,
                      base: np.ndarray, alpha: float, simulated: bool,
                      refine_below: float, weak: WeakForm) -> Record | None:
-    """The first of ``candidates`` (valid ones, in the order (complexity, objective)) that
-    replaces ``current`` (held-out residual ``base``) by :func:`_replaces`, and with
-    ``simulated`` by the ends' guard too; None if none does. Candidates whose objective is
-    below ``refine_below`` are refined as the test reaches them: one complexity at a time
-    while simpler than ``current``, then all the others together (the Bonferroni count
-    needs them all), so none more complex than the one taken is refined — the order and
-    the outcome are those of refining all first."""
-    simpler = sorted({r.complexity for r in candidates if r.complexity < current.complexity})
-    groups = [[r for r in candidates if r.complexity == c] for c in simpler]
-    groups.append([r for r in candidates if r.complexity >= current.complexity])
+    """The first candidate (valid ones, in the order (complexity, objective)) that replaces
+    ``current`` (held-out residual ``base``) by :func:`_replaces`, and with ``simulated`` by
+    the ends' guard too; None if none does. The candidates are ``simpler`` (those simpler
+    than ``current``), then ``rest()`` (the others, scored only if none of ``simpler``
+    replaces it). Candidates whose objective is below ``refine_below`` are refined as the
+    test reaches them: one complexity at a time while simpler than ``current``, then all
+    the others together (the Bonferroni count needs them all), so none more complex than
+    the one taken is refined — the order and the outcome are those of refining all
+    first."""
+    levels = sorted({r.complexity for r in simpler})
+    groups = [[r for r in simpler if r.complexity == c] for c in levels] + [rest]
     for group in groups:
+        group = group() if callable(group) else group
         fitness.refine([r for r in group if r.objective <= refine_below])
         ready = sorted((r for r in group if r.valid and r.status == OK),
                        key=lambda r: (r.complexity, r.objective))

@@ -205,7 +205,7 @@ def test_the_coulomb_level_is_refined_from_the_excess_fitted_v_s():
     bump = sp.exp(-(0.65 ** 0.5 * V) ** 2) * sign
     excess = _record(fitness, {X: 40.0, V: 2.0, bump: 1.0},
                      held=(fitness.evaluator.inner_of(bump)[0].start + 1,))
-    law, = [r for r in _neighbour_records(fitness, excess)
+    law, = [r for r in _neighbour_records(fitness, excess, simpler=False)
             if r.valid and sign in r.coefficients.state and len(r.coefficients.state) == 4]
     fitness.refine([law])
     assert law.objective < 0.6 * excess.objective
