@@ -15,10 +15,15 @@ reference solve. A :class:`Program` keeps the *executable* itself
 A program that cannot be serialised or loaded is compiled as ``jax.jit`` would; a damaged
 file is compiled again and overwritten. ``GPJAX_COMPILATION_CACHE=off`` keeps programs in
 memory only.
+
+Within one process the last :data:`KEPT` executables are also kept in memory under the same
+key, so a second record of the same shape and settings (``fit-many``'s next record on a
+worker, the diagnosis' refits, a notebook's second fit) neither reads nor deserialises them.
 """
 
 from __future__ import annotations
 
+import collections
 import hashlib
 import os
 import tempfile
@@ -36,6 +41,10 @@ from ._jaxcache import cache_folder
 
 #: Sub-folder of the cache folder holding the executables.
 PROGRAMS = "programs"
+#: Executables a process keeps in memory across programs of the same key.
+KEPT = 32
+
+_KEPT: collections.OrderedDict = collections.OrderedDict()
 
 
 @lru_cache(maxsize=1)
@@ -119,12 +128,23 @@ class Program:
             return tuple(jax.tree_util.tree_leaves(
                 self._fn(*jax.tree_util.tree_unflatten(tree, values))))
 
-        folder = cache_folder()
-        if folder is None:
-            return jax.jit(flat).lower(*leaves).compile()
         name = fingerprint(self._name, self._key, signature, jax.__version__,
                            jaxlib.__version__, [(d.platform, d.device_kind)
                                                 for d in jax.devices()], source_digest())
+        executable = _KEPT.pop(name, None)
+        if executable is None:
+            executable = self._built(name, flat, leaves)
+        _KEPT[name] = executable
+        while len(_KEPT) > KEPT:
+            _KEPT.popitem(last=False)
+        return executable
+
+    def _built(self, name: str, flat: Callable, leaves) -> Callable:
+        """The executable ``name`` loaded from the cache folder, else compiled (and
+        stored there)."""
+        folder = cache_folder()
+        if folder is None:
+            return jax.jit(flat).lower(*leaves).compile()
         path = folder / PROGRAMS / f"{self._name}-{name[:32]}.bin"
         loaded = _load(path, len(leaves))
         if loaded is not None:
