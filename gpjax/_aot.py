@@ -131,10 +131,11 @@ class Program:
         name = fingerprint(self._name, self._key, signature, jax.__version__,
                            jaxlib.__version__, [(d.platform, d.device_kind)
                                                 for d in jax.devices()], source_digest())
-        executable = _KEPT.pop(name, None)
+        kept = (str(cache_folder()), name)  # the folder too: each folder gets its file
+        executable = _KEPT.pop(kept, None)
         if executable is None:
             executable = self._built(name, flat, leaves)
-        _KEPT[name] = executable
+        _KEPT[kept] = executable
         while len(_KEPT) > KEPT:
             _KEPT.popitem(last=False)
         return executable
