@@ -42,7 +42,7 @@ from ._jaxcache import cache_folder
 #: Sub-folder of the cache folder holding the executables.
 PROGRAMS = "programs"
 #: Executables a process keeps in memory across programs of the same key.
-KEPT = 12
+KEPT = 32
 
 _KEPT: collections.OrderedDict = collections.OrderedDict()
 
