@@ -23,6 +23,7 @@ _EXPORTS = {
     "Model": "_model", "Equation": "_model", "Symbols": "_canonical",
     "check_structure": "_canonical",
     "Diagnosis": "_diagnose", "diagnose": "_diagnose", "write_report": "_diagnose_report",
+    "SystemDiagnosis": "_system_effects",
     "Effect": "_effects", "Parameter": "_effects", "Terms": "_effects",
     "effects": "_effects", "register_effect": "_effects",
     "ConfigError": "_errors", "DataError": "_errors", "ModelFileError": "_errors",

@@ -271,10 +271,22 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             records it.
         mode: ``"auto"``, ``"simulation"`` or ``"equation_error"``.
 
+    A model of several coordinates is diagnosed by
+    :func:`gpjax._system_effects.diagnose_system` (``holdout``, ``max_steps``,
+    ``shortlist``, ``min_gain``, ``alpha``, ``convergence_tolerance`` and
+    ``input_interpolation`` apply) and gives its :class:`SystemDiagnosis`.
+
     Raises:
         UserInputError: the data's names differ from the model's, or a setting is out of
             range.
     """
+    if model.n_coordinates > 1:
+        from ._system_effects import diagnose_system
+
+        return diagnose_system(measurement, model, library=library, holdout=holdout,
+                               max_steps=max_steps, shortlist=shortlist, min_gain=min_gain,
+                               alpha=alpha, convergence_tolerance=convergence_tolerance,
+                               input_interpolation=input_interpolation)
     symbols = model.symbols
     names = (measurement.time_name, measurement.response_name, tuple(measurement.input_names))
     if names != (symbols.time, symbols.response, tuple(symbols.inputs)):

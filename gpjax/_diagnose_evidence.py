@@ -50,6 +50,13 @@ def explained_fraction(weak: WeakForm, structure: Structure, terms: Terms) -> fl
     after the structure's own regressors are projected out (0 … 1)."""
     matrix, target, _ = design(weak, structure.lhs, structure.forcing)
     new = [weak.column(f) for f in terms.state + terms.parametric + terms.forcing]
+    return projected_share(matrix, target, new)
+
+
+def projected_share(matrix: np.ndarray, target: np.ndarray, new: list[np.ndarray]) -> float:
+    """Fraction of the energy of ``target``'s least-squares residual on ``matrix``'s columns
+    that the ``new`` columns explain once ``matrix``'s columns are projected out of them
+    (0 … 1; non-finite new columns are left out)."""
     new = [c for c in new if np.all(np.isfinite(c))]
     if not new:
         return 0.0

@@ -22,20 +22,21 @@ def write_report(diagnosis: Diagnosis, out) -> None:
     residual_time.png, residual_spectrum.png, measured_vs_simulated.png."""
     out = Path(out)
     report = diagnosis.to_json()
-    write_text_atomic(out / "report.json", json.dumps(_finite(report), indent=2) + "\n")
+    write_text_atomic(out / "report.json", json.dumps(finite(report), indent=2) + "\n")
     write_text_atomic(out / "report.md", report_markdown(diagnosis))
     diagnosis.model().save(out / "model.json")
     for name, figure in _figures(diagnosis).items():
         write_bytes_atomic(out / name, figure)
 
 
-def _finite(value):
+def finite(value):
+    """``value`` (JSON-like) with every non-finite float as ``None`` (JSON has no NaN)."""
     if isinstance(value, float) and not math.isfinite(value):
         return None
     if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
+        return {k: finite(v) for k, v in value.items()}
     if isinstance(value, list):
-        return [_finite(v) for v in value]
+        return [finite(v) for v in value]
     return value
 
 

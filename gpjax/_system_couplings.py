@@ -104,6 +104,16 @@ def normalisation(structure, ties, inputs) -> list:
     return out
 
 
+def held_structure(key, names: tuple[str, ...], inputs, third_law: bool):
+    """``key`` (per equation: state features, forcing features) as a
+    :data:`gpjax._system_fit.Structure`: the forcing feature :func:`normalisation` holds at
+    1 marked, the others free (``None``); ``third_law``: components joined by couplings."""
+    ties = couple(key, names)[1] if third_law else ()
+    held = normalisation(key, ties, inputs)
+    return tuple((tuple(state), {f: 1.0 if f == h else None for f in forcing})
+                 for (state, forcing), h in zip(key, held))
+
+
 def fixed_columns(structure, ties, forcing_index) -> list[int]:
     """Per equation, :meth:`gpjax._refine.Refiner.refine`'s entry: the column of its held
     forcing coefficient (a value given in ``structure``), −1 where its mass is held (no

@@ -22,7 +22,7 @@ from ._coefficients import Coefficients, from_system_population, to_system_popul
 from ._evaluator import PENALTY, PopulationEvaluator
 from ._refine import Refiner
 from ._system_couplings import (couple, coupled_least_squares, coupled_residual,
-                                fixed_columns, normalisation, tie_columns)
+                                fixed_columns, held_structure, tie_columns)
 from ._system_final import better_fit_p
 from ._system_fit import SystemWeakForm
 from ._system_grammar import Equations
@@ -47,12 +47,10 @@ class SystemScorer:
         return None if any(p is None for p in parts) else tuple(parts)
 
     def normalised(self, key):
-        """``key`` as a :data:`gpjax._system_fit.Structure`: the forcing held at 1 marked
-        (:func:`gpjax._system_couplings.normalisation`)."""
-        ties = self.coupled(key)[1]
-        held = normalisation(key, ties, self.equations.inputs)
-        return tuple((state, {f: 1.0 if f == h else None for f in forcing})
-                     for (state, forcing), h in zip(key, held))
+        """``key`` as a :data:`gpjax._system_fit.Structure`
+        (:func:`gpjax._system_couplings.held_structure`)."""
+        e = self.equations
+        return held_structure(key, e.names, e.inputs, e.third_law)
 
     def coupled(self, key):
         """(structure with every coupling's mirror, ties): with the third law

@@ -216,6 +216,21 @@ def _friction_chain() -> System:
                   excitation=Excitation(low=0.1, high=3.0, rms=6.0), max_step=SIGN_MAX_STEP)
 
 
+def _ground_friction(base: System, i: int) -> System:
+    """``base`` with dry friction F·tanh(x_i'/v0), F = 1 N, v0 = 1 mm/s, between
+    coordinate ``i`` (0-based) and the ground: an effect a model of ``base``'s structure
+    lacks, for the diagnosis of a system to find."""
+    F, v0 = sp.symbols("F v0")
+    x_dot = state_symbols(base.coordinates[i])[1]
+    equations = tuple(sp.Eq(e.lhs + F * sp.tanh(x_dot / v0), e.rhs) if k == i else e
+                      for k, e in enumerate(base.equations))
+    return dataclasses.replace(
+        base, name=f"{base.name}_friction_{base.coordinates[i]}",
+        description=f"{base.description}; dry friction on {base.coordinates[i]}",
+        equations=equations, constants={**base.constants, "F": 1.0, "v0": 1e-3},
+        max_step=SIGN_MAX_STEP)
+
+
 def _catalogue() -> dict[str, System]:
     F, Fc, Fs, vs, v0, a, k3, f0 = sp.symbols("F Fc Fs vs v0 a k3 f0")
     sign = sp.sign(X_DOT)
@@ -250,6 +265,7 @@ def _catalogue() -> dict[str, System]:
                 _c * X_DOT + F * sp.tanh(X_DOT / v0) + _k * X,
                 {"c": 1.5, "F": 4.0, "v0": 0.2, "k": 30.0}, 6.0),
         _chain(2),
+        _ground_friction(_chain(2), 1),
         _chain(3),
         _chain(2, grounded_last=False),
         _chain(3, grounded_last=False),

@@ -258,9 +258,7 @@ def _fit(args) -> int:
         config = config.replace(third_law=True)
     _check_diagnose_options(args)
     if several and args.diagnose:
-        raise UserInputError("--diagnose works on one response for now; drop it to identify "
-                             f"the system of {len(args.responses)} responses (the fit "
-                             "reports each coordinate's residual against its noise floor)")
+        _check_system_diagnosis(args)
     islands = {}
     if any(getattr(args, k) is not None for k in ("islands", "scheduler", "every", "migrants",
                                                   "topology")):
@@ -311,20 +309,29 @@ def _diagnose(args) -> int:
     _check_diagnose_options(args)
     out = Path(args.out)
     check_out_folder(out)
-    response = _one_response(args)
     from ._model import Model
 
     model = Model.load(args.model)
     if model.n_coordinates > 1:
-        raise UserInputError(f"{args.model} is a model of {model.n_coordinates} coordinates; "
-                             "diagnose takes a one-coordinate model for now (a system's fit "
-                             "lists each coordinate's residual against its noise floor)")
-    measurement = load_csv(args.data, time=args.time, response=response, inputs=args.inputs)
+        _check_system_diagnosis(args)
+        measurement = load_csv(args.data, time=args.time, responses=args.responses,
+                               inputs=args.inputs)
+    else:
+        measurement = load_csv(args.data, time=args.time, response=_one_response(args),
+                               inputs=args.inputs)
     _run_diagnosis(args, measurement, model, out)
     return 0
 
 
+def _check_system_diagnosis(args) -> None:
+    if args.frequencies:
+        raise UserInputError("--frequency offers time-varying effects, which a system of "
+                             "several coordinates cannot hold yet; drop it")
+
+
 def _run_diagnosis(args, measurement, model, out: Path) -> None:
+    if model.n_coordinates > 1:
+        return _run_system_diagnosis(args, measurement, model, out)
     from ._diagnose import diagnose
     from ._diagnose_report import sign_cautions, write_report
 
@@ -354,6 +361,31 @@ def _run_diagnosis(args, measurement, model, out: Path) -> None:
     for caution in sign_cautions(result):
         print(f"  caution: {caution}")
     print(f"Report in {out}/ (report.md, report.json, model.json, figures)")
+
+
+def _run_system_diagnosis(args, measurement, model, out: Path) -> None:
+    from ._system_diagnose import summary_line
+    from ._system_effects import diagnose_system
+
+    result = diagnose_system(measurement, model, holdout=args.holdout,
+                             max_steps=args.max_steps, alpha=args.alpha,
+                             input_interpolation=args.input_interpolation)
+    _progress.stage(f"diagnosis: writing the report to {out}/")
+    result.write(out)
+    print(f"Diagnosis (simulation, {model.n_coordinates} coordinates): effects added: "
+          f"{', '.join(result.effects_added) or 'none'}")
+    final = result.model()
+    for i, name in enumerate(final.coordinates):
+        print(f"  equation {i + 1} ({name}): {final.sympy(i)}")
+    print("  constants (± half the 95 % interval): " + ", ".join(
+        f"{name} = {text}" for name, text in final.constant_texts().items()))
+    for name, statistics in result.residuals.items():
+        print(summary_line(name, statistics))
+    c = result.after.checks[-1].to_json()
+    print(f"  RMS by the reference solve (diffrax Dopri8) {c['rms_reference']:.4g}; RK4 at "
+          f"{c['substeps']} step(s) per sample differs by {c['ratio']:.2%} of it "
+          f"({'converged' if c['converged'] else 'NOT converged'})")
+    print(f"Report in {out}/ (report.md, report.json, model.json)")
 
 
 def _simulate(args) -> int:

@@ -95,6 +95,15 @@ def ragged_coordinates(length: int) -> str:
     return "\n".join([f"{lines[0]},x2", *(f"{a},{b}" for a, b in zip(lines[1:], cells))]) + "\n"
 
 
+def model_json(**canonical_changes) -> dict:
+    """A valid hand-written model: phi'' + 4 phi = T, with optional changes to canonical."""
+    canonical = {"mass": 1, "terms": [{"feature": "phi", "coefficient": 4}],
+                 "forcing": [{"feature": "T", "coefficient": 1}]}
+    canonical.update(canonical_changes)
+    return {"variables": {"time": "t", "response": "phi", "inputs": ["T"]},
+            "canonical": canonical}
+
+
 TWO_RESPONSES = ("fit", "data.csv", "--time", "t", "--response", "x", "--response", "x2",
                  "--input", "u")
 
@@ -186,11 +195,13 @@ CLI_CASES = [
          (*TWO_RESPONSES, *SMALL, "--out", "run", "--resume"),
          {"data.csv": ragged_coordinates(N_ROWS), "run": DIR},
          ["no checkpoint", "without --resume"]),
-    case("diagnose-takes-one-response", ("diagnose", "data.csv", "--model", "model.json", "--time", "t",
-                                         "--response", "x", "--response", "x2", "--out", "d"),
-         {"data.csv": VALID_CSV}, ["diagnose takes one --response", "give one"]),
-    case("several-responses-with-diagnose", (*TWO_RESPONSES, "--diagnose"),
-         {"data.csv": VALID_CSV}, ["--diagnose works on one response", "drop it"]),
+    case("diagnose-one-coordinate-model-takes-one-response",
+         ("diagnose", "data.csv", "--model", "model.json", "--time", "t", "--response", "x",
+          "--response", "x2", "--out", "d"),
+         {"data.csv": VALID_CSV, "model.json": json.dumps(model_json())},
+         ["diagnose takes one --response", "give one"]),
+    case("system-diagnosis-with-frequency", (*TWO_RESPONSES, "--diagnose", "--frequency", "3"),
+         {"data.csv": ragged_coordinates(N_ROWS)}, ["--frequency", "drop it"]),
     data_case("column-name-with-space", csv_text("t,my col,u"),
               ["'my col'", "not usable", "rename"],
               args=("fit", "data.csv", "--time", "t", "--response", "my col", "--input", "u")),
@@ -528,15 +539,6 @@ def test_a_user_error_is_reported_before_jax_loads(case_id, tmp_path):
 # --------------------------------------------------------------------------------------
 # Model files through the Python API
 # --------------------------------------------------------------------------------------
-
-def model_json(**canonical_changes) -> dict:
-    """A valid hand-written model: phi'' + 4 phi = T, with optional changes to canonical."""
-    canonical = {"mass": 1, "terms": [{"feature": "phi", "coefficient": 4}],
-                 "forcing": [{"feature": "T", "coefficient": 1}]}
-    canonical.update(canonical_changes)
-    return {"variables": {"time": "t", "response": "phi", "inputs": ["T"]},
-            "canonical": canonical}
-
 
 def with_feature(text: str) -> dict:
     return model_json(terms=[{"feature": "phi", "coefficient": 4},
