@@ -31,11 +31,12 @@ and the latter with the structure searched by the system GP. In the angles, eq. 
 J1Θ1'' + a·Θ1' + b·(Θ1' − Θ2') + A·Θ1 + B·(Θ1 − Θ2) = T1 with B = r1·r2·k_m,
 A = r1·(r1 − r2)·k_m (likewise b, a with c_m), eq. 22 J2Θ2'' + … = −T2.
 
-``speed``: one population of 500 on the ``chain2`` record (2,001 samples, max_degree 3):
-the 1-DOF evaluator on x1 against the 2-DOF evaluator on (x1, x2), with and without the
-initial-state Gauss–Newton step; the best of 10 ``score`` calls of each after a warm-up,
-the four interleaved (a shared machine's load hits them alike), in wall-clock and in the
-process's CPU time (all threads; less disturbed by other work on the machine).
+``speed``: one population of 500 (max_degree 3, 2,001 samples): the 1-DOF evaluator on
+``chain2``'s x1 against the 2-DOF evaluator on ``chain2`` and the 3-DOF one on ``chain3``,
+each model a perturbed truth, with and without the initial-state Gauss–Newton step; the
+best of 10 ``score`` calls of each after a warm-up, the six interleaved (a shared machine's
+load hits them alike), in wall-clock and in the process's CPU time (all threads; less
+disturbed by other work on the machine).
 """
 
 from __future__ import annotations
@@ -43,8 +44,9 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
+import sys
 import time
+from pathlib import Path
 
 import numpy as np
 import sympy as sp
@@ -53,6 +55,9 @@ from gpjax import GPConfig, Symbols
 from gpjax._coefficients import Coefficients, to_population, to_system_population
 from gpjax.engine import PopulationEvaluator, fit_system
 from gpjax.systems import generate, get_system, simulate_equations
+
+sys.path.insert(0, str(Path(__file__).parent))
+from _provenance import provenance  # noqa: E402
 
 
 def chain_structure(n: int):
@@ -294,33 +299,48 @@ def _line_constants(fit, seconds, r1, r2, j1, j2, k_m, c_m):
     return _report(fit, found, truth, seconds)
 
 
-def speed(count: int = 500, rounds: int = 10) -> dict:
-    data = generate("chain2", seed=0)
-    c = data.system.constants
-    x1, x2, v1, v2, u = sp.symbols("x1 x2 x1_dot x2_dot u")
-    rng = np.random.default_rng(0)
+def _chain_population(name: str, count: int, rng) -> tuple:
+    """(evaluator inputs, population) of ``count`` perturbed truths of a catalogue chain."""
+    data = generate(name, seed=0)
+    c, names = data.system.constants, data.system.coordinates
+    x = sp.symbols(names)
+    v = sp.symbols([f"{n}_dot" for n in names])
+    u = sp.Symbol("u")
 
     def s():
         return 1 + 0.05 * rng.standard_normal()
 
+    def equation(i):
+        state = {v[i]: c["c"] * s(), x[i]: c["k"] * s()}
+        for j in (i - 1, i + 1):
+            if 0 <= j < len(names):
+                state |= {x[i] - x[j]: c["kc"] * s(), (x[i] - x[j]) ** 3: c["k3"] * s()}
+        return Coefficients(c[f"m{i + 1}"] * s(), state, {u: 1.0} if i == 0 else {})
+
+    return data.fit.system_measurement(), [[equation(i) for i in range(len(names))]
+                                           for _ in range(count)]
+
+
+def speed(count: int = 500, rounds: int = 10) -> dict:
+    rng = np.random.default_rng(0)
+    x1, v1, u = sp.symbols("x1 x1_dot u")
+    data = generate("chain2", seed=0)
+    c = data.system.constants
     cases = {}
     for fit_ic in (False, True):
+        key = "with_initial_state_step" if fit_ic else "plain"
         one = PopulationEvaluator(data.fit.measurement("x1"), Symbols("x1", "t", ("u",)),
                                   max_degree=3, fit_initial_conditions=fit_ic, batch=count)
-        pop1 = to_population([Coefficients(c["m1"] * s(), {v1: c["c"] * s(), x1: 50 * s(),
-                                                            x1 ** 3: c["k3"] * s()}, {u: 1.0})
-                              for _ in range(count)], one)
-        two = PopulationEvaluator(data.fit.system_measurement(), Symbols("x1", "t", ("u",)),
-                                  max_degree=3, fit_initial_conditions=fit_ic, batch=count)
-        pop2 = to_system_population([[
-            Coefficients(c["m1"] * s(), {v1: c["c"] * s(), x1: c["k"] * s(),
-                                         x1 - x2: c["kc"] * s(), (x1 - x2) ** 3: c["k3"] * s()},
-                         {u: 1.0}),
-            Coefficients(c["m2"], {v2: c["c"] * s(), x2: c["k"] * s(), x2 - x1: c["kc"] * s(),
-                                   (x2 - x1) ** 3: c["k3"] * s()}, {})] for _ in range(count)],
-            two)
-        key = "with_initial_state_step" if fit_ic else "plain"
-        cases[(key, "one_dof_s")], cases[(key, "two_dof_s")] = (one, pop1), (two, pop2)
+        cases[(key, 1)] = one, to_population([
+            Coefficients(c["m1"] * (1 + 0.05 * rng.standard_normal()),
+                         {v1: c["c"], x1: 50.0, x1 ** 3: c["k3"]}, {u: 1.0})
+            for _ in range(count)], one)
+        for d, name in ((2, "chain2"), (3, "chain3")):
+            measurement, systems = _chain_population(name, count, rng)
+            evaluator = PopulationEvaluator(measurement, Symbols("x1", "t", ("u",)),
+                                            max_degree=3, fit_initial_conditions=fit_ic,
+                                            batch=count)
+            cases[(key, d)] = evaluator, to_system_population(systems, evaluator)
     times = {k: [] for k in cases}
     cpu = {k: [] for k in cases}
     for evaluator, population in cases.values():
@@ -333,13 +353,15 @@ def speed(count: int = 500, rounds: int = 10) -> dict:
             cpu[k].append(time.process_time() - began_cpu)
     out = {}
     for key in ("plain", "with_initial_state_step"):
-        t1, t2 = min(times[(key, "one_dof_s")]), min(times[(key, "two_dof_s")])
-        c1, c2 = min(cpu[(key, "one_dof_s")]), min(cpu[(key, "two_dof_s")])
-        out[key] = {"one_dof_s": t1, "two_dof_s": t2, "ratio": t2 / t1,
-                    "one_dof_cpu_s": c1, "two_dof_cpu_s": c2, "cpu_ratio": c2 / c1}
-        print(f"{key:<26} 1-DOF {t1 * 1e3:7.1f} ms  2-DOF {t2 * 1e3:7.1f} ms  "
-              f"ratio {t2 / t1:.2f}   CPU time: {c1 * 1e3:7.1f} ms, {c2 * 1e3:7.1f} ms, "
-              f"ratio {c2 / c1:.2f}", flush=True)
+        wall = {d: min(times[(key, d)]) for d in (1, 2, 3)}
+        process = {d: min(cpu[(key, d)]) for d in (1, 2, 3)}
+        out[key] = {"seconds": wall, "cpu_seconds": process,
+                    "ratio": {d: wall[d] / wall[1] for d in (2, 3)},
+                    "cpu_ratio": {d: process[d] / process[1] for d in (2, 3)}}
+        print(f"{key:<26} " + "  ".join(f"D={d} {wall[d] * 1e3:7.1f} ms" for d in wall)
+              + "   ratios " + ", ".join(f"{wall[d] / wall[1]:.2f}" for d in (2, 3))
+              + "   CPU ratios " + ", ".join(f"{process[d] / process[1]:.2f}" for d in (2, 3)),
+              flush=True)
     return {"P": count, "N": data.fit.time.size, "rounds": rounds, **out}
 
 
@@ -357,8 +379,7 @@ def main() -> None:
                         help="chains: which, comma-separated (default chain2,chain3)")
     parser.add_argument("--json", help="write the results here")
     args = parser.parse_args()
-    result = {"machine": platform.platform(), "cpus": os.cpu_count(),
-              "load_average": os.getloadavg()}
+    result = {**provenance(), "load_average": os.getloadavg()}
     if args.what == "chains":
         rows = chains(args.seeds, args.search, args.population, args.generations,
                       args.third_law, args.systems.split(","))

@@ -294,6 +294,28 @@ def stage_diagnose() -> str:
                     "m worst error", "c worst error"], rows, "llrrrrrr") + "\n\n" + _stamp(data))
 
 
+def system_diagnosis() -> str:
+    data = _load("benchmarks/system_diagnosis.json")
+    rows = []
+    for kind, what in (("clean", "chain2, truth's structure (gpjax diagnose)"),
+                       ("friction", "chain2 + friction on x2 (gpjax fit --diagnose)")):
+        chosen = [r for r in data["rows"] if r["kind"] == kind]
+        if not chosen:
+            continue
+        seeds = [r["seed"] for r in chosen]
+        errors = [abs(r["F_error"]) for r in chosen if r.get("F_error") is not None]
+        ratios = [v for r in chosen for v in r["noise_ratio"].values() if v is not None]
+        rows.append([what, f"{min(seeds)}–{max(seeds)}", len(chosen),
+                     sum(not r["added"] for r in chosen),
+                     "–" if kind == "clean" else sum(r["named_first"] for r in chosen),
+                     _pct(max(errors), 1) if errors else "–", f"{max(ratios):.2f}",
+                     _span([r["seconds"] for r in chosen], "{:.0f}")])
+    return (_table(["record", "seeds", "cases", "nothing added",
+                    "friction on x2 named first, equation 2", "F/m2 worst error",
+                    "largest residual / noise floor", "seconds"], rows, "llrrrrrr")
+            + "\n\n" + _stamp(data))
+
+
 def silverbox() -> str:
     data = _load("benchmarks/silverbox_fit.json")
     rows = [[r["model"], f"{r['arrow_full_rms_mV']:.3f}", f"{r['arrow_no_extrapolation_rms_mV']:.3f}",
@@ -380,12 +402,14 @@ def systems_gear() -> str:
 def systems_speed() -> str:
     data = _load("benchmarks/systems_speed.json")
     speed = data["speed"]
-    rows = [[label, f"{1e3 * speed[key]['one_dof_s']:.0f}", f"{1e3 * speed[key]['two_dof_s']:.0f}",
-             f"{speed[key]['ratio']:.1f}×", f"{speed[key]['cpu_ratio']:.1f}×"]
+    rows = [[label, *(f"{1e3 * speed[key]['seconds'][d]:.0f}" for d in "123"),
+             *(f"{speed[key]['ratio'][d]:.1f}×" for d in "23"),
+             *(f"{speed[key]['cpu_ratio'][d]:.1f}×" for d in "23")]
             for key, label in [("plain", "plain evaluation"),
                                ("with_initial_state_step", "with the initial-state step")]]
-    return (_table([f"P = {speed['P']}, N = {speed['N']}, best of {speed['rounds']}", "1-DOF ms",
-                    "2-DOF ms", "ratio", "process CPU ratio"], rows, "lrrrr") + "\n\n" + _stamp(data))
+    return (_table([f"P = {speed['P']}, N = {speed['N']}, best of {speed['rounds']}", "D = 1 ms",
+                    "D = 2 ms", "D = 3 ms", "D = 2 ratio", "D = 3 ratio", "D = 2 CPU ratio",
+                    "D = 3 CPU ratio"], rows, "lrrrrrrr") + "\n\n" + _stamp(data))
 
 
 # ---------------------------------------------------------------- islands, many records, cache
@@ -626,6 +650,7 @@ TABLES = {
     "sign-width": sign_width,
     "diagnose-sweep": diagnose_sweep,
     "stage-diagnose": stage_diagnose,
+    "system-diagnosis": system_diagnosis,
     "silverbox": silverbox,
     "systems-chains": systems_chains,
     "systems-front-door": systems_front_door,

@@ -46,14 +46,16 @@ def _multisine(rng, low: float, high: float, rms: float, tones: int = 40):
 
 
 def two_dof_record(*, seed: int = 0, samples: int = 2001, sample_rate: float = 300e3,
-                   noise: float = 0.01, damping_ratio: float = 0.05) -> TwoDofRecord:
+                   noise: float = 0.01, damping_ratio: float = 0.05,
+                   torque_scale: float = 1.0) -> TwoDofRecord:
     """The paper's pinion (J1 = 7.918e-5 kg·m², eq. 14) and a geometrically similar gear
     (J2 = J1·(z2/z1)⁴), the paper pair's base radii, its mean mesh stiffness k_m (constant)
     and mesh damping c_m for ``damping_ratio`` of critical (relative mode, ~14.7 kHz);
     T1 = 13 N·m plus a 1 N·m RMS random-phase multisine (40 tones, 2–25 kHz), T2 =
     (r2/r1)·13 N·m plus a 0.5 N·m one, both applied at t = 0 to gears at rest; both angles
     measured with Gaussian noise σ = ``noise`` × their standard deviation, the torques
-    exactly. Integrated by :func:`simulate_two_dof` (Tsit5, 1/64 of the mode's period)."""
+    exactly; ``torque_scale`` multiplies both torques (an extrapolation record). Integrated
+    by :func:`simulate_two_dof` (Tsit5, 1/64 of the mode's period)."""
     import jax
     import jax.numpy as jnp
 
@@ -68,10 +70,10 @@ def two_dof_record(*, seed: int = 0, samples: int = 2001, sample_rate: float = 3
     ripple1, ripple2 = _multisine(rng, 2e3, 25e3, 1.0), _multisine(rng, 2e3, 25e3, 0.5)
 
     def torque1(t):
-        return PAPER_TORQUE + ripple1(t)
+        return torque_scale * (PAPER_TORQUE + ripple1(t))
 
     def torque2(t):
-        return PAPER_TORQUE * r2 / r1 + ripple2(t)
+        return torque_scale * (PAPER_TORQUE * r2 / r1 + ripple2(t))
 
     system = TwoDofGearPair(J1=j1, J2=j2, r1=r1, r2=r2, k_m=k_m, c_m=c_m, T1=torque1,
                             T2=torque2)

@@ -1,0 +1,106 @@
+"""Diagnosis of a system (issue 42): the effect library on every coordinate and relative
+coordinate, and a missing friction on mass 2 found and named on equation 2."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import sympy as sp
+
+import gpjax
+from gpjax._effects import effects
+from gpjax._system_bank import match_bank, system_variables
+from gpjax._system_effects import _candidates, _in_equations, diagnose_system
+from gpjax._system_fit import SystemWeakForm
+from gpjax.systems import generate, get_system
+from test_mdof import U, V1, V2, X1, X2, _equations
+
+NAMES = ("x1", "x2")
+
+
+def _record(name: str, seed: int, duration: float | None = None):
+    system = get_system(name)
+    if duration is not None:
+        import dataclasses
+
+        system = dataclasses.replace(system, duration=duration)
+    return generate(system, seed=seed).fit.system_measurement()
+
+
+def _chain_key():
+    """The chain2 truth's structure (per equation: state features, forcing features)."""
+    return tuple((tuple(c.state), tuple(c.forcing))
+                 for c in _equations(get_system("chain2").constants))
+
+
+def test_relative_effects_enter_both_equations_mirrored_and_only_system_terms_are_offered():
+    names = NAMES
+    variables = system_variables(names)
+    scales = np.full((2, 4), 50.0)
+    key = (((V1,), (U,)), ((V2,), ()))
+    z, z_dot = sp.symbols("gpjax_relative gpjax_relative_dot")
+    cubic = gpjax.Terms(state=(z ** 3,))
+    added = _in_equations(cubic, (0, 1), key, names, variables, scales)
+    assert added == {0: (((X1 - X2) ** 3,), ()), 1: (((X2 - X1) ** 3,), ())}
+    friction = gpjax.Terms(state=(sp.tanh(z_dot / 0.01),))
+    added = _in_equations(friction, (0, 1), key, names, variables, scales)
+    for i, (state, _) in added.items():  # the bank's width, whatever the effect's grid
+        assert match_bank(state[0], variables[i]) == ("sign", 3, 50.0)
+    assert _in_equations(gpjax.Terms(forcing=(sp.Integer(1),)), (0, 1), key, names,
+                         variables, scales) is None  # a relative coordinate does not force
+    assert _in_equations(gpjax.Terms(state=(V1,)), (0,), key, names, variables,
+                         scales) is None  # already there
+    assert _in_equations(gpjax.Terms(parametric=(sp.cos(3 * sp.Symbol("t")) * X1,)), (0,),
+                         key, names, variables, scales) is None
+    assert _in_equations(gpjax.Terms(state=(sp.Abs(X1 - 0.1) - sp.Abs(X1 + 0.1),)), (0,),
+                         key, names, variables, scales) is None  # a dead zone
+
+
+def test_a_missing_friction_on_mass_two_explains_most_of_equation_two():
+    measurement = _record("chain2_friction_x2", 100, duration=10.0)
+    ranked = _candidates(_chain_key(), SystemWeakForm(measurement), measurement, effects())
+    first = ranked[0]
+    assert (first.effect.name, first.where, sorted(first.added)) == ("coulomb_friction", "x2",
+                                                                     [1])
+    assert first.explained > 0.5 > ranked[1].explained
+    places = {c.where for c in ranked}
+    assert places == {"x1", "x2", "x1 - x2"}
+    assert not {c.effect.name for c in ranked} & {"mesh_stiffness_variation", "backlash"}
+    assert any(c.effect.name == "static_offset" and c.added == {1: ((), (sp.Integer(1),))}
+               for c in ranked)
+    assert any(c.effect.name == "input_gain" and c.added == {1: ((), (U,))} for c in ranked)
+
+
+def test_the_records_coordinates_must_be_the_models():
+    measurement = _record("chain2", 0, duration=2.0)
+    model = gpjax.Model.from_equations(("x2", "x1"), "t", ("u",),
+                                       _equations(get_system("chain2").constants))
+    with pytest.raises(gpjax.UserInputError, match="not the model's coordinates"):
+        diagnose_system(measurement, model)
+
+
+@pytest.mark.slow
+def test_friction_on_mass_two_is_named_on_equation_two_through_the_cli(tmp_path, capsys):
+    from gpjax.cli import main
+
+    _record("chain2_friction_x2", 101).to_csv(tmp_path / "fit.csv")
+    model = gpjax.Model.from_equations(NAMES, "t", ("u",),
+                                       _equations(get_system("chain2").constants), substeps=2)
+    model.save(tmp_path / "model.json")
+    assert main(["diagnose", str(tmp_path / "fit.csv"), "--model", str(tmp_path / "model.json"),
+                 "--time", "t", "--response", "x1", "--response", "x2", "--input", "u",
+                 "--out", str(tmp_path / "d")]) == 0
+    out = capsys.readouterr().out
+    assert "effects added: coulomb_friction on x2 (equation 2)" in out
+    report = json.loads((tmp_path / "d" / "report.json").read_text())
+    assert [(s["effect"], s["equations"]) for s in report["steps"]] == [("coulomb_friction",
+                                                                         [2])]
+    assert report["steps"][0]["test"]["passed"] and report["convergence"]["converged"]
+    found = gpjax.Model.load(tmp_path / "d" / "model.json").system[1]
+    friction = [v for f, v in found.state.items() if f.has(sp.tanh)]
+    truth = get_system("chain2_friction_x2").constants
+    assert friction[0] / found.mass == pytest.approx(truth["F"] / truth["m2"], rel=0.03)
+    assert all(r["noise"]["ratio"] < 1.1 for r in report["residuals"].values())
+    assert (tmp_path / "d" / "report.md").read_text().startswith("# Diagnosis of a system")
