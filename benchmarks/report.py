@@ -399,6 +399,23 @@ def systems_gear() -> str:
     return (_table(["fit"] + columns + ["s"], rows, "lrrrrrrr") + "\n\n" + _stamp(data))
 
 
+def gear_front_door() -> str:
+    data = _load("benchmarks/gear_front_door.json")
+    rows = []
+    for r in sorted(data["rows"], key=lambda r: r["seed"]):
+        if "error" in r:
+            rows.append([r["seed"], "error", *["–"] * 7, r["revision"]])
+            continue
+        e = r["errors"]
+        rows.append([r["seed"], "right" if r["structure_right"] else "WRONG",
+                     *(_signed(e[k]) if k in e else "–"
+                       for k in ("J1/r1", "r1*k_m", "r1*c_m", "J2*r1/r2^2", "T2 coefficient")),
+                     _pct(r["deflection_nrms"]), f"{r['seconds']:.0f}", r["revision"]])
+    return (_table(["seed", "structure", "J1/r1", "r1·k_m", "r1·c_m (both equations)",
+                    "J2·r1/r2²", "T2's −r1/r2", "extrapolation NRMS of s1 − s2", "s",
+                    "revision"], rows, "llrrrrrrrl") + "\n\n" + _stamp(data))
+
+
 def systems_speed() -> str:
     data = _load("benchmarks/systems_speed.json")
     speed = data["speed"]
@@ -655,6 +672,7 @@ TABLES = {
     "systems-chains": systems_chains,
     "systems-front-door": systems_front_door,
     "systems-gear": systems_gear,
+    "gear-front-door": gear_front_door,
     "systems-speed": systems_speed,
     "islands-compare": islands_compare,
     "islands-hard": islands_hard,

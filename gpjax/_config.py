@@ -39,8 +39,10 @@ class GPConfig:
     Attributes:
         population: individuals per generation (paper: 500).
         generations: maximum number of generations, stop rule 1 (paper: 10).
-        epsilon: stop when the best objective f <= epsilon, stop rule 2, eq. 12 (paper: 0.01).
-            f is in the response's units, so epsilon is too.
+        epsilon: stop when the best objective f <= epsilon × f_0, stop rule 2, eq. 12
+            (paper: f <= 0.01 in its record's units); f_0 is the objective of the constant
+            model at the response's mean (:func:`gpjax._objective.stop_objective`), so the
+            rule does not depend on the response's units. 0 turns the rule off.
         p_crossover, p_mutation, p_perturbation, p_reproduction: operator probabilities
             (paper: 0.63 / 0.27 / 0.09 / 0.01); they must sum to 1.
         functions: function set, eq. 1/10; names from ``add, sub, mul, div`` (div is

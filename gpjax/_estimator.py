@@ -28,6 +28,7 @@ from ._evolve import Evolution, RunState, evolution_for
 from ._evaluator import OK
 from ._fitness import Fitness, Record
 from ._model import Model
+from ._objective import stop_objective
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
 from ._select import pareto_front, select
 from ._uncertainty import fitted_uncertainty
@@ -164,7 +165,8 @@ class Identifier:
         (``fitness`` holds every scored record; shared by one-process and island runs)."""
         last = state.history[-1]
         self.stopped_by = ("interrupted" if interrupted else
-                           "epsilon" if last.best_objective <= self.config.epsilon
+                           "epsilon" if last.best_objective <= stop_objective(
+                               fitness.measurement, self.config)
                            else "generations")
         selecting = time.perf_counter()
         self._select(fitness, seed, state)

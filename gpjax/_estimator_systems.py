@@ -40,7 +40,7 @@ def finish_system(identifier, evolution, seed: int, state, *, began: float,
     residuals = residual_statistics(fit.model, measurement)
     history = result.history
     identifier.stopped_by = ("interrupted" if interrupted else
-                             "epsilon" if history[-1]["best_objective"] <= config.epsilon
+                             "epsilon" if history[-1]["best_objective"] <= evolution.stop_objective
                              else "generations")
     identifier.model_ = dataclasses.replace(
         fit.model, uncertainty=fit.uncertainty, convergence=fit.checks[-1].to_json(),

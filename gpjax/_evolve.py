@@ -7,7 +7,8 @@ by one term (memetic step); the next population is the best ``population`` of pa
 offspring ∪ extensions (elitist replacement, repeats of a feature set ranked after all
 distinct ones). In tree mode (``coefficients="tree"``) every new candidate is refined from
 its tree's constants before it competes (see :meth:`Evolution._score`). The run stops after
-``generations`` generations or when the best objective f <= epsilon (eq. 12).
+``generations`` generations or when the best objective f <= epsilon × f_0 (eq. 12,
+:func:`gpjax._objective.stop_objective`).
 
 Selection is a tournament: it depends only on the ranking, so it is unaffected by the
 objective's scale (the paper's f spans the data's units, and invalid candidates carry a
@@ -30,6 +31,7 @@ from ._config import GPConfig
 from ._evaluator import OK
 from ._expressions import parse_expression
 from ._fitness import Fitness, Record, feature_set_key
+from ._objective import stop_objective
 from ._operators import Grammar, crossover, initial_population, mutation, perturbation
 
 
@@ -102,6 +104,7 @@ class Evolution:
     def __init__(self, fitness: Fitness, config: GPConfig):
         self.fitness = fitness
         self.config = config
+        self.stop_objective = stop_objective(fitness.measurement, config)
         self.grammar = Grammar.from_config(config, len(fitness.measurement.inputs))
         self.fresh_columns = self.forcing_columns()
 
@@ -187,7 +190,7 @@ class Evolution:
             unique_structures=len({r.key for r in records if r.valid}),
             seconds=time.perf_counter() - began, best_key=records[best].key))
         state.done = bool(state.generation >= self.config.generations
-                          or objectives[best] <= self.config.epsilon)
+                          or objectives[best] <= self.stop_objective)
 
     def _score(self, trees: list[tuple]) -> None:
         """Score new trees; in tree mode also refine every new valid candidate (Lamarckian;

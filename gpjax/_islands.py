@@ -40,6 +40,7 @@ from ._data import Measurement
 from ._errors import UserInputError
 from ._evolve import GenerationStats, evolution_for
 from ._island_settings import Migration, island_plan, island_seeds
+from ._objective import stop_objective
 from ._report import write_text_atomic
 
 #: Island engines (compiled evaluators) a worker keeps.
@@ -125,10 +126,12 @@ def migrate(results: list[dict], migration: Migration, *, seed: int, epoch: int)
     return states
 
 
-def _finished(states: list[dict | None], config: GPConfig) -> bool:
+def _finished(states: list[dict | None], config: GPConfig, threshold: float) -> bool:
+    """Whether every island has run, and one reached ``threshold`` (the record's
+    :func:`gpjax._objective.stop_objective`) or all ran their generations."""
     if any(s is None for s in states):
         return False
-    reached = any(s["history"][-1]["best_objective"] <= config.epsilon for s in states)
+    reached = any(s["history"][-1]["best_objective"] <= threshold for s in states)
     return reached or all(s["generation"] >= config.generations for s in states)
 
 
@@ -186,6 +189,7 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
     configs, migration = island_plan(config, islands, scheduler=scheduler, migration=migration)
     out = Path(out) if out is not None else None
     fingerprint = measurement.fingerprint()
+    threshold = stop_objective(measurement, config)
     began = time.perf_counter()
     settings = {"migration": dataclasses.asdict(migration)}
     if resume:
@@ -204,7 +208,7 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
                         "evaluator")
         placement: list[str | None] = [None] * islands
         run_id = uuid.uuid4().hex[:8]
-        while not _finished(states, config) and not stop.requested:
+        while not _finished(states, config, threshold) and not stop.requested:
             until = min((epoch + 1) * migration.every, config.generations)
             submitted = time.perf_counter()
             futures = [client.submit(
@@ -220,7 +224,7 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
                       | {"epoch": epoch, "island": i} for i, r in enumerate(results)]
             epoch += 1
             states = [r["state"] for r in results]
-            if not _finished(states, config):
+            if not _finished(states, config, threshold):
                 states = migrate(results, migration, seed=seed, epoch=epoch)
             text = json.dumps({"config": config.to_dict(), "seed": seed, "data": fingerprint,
                                "epoch": epoch, "islands": states} | settings)

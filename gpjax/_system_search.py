@@ -79,6 +79,7 @@ from ._diagnose_acceptance import predictive_test
 from ._evaluator import PENALTY, PopulationEvaluator
 from ._evolve import GenerationStats, RunState
 from ._expressions import parse_expression
+from ._objective import stop_objective
 from ._operators import crossover, initial_population, mutation, perturbation
 from ._system_bank import kinds_for, sign_scales
 from ._system_final import better_fit_p, scaled_residual, width_check, without_insignificant
@@ -143,6 +144,7 @@ class SystemEvolution:
     def __init__(self, measurement: Measurement, config: GPConfig):
         check_system_config(config)
         self.measurement, self.config = measurement, config
+        self.stop_objective = stop_objective(measurement, config)
         weak = SystemWeakForm(measurement)
         kinds = kinds_for(config.functions)
         scales = (sign_scales(measurement.response_names, weak.rms) if "sign" in kinds
@@ -210,7 +212,7 @@ class SystemEvolution:
             time.perf_counter() - began,
             best_key=key_text(keys[best]) if keys[best] is not None else ""))
         state.done = bool(state.generation >= self.config.generations
-                          or fitness[best] <= self.config.epsilon)
+                          or fitness[best] <= self.stop_objective)
         return state
 
     # --- checkpoints and islands -------------------------------------------------------
