@@ -62,7 +62,8 @@ def truth_model(name: str) -> gpjax.Model:
 
 def _run(args: list[str], folder: Path) -> tuple[float, str]:
     began = time.perf_counter()
-    done = subprocess.run(["gpjax", *args], cwd=folder, capture_output=True, text=True)
+    done = subprocess.run([sys.executable, "-m", "gpjax", *args], cwd=folder, capture_output=True,
+                          text=True)
     if done.returncode:
         raise SystemExit(f"gpjax {' '.join(args)} failed:\n{done.stderr[-2000:]}")
     return time.perf_counter() - began, done.stdout
