@@ -49,7 +49,8 @@ def scaled_residual(fit: SystemFit, measurement: Measurement) -> np.ndarray:
 def without_insignificant(key, fit: SystemFit, alpha: float):
     """``key`` without its least significant term where the converged output-error fit's
     Wald test (t = c/se with the interval's degrees of freedom, :mod:`gpjax._uncertainty`)
-    cannot tell its constant from 0 at level ``alpha``, else ``None``. Reason: the
+    cannot tell its constant from 0 at level ``alpha`` (an infinite standard error: the
+    record does not determine it, p = 1), else ``None``. Reason: the
     selection before it runs at the search's step count, whose discretisation error a
     spurious term can absorb (a stiff smoothed sign wants a damping term beside it at one
     RK4 step per sample); only the converged fit says what the record demonstrates.
@@ -63,12 +64,13 @@ def without_insignificant(key, fit: SystemFit, alpha: float):
         terms = {str(f): f for f in key[i][part == "forcing"]}  # the model's names are text
         if part not in ("state", "forcing") or str(feature) not in terms:
             continue
-        se = errors.get(name, math.inf)
-        if not 0 < se < math.inf:
+        se = errors.get(name)
+        if se is None or not se > 0:  # held (no error) or not computed
             continue
         value = float(uncertainty.values[uncertainty.names.index(name)])
         dof = float(uncertainty.dof[uncertainty.names.index(name)])
-        p = 2.0 * float(stats.t.sf(abs(value) / se, dof))
+        # an infinite error: the record does not determine the constant at all (p = 1)
+        p = 2.0 * float(stats.t.sf(abs(value) / se, dof)) if math.isfinite(se) else 1.0
         if p >= largest:
             worst, largest = (i, part == "forcing", terms[str(feature)]), p
     if worst is None:

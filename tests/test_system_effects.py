@@ -104,3 +104,27 @@ def test_friction_on_mass_two_is_named_on_equation_two_through_the_cli(tmp_path,
     assert friction[0] / found.mass == pytest.approx(truth["F"] / truth["m2"], rel=0.03)
     assert all(r["noise"]["ratio"] < 1.1 for r in report["residuals"].values())
     assert (tmp_path / "d" / "report.md").read_text().startswith("# Diagnosis of a system")
+
+
+def test_a_constant_the_record_does_not_determine_is_dropped_first():
+    """An infinite standard error (a held-out seed of a 2-mass chain kept a constant force
+    in equation 1 with ± inf) is p = 1: the least significant term, removed first."""
+    from types import SimpleNamespace
+
+    import numpy as np
+
+    from gpjax._system_final import without_insignificant
+
+    one = sp.Integer(1)
+    key = (((V1, X1), (U, one)), ((V2,), ()))
+    names = {"x1.c1": (0, "state", V1), "x1.k1": (0, "state", X1),
+             "x1.g1": (0, "forcing", one), "x2.c1": (1, "state", V2)}
+    uncertainty = SimpleNamespace(
+        names=list(names), values=np.array([0.6, 40.0, 7e-4, 0.8]),
+        dof=np.array([900.0, 900.0, 1.0, 900.0]),
+        standard_errors={"x1.c1": 0.01, "x1.k1": 0.05, "x1.g1": float("inf"), "x2.c1": 0.3})
+    fit = SimpleNamespace(uncertainty=uncertainty,
+                          model=SimpleNamespace(constant_names=lambda: names))
+    assert without_insignificant(key, fit, 0.05) == (((V1, X1), (U,)), ((V2,), ()))
+    uncertainty.standard_errors["x1.g1"] = 1e-5  # now determined and significant
+    assert without_insignificant(key, fit, 0.05) is None  # every term demonstrated
