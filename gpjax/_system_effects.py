@@ -71,7 +71,6 @@ from ._report import write_text_atomic
 from ._system_diagnose import residual_statistics, summary_line
 from ._system_final import better_fit_p
 from ._system_fit import SystemFit, SystemWeakForm, fit_system
-from ._weak_form import smoothed_derivatives
 
 #: Placeholder symbol of a relative coordinate while an effect builds its terms.
 _RELATIVE = "gpjax_relative"
@@ -289,10 +288,12 @@ def _candidates(key, weak: SystemWeakForm, train: Measurement,
     names = train.response_names
     variables = system_variables(names)
     scales = sign_scales(names, weak.rms).reshape(len(names), -1)
-    smooth = [smoothed_derivatives(train.coordinate(d)) for d in range(len(names))]
-    places = [(names[i], (i,), smooth[i].x, smooth[i].x_dot) for i in range(len(names))]
-    places += [(f"{names[i]} - {names[j]}", (i, j), smooth[i].x - smooth[j].x,
-                smooth[i].x_dot - smooth[j].x_dot)
+    x = [sp.Symbol(n) for n in names]
+    v = [sp.Symbol(f"{n}_dot") for n in names]
+    places = [(names[i], (i,), weak.values(x[i]), weak.values(v[i]))
+              for i in range(len(names))]
+    places += [(f"{names[i]} - {names[j]}", (i, j), weak.values(x[i] - x[j]),
+                weak.values(v[i] - v[j]))
                for i in range(len(names)) for j in range(i + 1, len(names))]
     out = []
     for where, equations, x, x_dot in places:
