@@ -113,8 +113,8 @@ def check_tree(tree: Tree, symbols: Symbols, constants: dict[str, float], *,
     subtrees), so a new tree costs the work along its changed path.
     """
     value = _expanded(tree, symbols, tuple(sorted(constants.items())))
-    if isinstance(value, sp.Expr):
-        return check_structure(value, symbols, max_degree=max_degree, bank=bank)
+    if isinstance(value, sp.Expr):  # already expanded: not expanded again (idempotent)
+        return _check_expanded(value, symbols, max_degree, bank)
     terms = tuple((float(c), _monomial(symbols, exponents)) for exponents, c in value.terms())
     return _check_terms(terms, symbols, max_degree, bank)
 
@@ -221,7 +221,13 @@ def _check(expression: sp.Expr, symbols: Symbols, max_degree: int | None,
     unknown = expression.free_symbols - known
     if unknown:
         return StructureCheck(False, f"unknown symbol {sorted(map(str, unknown))[0]}")
-    expanded = sp.expand(expression)
+    return _check_expanded(sp.expand(expression), symbols, max_degree, bank)
+
+
+@lru_cache(maxsize=200_000)
+def _check_expanded(expanded: sp.Expr, symbols: Symbols, max_degree: int | None,
+                    bank: bool) -> StructureCheck:
+    """:func:`_check` of an expression that is already expanded, in known symbols."""
     if expanded.has(sp.zoo, sp.oo, -sp.oo, sp.nan):
         return StructureCheck(False, "the expression is not finite")
     terms = []

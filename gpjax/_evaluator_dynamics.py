@@ -227,7 +227,8 @@ class Dynamics:
                 value, slope_x, slope_v, family_explicit = family_pass(x[0], v[0])
                 a = a - value * inverse_mass
                 r_x, r_v = [r_x[0] + slope_x], [r_v[0] + slope_v]
-                explicit = explicit - family_explicit[:, None]
+                if family_explicit is not None:
+                    explicit = explicit - family_explicit[:, None]
             if d_restoring is not None:
                 explicit = explicit - d_restoring(x, v, t)
             if d_mass is not None:
@@ -269,66 +270,70 @@ class Dynamics:
     def _family_sum(self, bank, inner):
         """``terms(x, v)``: Σ c·g over the families for coefficients ``bank``
         (:meth:`_bank_columns`, (F, ..., P)) and inner constants ``inner`` (P, F_inner),
-        one ``lax.switch`` per family the call's models use (:func:`_used_first`)."""
-        thetas = [inner[..., slots] for slots in self._inner_slots]  # sliced outside the scan
+        one ``lax.switch`` per family the call's models use (:func:`_used_first`). Each
+        branch takes the running sum and the whole arrays and returns the sum with its
+        family's term added (fewer buffers per dispatch than returning the term)."""
         order, count = _used_first(bank)
 
-        def branch(family, c, theta):
-            return lambda x, v: c * family(x if family.role == "x" else v, theta)
+        def branch(k, family, slots):
+            def add(total, x, v, bank, inner):
+                return total + bank[k] * family(x if family.role == "x" else v,
+                                                inner[..., slots])
 
-        branches = [branch(*p) for p in zip(self.families, bank, thetas)]
+            return add
+
+        branches = [branch(k, *p) for k, p in enumerate(zip(self.families, self._inner_slots))]
 
         def terms(x, v):
             zero = jnp.zeros(jnp.broadcast_shapes(bank.shape[1:], x.shape))
-            return jax.lax.fori_loop(
-                0, count, lambda i, total: total + jax.lax.switch(order[i], branches, x, v),
-                zero)
+            return jax.lax.fori_loop(0, count, lambda i, total: jax.lax.switch(
+                order[i], branches, total, x, v, bank, inner), zero)
 
         return terms
 
     def _family_pass(self, state, inner, d_state, d_inner, count: int):
         """``terms(x, v)`` for one coordinate: Σ c·g over the families (g at the clipped
         state, as :meth:`_acceleration_fn` takes it), its slopes by x and by x' ((P,)
-        each), and along each of the ``count`` directions Σ (dc·g + c·∂g/∂θ·dθ) ((Q, P)).
+        each), and along each of the ``count`` directions Σ (dc·g + c·∂g/∂θ·dθ) ((Q, P);
+        ``None`` where the directions move no constant, as in the initial-state step).
         One ``lax.switch`` per family that the call's models or its directions use
-        (:func:`_used_first`)."""
+        (:func:`_used_first`); each branch adds its family to the running sums."""
         bank = self._bank_columns(state)  # (F, P)
         d_bank = None if d_state is None else self._bank_columns(d_state)  # (F, Q, P)
         order, used = _used_first(bank if d_bank is None else
                                   jnp.concatenate([bank[:, None], d_bank], axis=1))
         bx, bv = self.record.bounds[0, 0], self.record.bounds[0, 1]
+        directed = d_bank is not None or d_inner is not None
 
         def branch(k, family, slots):
-            c, theta = bank[k], inner[..., slots]
-            dc = None if d_bank is None else d_bank[k]
-            d_theta = (None if d_inner is None or slots.stop == slots.start
-                       else d_inner[..., slots])
-
-            def on(x, v):
+            def add(sums, x, v, bank, inner, d_bank, d_inner):
+                value, slope_x, slope_v, moved = sums
+                c, theta = bank[k], inner[..., slots]
                 z = x if family.role == "x" else v
                 g, g_z = jax.jvp(lambda z: family(z, theta), (z,), (jnp.ones_like(z),))
-                moved = jnp.zeros((count,) + z.shape)
-                if dc is not None:
-                    moved = moved + dc * g
-                if d_theta is not None:
+                if d_bank is not None:
+                    moved = moved + d_bank[k] * g
+                if d_inner is not None and slots.stop > slots.start:
                     moved = moved + c * jax.vmap(lambda d: jax.jvp(
-                        lambda th: family(z, th), (theta,), (d,))[1])(d_theta)
-                zero = jnp.zeros_like(z)
-                slope = c * g_z
-                return (c * g, *((slope, zero) if family.role == "x" else (zero, slope)),
-                        moved)
+                        lambda th: family(z, th), (theta,), (d,))[1])(d_inner[..., slots])
+                if family.role == "x":
+                    slope_x = slope_x + c * g_z
+                else:
+                    slope_v = slope_v + c * g_z
+                return value + c * g, slope_x, slope_v, moved
 
-            return on
+            return add
 
-        branches = [branch(k, family, slots) for k, (family, slots)
-                    in enumerate(zip(self.families, self._inner_slots))]
+        branches = [branch(k, *p) for k, p in enumerate(zip(self.families, self._inner_slots))]
 
         def terms(x, v):
             x, v = jnp.clip(x, -bx, bx), jnp.clip(v, -bv, bv)
             zero = jnp.zeros_like(x)
-            start = (zero, zero, zero, jnp.zeros((count,) + x.shape))
-            return jax.lax.fori_loop(0, used, lambda i, sums: tuple(
-                a + b for a, b in zip(sums, jax.lax.switch(order[i], branches, x, v))), start)
+            start = (zero, zero, zero, jnp.zeros(((count if directed else 0),) + x.shape))
+            value, slope_x, slope_v, moved = jax.lax.fori_loop(
+                0, used, lambda i, sums: jax.lax.switch(order[i], branches, sums, x, v, bank,
+                                                        inner, d_bank, d_inner), start)
+            return value, slope_x, slope_v, moved if directed else None
 
         return terms
 

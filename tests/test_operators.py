@@ -1,4 +1,5 @@
 import numpy as np
+import pytest
 from hypothesis import given, settings, strategies as st
 
 from gpjax import GPConfig, Symbols, check_structure
@@ -75,17 +76,23 @@ def test_equivalent_expressions_share_one_canonical_form(a, b, power):
     assert c1.valid and c2.valid and c1.canonical == c2.canonical
 
 
+@pytest.mark.parametrize("functions", [("add", "sub", "mul", "div"),
+                                       ("add", "sub", "mul", "div", "sin", "abs", "sign",
+                                        "tanh", "exp")])
 @settings(max_examples=30, deadline=None)
 @given(st.integers(0, 2**32 - 1))
-def test_tree_check_on_polynomials_agrees_with_the_expression_check(seed):
-    """check_tree (ring arithmetic, term by term) decides like check_structure on the
-    expanded expression, with and without division in the tree."""
-    config = GPConfig.paper(max_depth=5, max_size=25, functions=("add", "sub", "mul", "div"))
+def test_tree_check_agrees_with_the_expression_check(functions, seed):
+    """check_tree (ring arithmetic term by term; a subtree with a division or a unary
+    function expanded once, not again as a whole) decides like check_structure on the
+    expression, with and without division in the tree and with the wide function set."""
+    bank = "sin" in functions
+    config = GPConfig.paper(max_depth=5, max_size=25, functions=functions)
     grammar = Grammar.from_config(config, n_inputs=1)
     rng = np.random.default_rng(seed)
     for tree in initial_population(grammar, rng, 20, (2, 4)):
-        fast = check_tree(tree, S, config.named_constants, max_degree=3)
-        slow = check_structure(tree_to_sympy(tree, S, config.named_constants), S, max_degree=3)
+        fast = check_tree(tree, S, config.named_constants, max_degree=3, bank=bank)
+        slow = check_structure(tree_to_sympy(tree, S, config.named_constants), S, max_degree=3,
+                               bank=bank)
         assert fast.valid == slow.valid, (tree, fast.reason, slow.reason)
         if fast.valid:
             for (f1, c1), (f2, c2) in zip(fast.canonical.state + fast.canonical.forcing,
