@@ -137,34 +137,12 @@ class SystemTerms:
         return partials
 
     def _fitted_initial_conditions(self, mass, state, forcing_matrix, y0, inner):
-        """One Gauss–Newton step on the initial states per model; the sensitivities to
-        them come from the variational equations in the same scan (:meth:`scan_jvp`).
-        For D > 1 the residuals are weighted as in the objective (:attr:`weights`)."""
-        count = self.n_coordinates
-        if count > 1:
-            return self._system_initial_conditions(mass, state, forcing_matrix, y0, inner)
-        directions = jnp.broadcast_to(jnp.eye(2 * count).reshape(
-            (2 * count,) + y0.shape[1:])[:, None], (2 * count,) + y0.shape)
-        base, sensitivity = self.scan_jvp(mass, state, forcing_matrix, y0, directions,
-                                          inner=inner)
-        measured = self.record.responses[:, :1]
-        valid = self.record.valid[:, None] > 0  # the padding takes no part (gpjax._record)
-        sx, sv = (jnp.where(valid, s, 0.0) for s in (sensitivity[:, 0], sensitivity[:, 1]))
-        residual = jnp.where(valid, measured - base, 0.0)
-        a11, a12, a22 = jnp.sum(sx * sx, 0), jnp.sum(sx * sv, 0), jnp.sum(sv * sv, 0)
-        b1, b2 = jnp.sum(sx * residual, 0), jnp.sum(sv * residual, 0)
-        det = a11 * a22 - a12 ** 2
-        usable = jnp.isfinite(det) & (det > 1e-12 * a11 * a22) & jnp.isfinite(b1 + b2)
-        safe = jnp.where(usable, det, 1.0)
-        delta = jnp.stack([(a22 * b1 - a12 * b2) / safe, (a11 * b2 - a12 * b1) / safe], axis=1)
-        return jnp.where(usable[:, None], y0 + delta, y0)
-
-    def _system_initial_conditions(self, mass, state, forcing_matrix, y0, inner):
         """(P, D, 2) initial states after one Gauss–Newton step of every model's (x0, x0')
-        per coordinate, residuals weighted per coordinate as in the objective. The normal
-        equations SᵀS, Sᵀr are summed inside the scan that integrates the sensitivities
-        (:meth:`scan_jvp`'s ``fold``): the (N, D, 2D, P) sensitivities are never written,
-        which was half the step's time (P = 500, D = 2)."""
+        per coordinate (D = 1: (P, 2)), residuals weighted per coordinate as in the
+        objective. The normal equations SᵀS, Sᵀr are summed inside the scan that
+        integrates the sensitivities (:meth:`scan_jvp`'s ``fold``): the (N, D, 2D, P)
+        sensitivities are never written, which was half the step's time (P = 500, D = 2)
+        and a fifth of a family model's evaluation for D = 1."""
         count, substeps = self.n_coordinates, self.substeps
         q = 2 * count
         directions = jnp.broadcast_to(jnp.eye(q).reshape((q,) + y0.shape[1:])[:, None],
