@@ -5,9 +5,9 @@ integrators and the variational equations.
 Two integrators run the same RK4 tableau on the same stage grid: ``"scan"`` (default), a
 hand-written step in ``lax.scan`` over (x, x') arrays of shape (P,) with Horner-form
 polynomials, and ``"diffrax"`` (:class:`RK4`, one ``diffeqsolve`` of the (P, 2) state).
-They agree to rounding; the scan step has none of diffrax's per-step bookkeeping and is
-~1.4× faster on CPU (``benchmarks/bench_population.py`` measures both;
-:mod:`gpjax._integrate`). Arrays inside carry a coordinate axis of length D (inserted for
+They agree to rounding; the scan step has none of diffrax's per-step bookkeeping: about
+as fast on the CPU, several times faster on a GPU (``benchmarks/bench_population.py``
+measures both; :mod:`gpjax._integrate`). Arrays inside carry a coordinate axis of length D (inserted for
 one coordinate, :meth:`Dynamics._internal`).
 """
 
