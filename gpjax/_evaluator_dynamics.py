@@ -7,8 +7,8 @@ hand-written step in ``lax.scan`` over (x, x') arrays of shape (P,) with Horner-
 polynomials, and ``"diffrax"`` (:class:`RK4`, one ``diffeqsolve`` of the (P, 2) state).
 They agree to rounding; the scan step has none of diffrax's per-step bookkeeping: about
 as fast on the CPU, several times faster on a GPU (``benchmarks/bench_population.py``
-measures both; :mod:`gpjax._integrate`). Arrays inside carry a coordinate axis of length D (inserted for
-one coordinate, :meth:`Dynamics._internal`).
+measures both; :mod:`gpjax._integrate`). Arrays inside carry a coordinate axis of length
+D (inserted for one coordinate, :meth:`Dynamics._internal`).
 """
 
 from __future__ import annotations
