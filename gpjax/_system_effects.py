@@ -288,12 +288,12 @@ def _candidates(key, weak: SystemWeakForm, train: Measurement,
     names = train.response_names
     variables = system_variables(names)
     scales = sign_scales(names, weak.rms).reshape(len(names), -1)
-    x = [sp.Symbol(n) for n in names]
-    v = [sp.Symbol(f"{n}_dot") for n in names]
-    places = [(names[i], (i,), weak.values(x[i]), weak.values(v[i]))
+    positions = [row[0] for row in variables]  # x_i, x_i' as system_variables names them
+    velocities = [row[len(names)] for row in variables]
+    places = [(names[i], (i,), weak.values(positions[i]), weak.values(velocities[i]))
               for i in range(len(names))]
-    places += [(f"{names[i]} - {names[j]}", (i, j), weak.values(x[i] - x[j]),
-                weak.values(v[i] - v[j]))
+    places += [(f"{names[i]} - {names[j]}", (i, j), weak.values(positions[i] - positions[j]),
+                weak.values(velocities[i] - velocities[j]))
                for i in range(len(names)) for j in range(i + 1, len(names))]
     out = []
     for where, equations, x, x_dot in places:
