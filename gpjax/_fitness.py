@@ -363,17 +363,13 @@ class Fitness:
         self.refine(copies)
         return copies
 
-    def refine(self, records: list[Record], *, to_convergence: bool = False,
-               spare: list[Record] = ()) -> None:
+    def refine(self, records: list[Record], *, to_convergence: bool = False) -> None:
         """Refine the constants of ``records`` (in place) on the simulated response: one
         round of ``refine_iterations`` Levenberg–Marquardt steps from the least-squares
         start; with ``to_convergence`` further rounds, each from the last constants, until a
         round lowers the objective by less than :data:`CONVERGED` (relative), at most
-        :data:`MAX_ROUNDS` rounds in all. ``spare``: records a caller may refine next, in
-        that order; the first round also refines those that fit in its compiled calls'
-        padding (:meth:`_padding_fill`), a head start that costs nothing."""
-        due = [r for r in records if r.valid and not r.refined]
-        self._refine_round(due + self._padding_fill(due, spare))
+        :data:`MAX_ROUNDS` rounds in all."""
+        self._refine_round([r for r in records if r.valid and not r.refined])
         if not to_convergence:
             return
         pending = [r for r in records if r.valid and r.status == OK and not r.converged]
@@ -387,29 +383,6 @@ class Fitness:
             pending = [r for r in pending if not r.converged]
         for record in pending:
             record.converged = True  # MAX_ROUNDS reached: not refined again
-
-    def _padding_fill(self, due: list[Record], spare: list[Record]) -> list[Record]:
-        """The records of ``spare`` (valid, unrefined, in order) that take rows of ``due``'s
-        refinement calls that would otherwise repeat a model: every call is padded to the
-        refiner's batch, one layout (with families or without) at a time, so a layout's
-        call with free rows refines a spare model of that layout at no cost (a call of one
-        model costs about as much as a full one: 1.1 s against 2.2 s for eight models with
-        families, 8,000 samples). The refinement of a model does not depend on the others
-        of its call, so the outcome is that of refining it later."""
-        taken = {r.key for r in due}
-        spare = [r for r in dict((r.key, r) for r in spare).values()
-                 if r.valid and not r.refined and r.key not in taken]
-        if not due or not spare or self.refiner.batch == 1:
-            return []
-        counts = {}
-        for plain in self.evaluator.plain_rows(self.population(due)):
-            counts[plain] = counts.get(plain, 0) + 1
-        fill = []
-        for record, plain in zip(spare, self.evaluator.plain_rows(self.population(spare))):
-            if counts.get(plain, 0) % self.refiner.batch:
-                counts[plain] += 1
-                fill.append(record)
-        return fill
 
     def _refine_round(self, records: list[Record]) -> None:
         """One refinement of ``records`` from their current constants; a record keeps them

@@ -55,14 +55,6 @@ JACOBIANS = ("variational", "autodiff")
 #: ``lm_floor`` in benchmarks/bench_population.py). Constants are scaled by their start
 #: values, so JᵀJ stays well conditioned.
 LINEAR_SOLVER = lx.Normal(lx.LU())
-#: Levenberg–Marquardt stops once a step moves every constant by less than this fraction
-#: of its start value (the solver's constants are scaled by them) and the loss (½ Σ of the
-#: squared residuals over the response's standard deviation) by less than this, relative
-#: and absolute: constants converged far below their standard errors (5e-4 of the value
-#: and more on the 8,000-sample records of ``benchmarks/new_record.json``). At 1e-9 most
-#: models ran all ``iterations`` steps, and a refinement of one model took 1.4–2× as long
-#: for the same objective to four digits (pendulum record, generation 0's models).
-TOLERANCE = 1e-6
 #: Default models per compiled refinement call and free constants per model.
 BATCH, MAX_FREE = 8, 8
 
@@ -326,8 +318,7 @@ class Refiner(CompileFigures):
         # The normal equations need Jᵀ: a matrix with the variational Jacobian, but autodiff
         # through a while loop (diffrax) cannot be transposed, so that path keeps QR.
         linear_solver = LINEAR_SOLVER if self.jacobian == "variational" else lx.QR()
-        solver = optx.LevenbergMarquardt(rtol=TOLERANCE, atol=TOLERANCE,
-                                         linear_solver=linear_solver)
+        solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-9, linear_solver=linear_solver)
         delta = jnp.zeros(moves[0].shape)
         ok, steps = jnp.array(True), jnp.array(0)
         for samples, limit in zip(self.horizon_samples, limits):

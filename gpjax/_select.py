@@ -71,12 +71,9 @@ walk goes to the simplest model the test cannot reject. A forward move passes a 
 the way back fails (p·m < α implies p < α) and no model is visited twice, so it ends.
 Neighbours are refined as the test reaches them, one complexity at a time while simpler
 than the current model, then the rest together: a step that takes a simpler neighbour
-refines none more complex than it, except where a refinement call would otherwise pad its
-batch with copies of a model (the next simpler neighbours take those rows,
-:meth:`Fitness.refine`'s ``spare``: free, since a call costs nearly as much with one model
-as with eight). Order and outcome are those of refining all first; the cost is not
-(saturating spring, suite seed 3: 173 models refined in the whole fit instead of 1,088;
-``benchmarks/select_cost.json``).
+refines none more complex than it. Order and outcome are those of refining all first; the
+cost is not (saturating spring, suite seed 3: 173 models refined in the whole fit instead
+of 1,088; ``benchmarks/select_cost.json``).
 
 **Converged constants before a walk ends.** Neighbours are refined one round
 (``refine_iterations`` Levenberg–Marquardt steps from their least-squares start), enough
@@ -277,14 +274,13 @@ def _first_replacing(fitness: Fitness, simpler: list[Record], rest, current: Rec
     replaces it). Candidates whose objective is below ``refine_below`` are refined as the
     test reaches them: one complexity at a time while simpler than ``current``, then all
     the others together (the Bonferroni count needs them all), so none more complex than
-    the one taken is refined (but for the free rows of a padded call, which take the next
-    simpler ones) — the order and the outcome are those of refining all first."""
+    the one taken is refined — the order and the outcome are those of refining all
+    first."""
     levels = sorted({r.complexity for r in simpler})
     groups = [[r for r in simpler if r.complexity == c] for c in levels] + [rest]
-    for index, group in enumerate(groups):
+    for group in groups:
         group = group() if callable(group) else group
-        later = [r for g in groups[index + 1:-1] for r in g if r.objective <= refine_below]
-        fitness.refine([r for r in group if r.objective <= refine_below], spare=later)
+        fitness.refine([r for r in group if r.objective <= refine_below])
         ready = sorted((r for r in group if r.valid and r.status == OK),
                        key=lambda r: (r.complexity, r.objective))
         peers = sum(r.complexity >= current.complexity for r in ready)

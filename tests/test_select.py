@@ -307,26 +307,3 @@ def test_the_walk_keeps_a_viscous_term_beside_a_smooth_friction_law():
     law, = [f for f in state if f.func == sp.tanh]
     assert set(state) == {X, V, law}, [r.key for r in path]
     assert state[V] / chosen.coefficients.mass == pytest.approx(0.75, rel=0.1)
-
-
-@pytest.mark.slow  # ~30 s (two compiled refinement layouts): the CI slow step keeps it
-def test_spare_models_take_a_refinement_calls_padding_and_refine_as_on_their_own():
-    """Fitness.refine's ``spare`` models fill the rows that its call would pad with copies,
-    of the same layout only (a model with a family would need a call of its own), and
-    their constants are those they get when refined alone."""
-    import copy
-
-    fitness = _fitness("duffing")
-    shapes = {"due": {X: 2400.0, V: 2.0}, "cubic": {X: 2400.0, X ** 3: 300.0, V: 2.0},
-              "sine": {_sin(1.0, 0.0): 2400.0, V: 2.0}, "square": {X: 2400.0, X ** 2: 5.0, V: 2.0}}
-    forms = {key: CanonicalForm(mass=1.0, state=tuple(state.items()), forcing=((U, 1.0),))
-             for key, state in shapes.items()}
-    fitness.score_forms(forms)
-    records = {key: fitness.records[key] for key in forms}
-    alone = copy.deepcopy(records)
-    fitness.refine([records["due"]], spare=[records["cubic"], records["sine"], records["square"]])
-    assert [records[k].refined for k in shapes] == [True, True, False, True]
-    for key in ("due", "cubic", "square"):
-        fitness.refine([alone[key]])
-        assert records[key].objective == alone[key].objective
-        assert records[key].coefficients.state == alone[key].coefficients.state
