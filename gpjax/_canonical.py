@@ -176,7 +176,10 @@ def _unary(name: str, a: sp.Expr) -> sp.Expr:
     function = {"sin": sp.sin, "cos": sp.cos, "tanh": sp.tanh, "exp": sp.exp, "sinh": sp.sinh,
                 "cosh": sp.cosh, "abs": sp.Abs,
                 "sign": sp.sign, "sqrt": lambda z: sp.sqrt(sp.Abs(z))}[name]
-    out = sp.expand(function(a))
+    try:
+        out = sp.expand(function(a))
+    except OverflowError:  # a constant beyond mpmath's range: exp(exp(exp(977))) from GP
+        return sp.zoo
     # the variables are real signals: sympy's re(z), from |exp(z)| = exp(re z), is z
     return sp.expand(out.replace(sp.re, lambda z: z)) if out.has(sp.re) else out
 

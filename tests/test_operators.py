@@ -99,3 +99,13 @@ def test_tree_check_agrees_with_the_expression_check(functions, seed):
                                           slow.canonical.state + slow.canonical.forcing):
                 assert f1 == f2 and np.isclose(c1, c2, rtol=1e-12)
             assert np.isclose(fast.canonical.mass, slow.canonical.mass, rtol=1e-12)
+
+
+def test_a_constant_beyond_floating_range_makes_a_tree_invalid_not_a_crash():
+    """exp(exp(exp(977.6))) (a tree the wide set's initial population wrote, seed 288 of
+    the test above) overflows mpmath when sympy evaluates it: the check reports the tree
+    as not finite instead of raising."""
+    tree = ("add", ("mul", ("k", "k1", 2.0), ("x_ddot",)),
+            ("mul", ("exp", ("exp", ("exp", ("k", "k2", 977.637010629853)))), ("x",)))
+    check = check_tree(tree, S, {}, max_degree=3, bank=True)
+    assert not check.valid and "not finite" in check.reason
