@@ -5,6 +5,7 @@ import dataclasses
 import math
 
 import numpy as np
+import pytest
 from scipy.linalg import expm
 
 from gpjax import Model, Symbols
@@ -42,6 +43,7 @@ def test_reference_solve_matches_the_exact_solution_of_a_held_input():
     assert np.max(np.abs(x - record.response)) < 1e-9 * np.ptp(record.response)
 
 
+@pytest.mark.slow  # ~17 s on 2 cores: the fast tier stays within 5 minutes
 def test_rk4_converges_to_the_reference_at_fourth_order_for_every_input_reconstruction():
     record = _held_record()
     for interpolation in ("hold", "linear", "bandlimited"):

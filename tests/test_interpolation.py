@@ -171,6 +171,7 @@ def test_hold_refuses_the_diffrax_integrator():
                             integrator="diffrax")
 
 
+@pytest.mark.slow  # ~17 s on 2 cores: the fast tier stays within 5 minutes
 def test_refiner_recovers_a_held_oscillator():
     """Levenberg–Marquardt over the split rows (variational Jacobian, also on the shorter
     first horizon) recovers constants started 5 % off from the exact samples; the Jacobian
