@@ -174,6 +174,7 @@ class Identifier:
         fits = [fitness]  # the search's, then each refit's (every one compiles its own)
         fitness = self._converge(fitness, seed, state, fits)
         self._set_uncertainty(fitness)
+        self._set_residuals()
         writing = time.perf_counter()
         if out is not None:
             self._write(out, fitness)
@@ -182,7 +183,7 @@ class Identifier:
         self.timings_ = {"total_s": ended - began,
                          "search_s": selecting - began,
                          "selection_s": converging - selecting,
-                         "convergence_s": writing - converging,  # and the uncertainty
+                         "convergence_s": writing - converging,  # uncertainty, residuals
                          "writing_s": ended - writing,
                          "compile_s": sum(f.evaluator.compile_seconds + f.refiner.compile_seconds
                                           for f in fits),
@@ -323,6 +324,22 @@ class Identifier:
         self._equation_models[row] = self.model_
         self.equations_[row] = _row(self._chosen, self.model_, self._chosen)
 
+    def _set_residuals(self) -> None:
+        """Give the reported model the statistics of its residual against the noise floor
+        (:func:`gpjax._system_diagnose.residual_statistics`, as several coordinates get
+        them), from the reference solve where the convergence check covered the whole
+        record, else from the converged RK4 response."""
+        from ._system_diagnose import residual_statistics
+
+        if self._reference.size != self.measurement_.n_samples:
+            self._reference = self.simulate(solver="rk4")  # converged: checked on a window
+        residuals = residual_statistics(self.model_, self.measurement_,
+                                        simulated=self._reference)
+        row = [r.key for r in self._front].index(self._chosen.key)
+        self.model_ = dataclasses.replace(
+            self.model_, metrics=self.model_.metrics | {"residuals": residuals})
+        self._equation_models[row] = self.model_
+
     def _select(self, fitness: Fitness, seed: int, state: RunState) -> None:
         valid = [r for r in fitness.records.values() if r.valid and r.status == OK]
         if not valid:
@@ -379,8 +396,7 @@ class Identifier:
         write_text_atomic(out / "equations.json", json.dumps(
             [m.to_json() for m in self._equation_models], indent=1) + "\n")
         write_text_atomic(out / "config.json", json.dumps(self.config.to_dict(), indent=2) + "\n")
-        calculated = (self._reference if self._reference.size == self.measurement_.n_samples
-                      else self.simulate(solver="rk4"))  # converged: checked on a window
+        calculated = self._reference  # the whole record's (:meth:`_set_residuals`)
         m = self.model_.metrics
         title = (f"{self.model_}\nRMS = {m['rms']:.4g}, f = {m['objective']:.4g} "
                  f"(f_time {m['f_time']:.4g} + f_freq {m['f_freq']:.4g})")

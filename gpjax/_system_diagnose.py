@@ -28,8 +28,9 @@ def residual_statistics(model: Model, measurement: Measurement, *, alpha: float 
                         simulated: np.ndarray | None = None) -> dict[str, dict]:
     """Per coordinate name: ``rms`` (response units), ``nrms``, ``noise`` (the noise floor's
     ``sigma``, ``ratio`` = RMS/σ̂, ``band_hz``, ``p_excess``; ``None`` on a record too
-    short for it; all ``None`` where the model diverges on the record) and ``unexplained`` (the residual described, or ``None`` where it is
-    not far above its noise). ``simulated``: the model's (N, D) response if already
+    short for it; all ``None`` where the model diverges on the record) and ``unexplained``
+    (the residual described, or ``None`` where it is not far above its noise).
+    ``simulated``: the model's (N, D) response (D = 1: also (N,)) if already
     computed (default: :meth:`Model.simulate` from the fitted initial states, reference
     solve).
 
@@ -41,6 +42,7 @@ def residual_statistics(model: Model, measurement: Measurement, *, alpha: float 
                          f"the model's coordinates {list(model.coordinates)}")
     simulated = (model.simulate(measurement, initial_conditions=model.initial_states)
                  if simulated is None else simulated)
+    simulated = np.reshape(simulated, (measurement.n_samples, model.n_coordinates))
     lines = input_lines(measurement) if measurement.inputs else []
     out = {}
     for d, name in enumerate(model.coordinates):
@@ -61,15 +63,16 @@ def residual_statistics(model: Model, measurement: Measurement, *, alpha: float 
     return out
 
 
-#: What to do where a coordinate's residual is far above its noise or the system diverges.
-HINT = ("the system misses physics or diverges: raise --population and --generations, or "
-        "widen --functions (several coordinates take add,sub,mul,sign,tanh,abs,sin,cos)")
+#: What to do where a coordinate's residual is far above its noise or the model diverges.
+HINT = ("the model misses physics or diverges: widen --functions (e.g. "
+        "add,sub,mul,sin,abs,sign,tanh,exp), raise --population and --generations, or add "
+        "--diagnose to name the missing effect")
 
 
 def summary_line(name: str, statistics: dict) -> str:
     """One line of a coordinate's residual statistics for the terminal."""
     if statistics["rms"] is None:
-        return f"  residual of {name}: the fitted system diverges on its record  <- {HINT}"
+        return f"  residual of {name}: the fitted model diverges on its record  <- {HINT}"
     floor = statistics["noise"]
     noise = ("noise floor not estimable (record too short)" if floor is None else
              f"{floor['ratio']:.2f}× its noise floor σ̂ = {floor['sigma']:.3g} "

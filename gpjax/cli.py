@@ -208,6 +208,7 @@ def _demo(args) -> int:
     constants = identifier.model_.constants()
     structure = sorted(identifier.model_.state), sorted(identifier.model_.forcing)
     print(identifier)
+    _print_residuals(identifier.model_)
     print(f"\nTruth (bundled generator): J = {truth['J']}, K1 = {truth['K1']}, K2 = {truth['K2']}")
     if structure == (["phi", "phi**2"], ["T"]):
         for name, key in (("J", "m"), ("K1", "k1"), ("K2", "k2")):
@@ -275,24 +276,28 @@ def _fit(args) -> int:
     identifier = _run(config, measurement, args.seed, Path(args.out), resume=args.resume,
                       **islands)
     print(identifier)
-    if several:
-        from ._system_diagnose import HINT, summary_line, width_line
-
-        print("Residuals per coordinate (reference solve):")
-        residuals = identifier.model_.metrics["residuals"]
-        for name, statistics in residuals.items():
-            print(summary_line(name, statistics))
-        if any(s["unexplained"] is not None for s in residuals.values()):
-            print(f"  hint: {HINT}")
-        width = identifier.model_.metrics.get("sign_width")
-        if width:
-            print(width_line(width))
+    _print_residuals(identifier.model_)
     _timings(identifier, args.out)
     if identifier.stopped_by == "interrupted":
         return 130
     if args.diagnose:
         _run_diagnosis(args, measurement, identifier.model_, Path(args.out) / "diagnosis")
     return 0
+
+
+def _print_residuals(model) -> None:
+    """Each coordinate's residual against its noise floor, and a system's sign-width check."""
+    from ._system_diagnose import HINT, summary_line, width_line
+
+    print("Residuals per coordinate (reference solve):")
+    residuals = model.metrics["residuals"]
+    for name, statistics in residuals.items():
+        print(summary_line(name, statistics))
+    if any(s["unexplained"] is not None for s in residuals.values()):
+        print(f"  hint: {HINT}")
+    width = model.metrics.get("sign_width")
+    if width:
+        print(width_line(width))
 
 
 def _check_diagnose_options(args) -> None:

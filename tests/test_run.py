@@ -98,6 +98,7 @@ def test_loader_and_reload_of_a_run(tmp_path):
     assert again.model_ == identifier.model_
     assert str(again).splitlines()[0] == str(identifier).splitlines()[0]
     assert identifier.score() > 0.9
+    assert list(again.model_.metrics["residuals"]) == ["phi"]  # as a system's coordinates
 
 
 def test_a_population_where_every_candidate_diverges_ends_with_a_clear_error(tmp_path):
@@ -131,3 +132,38 @@ def test_functions_option_sets_the_function_set_over_the_config_file(tmp_path):
     assert config.population == 20
     plain = cli._parser().parse_args(["fit", "d.csv", "--time", "t", "--response", "x"])
     assert cli._config(plain, GPConfig()).functions == GPConfig().functions
+
+
+def test_one_coordinate_gets_its_residual_against_the_noise_floor(capsys):
+    """A fit of one coordinate reports its residual as a system's coordinates do: the true
+    Duffing model sits at its noise floor, the same model without its cubic spring is
+    flagged with the hint (printed by ``gpjax fit``)."""
+    import dataclasses
+
+    import sympy as sp
+
+    from gpjax import Model
+    from gpjax._coefficients import Coefficients
+    from gpjax._synthetic import generate
+    from gpjax._system_diagnose import HINT, residual_statistics
+    from gpjax.cli import _print_residuals
+    from gpjax.systems import get_system
+
+    system = dataclasses.replace(get_system("duffing"), duration=8.0)
+    measurement = generate(system, seed=0).fit.measurement()
+    x, v = sp.symbols("x x_dot")
+    c = system.constants
+    state = {v: c["c"], x: c["k"], x ** 3: c["k3"]}
+
+    def model(state):
+        return Model.from_equations(("x",), "t", ("u",), [Coefficients(
+            1.0, state, {sp.Symbol("u"): 1.0}, (0.0, 0.0))], substeps=4)
+
+    truth = residual_statistics(model(state), measurement)["x"]
+    assert truth["noise"]["ratio"] < 1.25 and truth["unexplained"] is None
+    linear = model({f: value for f, value in state.items() if f != x ** 3})
+    missing = residual_statistics(linear, measurement)["x"]
+    assert missing["noise"]["ratio"] > 3 and missing["unexplained"] is not None
+    _print_residuals(dataclasses.replace(linear, metrics={"residuals": {"x": missing}}))
+    out = capsys.readouterr().out
+    assert "residual of x: RMS" in out and "misses something" in out and HINT in out
