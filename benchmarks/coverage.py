@@ -3,7 +3,8 @@
     python benchmarks/coverage.py --seeds 40 --json benchmarks/coverage.json
     python benchmarks/coverage.py --seeds 40 --json benchmarks/coverage.json --resume
 
-For three systems of the catalogue — Duffing (polynomial), the pendulum (k·sin x: a
+For four systems of the catalogue — Duffing (polynomial), Duffing under a static load (a
+constant force, fitted by the spectrum's zero bin alone), the pendulum (k·sin x: a
 non-polynomial family with its frequency and phase refined too) and the 2-mass chain (two
 coordinates, cubic coupling) — and every seed: a record with 1 % noise on the response(s)
 *and* on the measured input (:func:`gpjax.systems.generate`), the true structure fitted
@@ -33,19 +34,21 @@ from gpjax import refit
 from gpjax.engine import fit_system
 from gpjax.systems import generate
 
-SYSTEMS = ("duffing", "pendulum", "chain2")
+SYSTEMS = ("duffing", "duffing_load", "pendulum", "chain2")
 X, XD, U = sp.symbols("x x_dot u")
 
 
 def _one_coordinate(name: str, truth: dict, interpolation: str):
     """(start model, {constant name: true value}) of a one-coordinate system."""
-    state = {"duffing": {"x_dot": truth.get("c"), "x": truth.get("k"),
-                         "x**3": truth.get("k3")},
+    duffing = {"x_dot": truth.get("c"), "x": truth.get("k"), "x**3": truth.get("k3")}
+    state = {"duffing": duffing, "duffing_load": duffing,
              "pendulum": {"x_dot": truth.get("c"), "sin(x)": truth.get("k")}}[name]
+    forcing = {"u": 1.0} | ({"1": -truth["f0"]} if "f0" in truth else {})
     model = Model.single(Symbols("x", "t", ("u",)), mass=truth["m"], state=state,
-                  forcing={"u": 1.0}, input_interpolation=interpolation)
+                         forcing=forcing, input_interpolation=interpolation)
     names = {feature: name for name, (_, _, feature) in model.constant_names().items()}
-    values = {"m": truth["m"], **{names[f]: v for f, v in state.items()}}
+    values = {"m": truth["m"], **{names[f]: v for f, v in (state | forcing).items()
+                                  if f != "u"}}
     if name == "pendulum":  # sin(θ1·x + θ2): frequency 1, phase 0
         values |= {f"{names['sin(x)']}.θ1": 1.0, f"{names['sin(x)']}.θ2": 0.0}
     return model, values

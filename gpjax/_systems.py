@@ -258,6 +258,10 @@ def _catalogue() -> dict[str, System]:
                 _c * X_DOT + _k * sp.sinh(X / a), {"c": 2.0, "k": 10.0, "a": 0.25}, 10.0),
         _single("duffing", "m·x'' + c·x' + k·x + k3·x³ = u, hardening, damped (not chaotic)",
                 _c * X_DOT + _k * X + k3 * X ** 3, {"c": 2.0, "k": 40.0, "k3": 400.0}, 10.0),
+        _single("duffing_load", "m·x'' + c·x' + k·x + k3·x³ + f0 = u: Duffing under a static "
+                "load (a constant force; not in the physics suite)",
+                _c * X_DOT + _k * X + k3 * X ** 3 + f0, {"c": 2.0, "k": 40.0, "k3": 400.0,
+                                                         "f0": 2.0}, 10.0),
         _single("softening_spring", "m·x'' + c·x' + k·x − k3·x³ = u, below its escape",
                 _c * X_DOT + _k * X - k3 * X ** 3, {"c": 2.0, "k": 40.0, "k3": 60.0}, 4.0),
         _single("smooth_friction", "m·x'' + c·x' + F·tanh(x'/v0) + k·x = u: a lubricated "

@@ -29,9 +29,14 @@ sensitivities are concentrated have high leverage; removing it puts back the par
 residual the fit absorbed. A few bins carry most of a constant's information when its
 sensitivity is narrow-band, and then ν is small and the t quantile widens the interval
 accordingly. Where a bin's leverage is 1 in some direction (a constant fitted by that bin
-alone, such as a sine's phase by the zero bin, which acts as a static offset), the fit
-leaves no residual there to measure: the constants loading on that direction get an
-infinite variance (no interval) rather than a ratio of rounding errors. A block bootstrap would refit the model hundreds of times where this needs one
+alone: a constant force, or a sine's phase acting as a static offset, by the zero bin), the
+fit leaves no residual there to measure. In the zero bin the residual's variance in that
+direction is read from the lowest bins that keep theirs (:data:`NEIGHBOURS`: the spectral
+density at zero frequency, as long-run variance estimators take it), so a constant force,
+and the stiffnesses that share the zero bin with it, still get an interval. Elsewhere (a
+sinusoid on one bin, where at a resonance the spectrum can peak between its neighbours)
+the constants loading on that direction get an infinite variance (no interval) rather than
+a ratio of rounding errors. A block bootstrap would refit the model hundreds of times where this needs one
 Jacobian.
 
 What the interval does not count: the input's reconstruction between samples (linear
@@ -58,9 +63,17 @@ HIGH_CORRELATION = 0.9
 #: identifiable from the record (their standard errors are reported as infinite).
 RANK_TOLERANCE = 1e-12
 #: A frequency bin's leverage within this of 1 in some direction (rounding: I − H_f is
-#: singular) fits that direction alone, and a constant loading on it by more than
-#: :data:`LOADING` (in units of its √[A⁻¹]ₖₖ) has no estimable variance.
+#: singular) fits that direction alone: its residual there is 0 whatever the noise. In the
+#: zero bin (a constant force) the residual's variance there is read from the lowest
+#: :data:`NEIGHBOURS` bins; elsewhere (a sinusoid on one bin, at a resonance the local
+#: spectrum can peak) a constant loading on such a direction by more than :data:`LOADING`
+#: (in units of its √[A⁻¹]ₖₖ) has no estimable variance.
 SATURATED, LOADING = 1e-13, 1e-9
+#: The zero bin's absorbed variance comes from this many lowest bins without a saturated
+#: direction (their 2·q cosine and sine parts): the spectral density at zero frequency
+#: estimated from the lowest frequencies, q as in low-frequency long-run variance
+#: estimation (Müller 2007, q = 12), so its relative standard error is about 1/√(2q) ≈ 0.2.
+NEIGHBOURS = 12
 
 
 @dataclasses.dataclass(frozen=True)
@@ -230,8 +243,9 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
     inverse = np.linalg.inv(unit) / np.outer(norm, norm)
     # Each bin's leverage H_f = X_f A⁻¹ X_fᵀ; its residual inflated by (I − H_f)⁻¹ (CR3).
     # A direction with leverage 1 is fitted by that bin alone (a static offset by the zero
-    # bin): its residual is 0 and the jackknife cannot estimate its variance, so the
-    # constants that load on it get none (infinite).
+    # bin): its residual is 0 and the jackknife cannot estimate its variance there; in the
+    # zero bin it is read from the lowest bins' residuals (:func:`_absorbed`), elsewhere
+    # the constants that load on it get none (infinite).
     leverage = np.einsum("fmk,kl,fnl->fmn", x, inverse, x)
     eigenvalues, vectors = np.linalg.eigh((leverage + np.swapaxes(leverage, 1, 2)) / 2)
     saturated = eigenvalues > 1.0 - SATURATED
@@ -239,19 +253,57 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
     inflated = np.einsum("fmn,fn->fm", vectors,
                          shrink * np.einsum("fnm,fn->fm", vectors, u))
     per_bin = np.einsum("fmk,fm->fk", x, inflated) @ inverse       # (F, k): A⁻¹X_fᵀũ_f
-    loading = np.abs(np.einsum("fmk,fmn->fnk", x, vectors) @ inverse)[saturated]  # (S, k)
+    interior = saturated.copy()
+    interior[0] = False
+    loading = np.abs(np.einsum("fmk,fmn->fnk", x, vectors) @ inverse)[interior]  # (S, k)
     unknown = np.any(loading > LOADING * np.sqrt(np.diag(inverse)), axis=0)
     covariance = per_bin.T @ per_bin
     # Satterthwaite: a constant's variance is Σ_f a_f, a_f the square of one normal
     # combination of bin f (a scaled χ²₁), so its degrees of freedom are
-    # (Σ E a)²/Σ (E a)², here with each bin's observed share for E a (module docstring).
+    # (Σ E a)²/Σ (E a)²/ν_f, here with each bin's observed share for E a (module
+    # docstring); ν_f = 1, and 2q for an absorbed direction's expected share.
     share = per_bin ** 2
+    spread = np.sum(share ** 2, axis=0)
+    if saturated[0].any():
+        absorbed, absorbed_share = _absorbed(x, inflated, vectors, saturated, inverse, d)
+        covariance = covariance + absorbed
+        share = np.concatenate([share, absorbed_share])
+        spread = spread + np.sum(absorbed_share ** 2, axis=0) / (2 * NEIGHBOURS)
     with np.errstate(invalid="ignore", divide="ignore"):
-        dof = np.nan_to_num(share.sum(axis=0) ** 2 / np.sum(share ** 2, axis=0), nan=1.0)
+        dof = np.nan_to_num(share.sum(axis=0) ** 2 / spread, nan=1.0)
     covariance = (covariance + covariance.T) / 2
     covariance[unknown, :] = covariance[:, unknown] = 0.0
     covariance[unknown, unknown] = np.inf
     return covariance, np.where(unknown, 1.0, dof)
+
+
+def _absorbed(x: np.ndarray, inflated: np.ndarray, vectors: np.ndarray,
+              saturated: np.ndarray, inverse: np.ndarray, d: int
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The covariance (k, k) that the zero bin's absorbed directions (leverage 1: a constant
+    force) add, and their shares (S, k). Each direction's residual variance is read from
+    the :data:`NEIGHBOURS` lowest bins without a saturated direction, whose inflated
+    residuals ũ (cosine and sine parts, D each) estimate the spectral matrix
+    C = E[ũ_c ũ_cᵀ + ũ_s ũ_sᵀ] near zero frequency; the zero bin's unit direction v (a
+    cosine part only) then has variance ½·vᵀCv (in the orthonormal transform each part of
+    white noise of variance σ² has variance σ², the zero bin's one part too). A constant's
+    share is that variance times the square of its loading A⁻¹X₀ᵀv. With no such bin the
+    constants loading on the direction get an infinite variance."""
+    clean = np.flatnonzero(~saturated.any(axis=1))
+    near = clean[clean > 0][:NEIGHBOURS]
+    parts = inflated[near].reshape(near.size, 2, d)
+    spectral = np.einsum("fpa,fpb->ab", parts, parts) / max(near.size, 1)
+    covariance = np.zeros((inverse.shape[0],) * 2)
+    shares = []
+    for j in np.flatnonzero(saturated[0]):
+        v = vectors[0, :, j]
+        loading = inverse @ (x[0].T @ v)                             # (k,)
+        variance = 0.5 * (v[:d] @ spectral @ v[:d]) if near.size else math.inf
+        share = variance * loading ** 2 if near.size else np.where(loading != 0, math.inf, 0.0)
+        covariance = covariance + (np.outer(loading, loading) * variance if near.size
+                                   else np.diag(share))
+        shares.append(share)
+    return covariance, np.array(shares)
 
 
 def _orthonormal_fourier(a: np.ndarray) -> np.ndarray:

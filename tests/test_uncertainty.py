@@ -211,3 +211,23 @@ def test_profile_interval_follows_an_asymmetric_objective_at_the_sandwich_scale(
     assert u.half_width("k.θ1") == pytest.approx((high - low) / 2)
     back = Uncertainty.from_json(json.loads(json.dumps(u.to_json())))
     assert back == u and dataclasses.replace(back, profile={}) != u
+
+
+def test_a_constant_force_fitted_by_the_zero_bin_alone_still_gets_its_interval():
+    """A constant regressor is fitted by the zero-frequency bin alone (leverage 1, no
+    residual left there); its variance comes from the neighbouring bins. Under white noise
+    that is the classical σ²/n, and over 300 records the 95 % interval covers 91–99 %."""
+    rng = np.random.default_rng(2)
+    n = 2000
+    t = np.arange(n)
+    x = np.column_stack([np.ones(n), np.sin(2 * np.pi * 0.01 * t), 0.001 * t])
+    covered, ratios = [], []
+    for _ in range(300):
+        error = rng.normal(size=n)
+        beta, *_ = np.linalg.lstsq(x, error, rcond=None)  # the truth is 0
+        covariance, dof = sandwich_covariance(error - x @ beta, x)
+        u = Uncertainty(("a", "b", "c"), beta, covariance, dof, n)
+        covered.append(u.interval("a")[0] <= 0 <= u.interval("a")[1])
+        ratios.append(math.sqrt(covariance[0, 0] / np.linalg.inv(x.T @ x)[0, 0]))
+    assert np.all(np.isfinite(ratios)) and 0.9 <= np.median(ratios) <= 1.1
+    assert 0.91 <= np.mean(covered) <= 0.99
