@@ -276,7 +276,7 @@ def _fit(args) -> int:
     identifier = _run(config, measurement, args.seed, Path(args.out), resume=args.resume,
                       **islands)
     print(identifier)
-    _print_residuals(identifier.model_)
+    _print_residuals(identifier.model_, diagnosing=args.diagnose)
     _timings(identifier, args.out)
     if identifier.stopped_by == "interrupted":
         return 130
@@ -285,8 +285,9 @@ def _fit(args) -> int:
     return 0
 
 
-def _print_residuals(model) -> None:
-    """Each coordinate's residual against its noise floor, and a system's sign-width check."""
+def _print_residuals(model, *, diagnosing: bool = False) -> None:
+    """Each coordinate's residual against its noise floor (with the hint where one misses
+    something, unless the diagnosis follows), and a system's sign-width check."""
     from ._system_diagnose import HINT, summary_line, width_line
 
     print("Residuals per coordinate (reference solve):")
@@ -294,7 +295,7 @@ def _print_residuals(model) -> None:
     for name, statistics in residuals.items():
         print(summary_line(name, statistics))
     if any(s["unexplained"] is not None for s in residuals.values()):
-        print(f"  hint: {HINT}")
+        print("  the diagnosis follows" if diagnosing else f"  hint: {HINT}")
     width = model.metrics.get("sign_width")
     if width:
         print(width_line(width))

@@ -167,3 +167,7 @@ def test_one_coordinate_gets_its_residual_against_the_noise_floor(capsys):
     _print_residuals(dataclasses.replace(linear, metrics={"residuals": {"x": missing}}))
     out = capsys.readouterr().out
     assert "residual of x: RMS" in out and "misses something" in out and HINT in out
+    _print_residuals(dataclasses.replace(linear, metrics={"residuals": {"x": missing}}),
+                     diagnosing=True)  # gpjax fit --diagnose: no hint to add --diagnose
+    out = capsys.readouterr().out
+    assert "the diagnosis follows" in out and HINT not in out
