@@ -460,9 +460,9 @@ def _uncertainty(result: Diagnosis, whole: FitProblem) -> Uncertainty:
     """The final fit's constants' intervals on the whole record, from the sensitivities
     the score test uses (the fit's free parameters)."""
     fit = result.after
-    jacobian, base, _ = sensitivities(whole, fit)
+    jacobian, positions, _, base = sensitivities(whole, fit)
     covariance, dof = sandwich_covariance(fit.simulated - whole.measurement.response,
-                                          jacobian[:, base])
+                                          jacobian[:, positions])
     evaluator = whole.simulator_for([fit.structure]).full
     free = types.SimpleNamespace(columns=np.array(base), layout=evaluator.layout)
     flat = evaluator.layout.pack(to_population([fit.coefficients], evaluator))[0]

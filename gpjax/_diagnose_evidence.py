@@ -164,7 +164,7 @@ def rank_by_output_error(problem: FitProblem, candidates: list[Candidate], resul
     for i, fit in enumerate(results):
         if not math.isfinite(fit.criterion):
             continue
-        predict = _gauss_newton(problem, fit)
+        predict = _gauss_newton(problem, fit, [c.terms for c in candidates])
         for j, other in enumerate(candidates):
             if j != i:
                 key = (min(i, j), max(i, j))
@@ -201,12 +201,12 @@ def rank_by_output_error(problem: FitProblem, candidates: list[Candidate], resul
     return order
 
 
-def _gauss_newton(problem: FitProblem, fit: Fit):
-    """A function: the terms of one more effect -> the held-out mean-square error that one
-    Gauss–Newton step from ``fit`` predicts with them added (their coefficients from 0,
-    the fit's own parameters free): least squares of the residual measured − simulated on
-    the estimation part, applied to the held-out part."""
-    jacobian, base, columns = sensitivities(problem, fit)
+def _gauss_newton(problem: FitProblem, fit: Fit, extra: list[Terms]):
+    """A function: the terms of one more effect (one of ``extra``) -> the held-out
+    mean-square error that one Gauss–Newton step from ``fit`` predicts with them added
+    (their coefficients from 0, the fit's own parameters free): least squares of the
+    residual measured − simulated on the estimation part, applied to the held-out part."""
+    jacobian, base, columns, _ = sensitivities(problem, fit, extra)
     residual = problem.measurement.response - fit.simulated
     n = problem.n_train
 
@@ -220,28 +220,34 @@ def _gauss_newton(problem: FitProblem, fit: Fit):
     return predicted
 
 
-def sensitivities(problem: FitProblem, fit: Fit):
-    """(Jacobian of the simulated response over the record at ``fit``, its columns of the
-    fit's free parameters — mass where the first input's gain is held at 1, the
-    coefficients, the initial state — and a function: terms -> their coefficients'
-    columns)."""
+def sensitivities(problem: FitProblem, fit: Fit, extra: list[Terms] = ()):
+    """(Jacobian of the simulated response over the record at ``fit``, the positions of
+    its columns of the fit's free parameters — mass where the first input's gain is held
+    at 1, the coefficients, the initial state —, a function: terms -> the positions of
+    their coefficients' columns, and the free parameters' columns of the flat layout).
+    Only those columns and the ``extra`` terms' are computed
+    (:meth:`gpjax._diagnose_fits._Simulator.jacobian`)."""
     structure = fit.structure
-    simulator = problem.simulator_for([structure])
-    ev = simulator.full
-    jacobian = simulator.jacobian(fit)
+    ev = problem.simulator_for([structure]).full
     layout = ev.layout
 
     def columns(lhs, forcing, fixed=None):
         return ([layout.state_column(c) for c, _, _ in ev.state_columns(lhs)]
                 + [layout.forcing_column(ev.forcing_index(g)) for g in forcing if g != fixed])
 
+    def of(terms):
+        return columns(terms.state + terms.parametric, terms.forcing)
+
     normalised = problem.u0 is not None and problem.u0 in structure.forcing
     base = (([0] if normalised else [])
             + columns(structure.state + structure.parametric, structure.forcing,
                       problem.u0 if normalised else None)
-            + [jacobian.shape[1] - 2, jacobian.shape[1] - 1])
-    return jacobian, base, lambda terms: list(dict.fromkeys(
-        columns(terms.state + terms.parametric, terms.forcing)))
+            + [layout.width - 2, layout.width - 1])
+    wanted = list(dict.fromkeys(base + [c for terms in extra for c in of(terms)]))
+    position = {c: i for i, c in enumerate(wanted)}
+    jacobian = problem.simulator_for([structure]).jacobian(fit, wanted)
+    return jacobian, [position[c] for c in base], lambda terms: list(dict.fromkeys(
+        position[c] for c in of(terms))), base
 
 
 def score_statistics(problem: FitProblem, current: Fit, candidates: list[Candidate],
@@ -252,7 +258,8 @@ def score_statistics(problem: FitProblem, current: Fit, candidates: list[Candida
     candidate's refit (``results``, same order) residual."""
     problem.simulator_for([current.structure] + [current.structure.plus(c.terms)
                                                  for c in candidates])
-    jacobian, base, columns = sensitivities(problem, current)
+    jacobian, base, columns, _ = sensitivities(problem, current,
+                                               [c.terms for c in candidates])
     n, measured = problem.n_train, problem.measurement.response
     residual = (measured - current.simulated)[:n]
     return [score_test(residual, jacobian[:n, base],

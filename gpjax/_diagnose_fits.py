@@ -329,19 +329,30 @@ class _Simulator:
                                             horizons=CAREFUL_HORIZONS)
         return self._careful_refiner
 
-    def jacobian(self, fit: Fit) -> np.ndarray:
-        """Sensitivities of the simulated response over the whole record to the parameter
-        vector (mass, every state coefficient, every forcing coefficient, x0, x0') at
-        ``fit`` — shape (N, 1 + F_state + F_forcing + 2) — from the variational equations
-        (:meth:`PopulationEvaluator.constant_jacobian`, one pass)."""
+    def jacobian(self, fit: Fit, columns: list[int]) -> np.ndarray:
+        """Sensitivities of the simulated response over the whole record to the flat
+        parameter vector's ``columns`` (of mass, state coefficients, forcing coefficients,
+        x0, x0') at ``fit`` — shape (N, len(columns)) — from the variational equations
+        (:meth:`PopulationEvaluator.constant_jacobian`, one pass). Only the columns asked
+        for: the forcing tangents are a (stage rows × directions) array, so every column
+        of the basis on a long record would cost gigabytes (Silverbox, 65,000 samples at 10
+        steps: 1.5 GB). The directions are padded to a multiple of
+        :data:`DIRECTIONS_STEP` with zero rows, so few sizes compile."""
         ev = self.full
-        if self._jacobian is None:
-            basis = jnp.asarray(ev.forcing_basis)
+        if self._jacobian is None:  # the basis an argument, not a constant of the program
             self._jacobian = jax.jit(
-                lambda p: ev.constant_jacobian(p, jnp.eye(p.size), basis)[1])
+                lambda p, directions, basis: ev.constant_jacobian(p, directions, basis)[1])
         p = ev.layout.pack(to_population([fit.coefficients], ev))[0]
-        return np.asarray(self._jacobian(jnp.asarray(p)))[: ev.measurement.n_samples]
+        rows = -(-len(columns) // DIRECTIONS_STEP) * DIRECTIONS_STEP
+        directions = np.zeros((rows, p.size))
+        directions[np.arange(len(columns)), columns] = 1.0
+        jacobian = self._jacobian(jnp.asarray(p), jnp.asarray(directions),
+                                  jnp.asarray(ev.forcing_basis))
+        return np.asarray(jacobian)[: ev.measurement.n_samples, : len(columns)]
 
+
+#: :meth:`Simulator.jacobian`'s directions come in multiples of this many.
+DIRECTIONS_STEP = 8
 
 
 def simulation_metrics(measured: np.ndarray, simulated: np.ndarray, n_train: int,

@@ -424,9 +424,21 @@ def _record_arrays(measurement: Measurement, n_padded: int, n_bins: int, n_bins_
 
 
 def _pad_columns(array: np.ndarray, columns: int) -> np.ndarray:
-    """``array`` zero-padded to ``columns`` along its last axis."""
+    """``array`` zero-padded, or cut, to ``columns`` along its last axis: a population laid
+    out on an evaluator of a shorter record has a wider forcing capacity (a basis of fewer
+    stage rows starts wider, :func:`gpjax._evaluator_columns.first_forcing_capacity`); the
+    columns past this evaluator's capacity hold no feature (:meth:`check_forcing_bank`), so
+    they are 0.
+
+    Raises:
+        ValueError: a column past ``columns`` is not 0.
+    """
     if array.shape[-1] == columns:
         return array
+    if array.shape[-1] > columns:
+        if np.any(array[..., columns:]):
+            raise ValueError(f"forcing coefficients past this evaluator's {columns} columns")
+        return array[..., :columns]
     out = np.zeros(array.shape[:-1] + (columns,))
     out[..., : array.shape[-1]] = array
     return out

@@ -229,3 +229,20 @@ def test_a_call_of_a_few_models_runs_at_a_small_compiled_size():
     assert evaluator.compile_count == 2
     np.testing.assert_allclose(alone, together[:3], rtol=1e-13)
     assert np.all(np.isfinite(together))
+
+
+def test_forcing_columns_past_the_capacity_are_cut_when_they_hold_nothing():
+    """A population laid out on the estimation part's evaluator (a shorter record: a wider
+    forcing capacity) is simulated on the whole record's (the diagnosis on a 20,000-sample
+    Silverbox segment raised a broadcast error here); a coefficient past the capacity is
+    refused."""
+    from gpjax._evaluator import _pad_columns
+
+    wide = np.zeros((8, 64))
+    wide[:, :3] = 1.0
+    assert _pad_columns(wide, 16).shape == (8, 16)
+    assert np.array_equal(_pad_columns(wide, 16)[:, :3], wide[:, :3])
+    assert _pad_columns(wide[:, :16], 64).shape == (8, 64)
+    wide[0, 20] = 1.0
+    with pytest.raises(ValueError, match="past this evaluator's 16 columns"):
+        _pad_columns(wide, 16)
