@@ -38,8 +38,11 @@ def test_a_piped_fit_logs_each_generation_and_stage_on_stderr(tmp_path):
         assert any(line.startswith(stage) for line in stages), (stage, done.stderr)
     summary, timings = done.stdout.split("\n\nStopped by ")  # the results, nothing else
     expected = str(Identifier.load(tmp_path / "run")).splitlines()
-    assert summary.splitlines()[0] == expected[0]
-    assert len(summary.splitlines()) == len(expected) and "gpjax:" not in done.stdout
+    printed = summary.splitlines()
+    assert printed[0] == expected[0] and "gpjax:" not in done.stdout
+    residuals = printed[len(expected):]  # then the residual against its noise floor
+    assert residuals[0] == "Residuals per coordinate (reference solve):"
+    assert residuals[1].startswith("  residual of phi: RMS") and len(residuals) in (2, 3)
     assert timings.endswith("Results in run/\n") and "\n" not in timings[:-1]
 
 
