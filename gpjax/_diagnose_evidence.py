@@ -228,7 +228,8 @@ def sensitivities(problem: FitProblem, fit: Fit, extra: list[Terms] = ()):
     Only those columns and the ``extra`` terms' are computed
     (:meth:`gpjax._diagnose_fits._Simulator.jacobian`)."""
     structure = fit.structure
-    ev = problem.simulator_for([structure]).full
+    simulator = problem.simulator_for([structure])
+    ev = simulator.full
     layout = ev.layout
 
     def columns(lhs, forcing, fixed=None):
@@ -245,7 +246,7 @@ def sensitivities(problem: FitProblem, fit: Fit, extra: list[Terms] = ()):
             + [layout.width - 2, layout.width - 1])
     wanted = list(dict.fromkeys(base + [c for terms in extra for c in of(terms)]))
     position = {c: i for i, c in enumerate(wanted)}
-    jacobian = problem.simulator_for([structure]).jacobian(fit, wanted)
+    jacobian = simulator.jacobian(fit, wanted)
     return jacobian, [position[c] for c in base], lambda terms: list(dict.fromkeys(
         position[c] for c in of(terms))), base
 

@@ -253,8 +253,10 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
     inflated = np.einsum("fmn,fn->fm", vectors,
                          shrink * np.einsum("fnm,fn->fm", vectors, u))
     per_bin = np.einsum("fmk,fm->fk", x, inflated) @ inverse       # (F, k): A⁻¹X_fᵀũ_f
+    clean = np.flatnonzero(~saturated.any(axis=1))
+    near = clean[clean > 0][:NEIGHBOURS]  # the zero bin's neighbours (:func:`_absorbed`)
     interior = saturated.copy()
-    interior[0] = False
+    interior[0] &= near.size == 0  # with no neighbour the zero bin has no estimate either
     loading = np.abs(np.einsum("fmk,fmn->fnk", x, vectors) @ inverse)[interior]  # (S, k)
     unknown = np.any(loading > LOADING * np.sqrt(np.diag(inverse)), axis=0)
     covariance = per_bin.T @ per_bin
@@ -264,8 +266,9 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
     # docstring); ν_f = 1, and 2q for an absorbed direction's expected share.
     share = per_bin ** 2
     spread = np.sum(share ** 2, axis=0)
-    if saturated[0].any():
-        absorbed, absorbed_share = _absorbed(x, inflated, vectors, saturated, inverse, d)
+    if saturated[0].any() and near.size:
+        absorbed, absorbed_share = _absorbed(x, inflated[near], vectors[0],
+                                             saturated[0], inverse, d)
         covariance = covariance + absorbed
         share = np.concatenate([share, absorbed_share])
         spread = spread + np.sum(absorbed_share ** 2, axis=0) / (2 * NEIGHBOURS)
@@ -277,33 +280,23 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
     return covariance, np.where(unknown, 1.0, dof)
 
 
-def _absorbed(x: np.ndarray, inflated: np.ndarray, vectors: np.ndarray,
-              saturated: np.ndarray, inverse: np.ndarray, d: int
-              ) -> tuple[np.ndarray, np.ndarray]:
+def _absorbed(x: np.ndarray, near: np.ndarray, vectors: np.ndarray, saturated: np.ndarray,
+              inverse: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray]:
     """The covariance (k, k) that the zero bin's absorbed directions (leverage 1: a constant
-    force) add, and their shares (S, k). Each direction's residual variance is read from
-    the :data:`NEIGHBOURS` lowest bins without a saturated direction, whose inflated
-    residuals ũ (cosine and sine parts, D each) estimate the spectral matrix
-    C = E[ũ_c ũ_cᵀ + ũ_s ũ_sᵀ] near zero frequency; the zero bin's unit direction v (a
-    cosine part only) then has variance ½·vᵀCv (in the orthonormal transform each part of
-    white noise of variance σ² has variance σ², the zero bin's one part too). A constant's
-    share is that variance times the square of its loading A⁻¹X₀ᵀv. With no such bin the
-    constants loading on the direction get an infinite variance."""
-    clean = np.flatnonzero(~saturated.any(axis=1))
-    near = clean[clean > 0][:NEIGHBOURS]
-    parts = inflated[near].reshape(near.size, 2, d)
-    spectral = np.einsum("fpa,fpb->ab", parts, parts) / max(near.size, 1)
-    covariance = np.zeros((inverse.shape[0],) * 2)
-    shares = []
-    for j in np.flatnonzero(saturated[0]):
-        v = vectors[0, :, j]
-        loading = inverse @ (x[0].T @ v)                             # (k,)
-        variance = 0.5 * (v[:d] @ spectral @ v[:d]) if near.size else math.inf
-        share = variance * loading ** 2 if near.size else np.where(loading != 0, math.inf, 0.0)
-        covariance = covariance + (np.outer(loading, loading) * variance if near.size
-                                   else np.diag(share))
-        shares.append(share)
-    return covariance, np.array(shares)
+    force; ``saturated`` among its eigen-``vectors``) add, and their shares (S, k). Each
+    direction's residual variance is read from ``near``, the inflated residuals ũ (cosine
+    and sine parts, D each) of the :data:`NEIGHBOURS` lowest bins without a saturated
+    direction, which estimate the spectral matrix C = E[ũ_c ũ_cᵀ + ũ_s ũ_sᵀ] near zero
+    frequency; the zero bin's unit direction v (a cosine part only) then has variance
+    ½·vᵀCv (in the orthonormal transform each part of white noise of variance σ² has
+    variance σ², the zero bin's one part too). A constant's share is that variance times
+    the square of its loading A⁻¹X₀ᵀv."""
+    parts = near.reshape(near.shape[0], 2, d)
+    spectral = np.einsum("fpa,fpb->ab", parts, parts) / near.shape[0]
+    directions = vectors[:, saturated]                                # (M, S)
+    loadings = (inverse @ (x[0].T @ directions)).T                    # (S, k)
+    variances = 0.5 * np.einsum("as,ab,bs->s", directions[:d], spectral, directions[:d])
+    return loadings.T @ (variances[:, None] * loadings), variances[:, None] * loadings ** 2
 
 
 def _orthonormal_fourier(a: np.ndarray) -> np.ndarray:
