@@ -20,12 +20,20 @@ separate ``gpjax fit … --response x1 --response x2 …`` process with the defa
 Resumable: rows already in ``--json`` (same system and seed) are kept and skipped. The
 JSON records the revision, command, date and machine of the last run
 (:mod:`benchmarks._provenance`), and each row the revision it ran at.
+
+``--baseline REV`` fits every record a second time with the code of git revision ``REV``
+(a temporary worktree), in the same run, and adds to its row ``baseline``: that fit's
+revision, seconds, seconds compiling, stages and whether its equations are this tree's.
+Each tree compiles into its own fresh program cache, so the first record of a run compiles
+cold under both and later ones find their programs.
 """
 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
+import os
 import subprocess
 import sys
 import tempfile
@@ -39,7 +47,9 @@ from gpjax._system_bank import match_bank, system_variables
 from gpjax.systems import generate, get_system, write_csv
 
 sys.path.insert(0, str(Path(__file__).parent))
+from _baseline import baseline_tree  # noqa: E402
 from _provenance import provenance  # noqa: E402
+from bench_new_record import STAGES, SUMMARIES  # noqa: E402
 from bench_systems import scored  # noqa: E402
 from report import front_door_rows  # noqa: E402
 
@@ -100,23 +110,53 @@ def found_terms(model: gpjax.Model, i: int) -> dict:
     return out
 
 
-def run_one(name: str, seed: int, folder: Path) -> dict:
+def timed_fit(command: list[str], env: dict | None = None) -> tuple:
+    """(completed process, whole seconds, the summary's figures: ``compile_s``,
+    ``programs`` and its stages) of one ``gpjax fit`` process."""
+    began = time.perf_counter()
+    done = subprocess.run(command, capture_output=True, text=True, env=env)
+    seconds = time.perf_counter() - began
+    found = next((m for m in (p.search(done.stdout) for p in SUMMARIES) if m), None)
+    figures = {"compile_s": float(found[2]) if found else None,
+               "programs": int(found[3]) if found else None}
+    figures |= {k: (float(m[1]) if (m := p.search(done.stdout)) else None)
+                for k, p in STAGES.items()}
+    return done, seconds, figures
+
+
+def run_one(name: str, seed: int, folder: Path, baseline: tuple | None = None) -> dict:
+    """One record fitted and scored; ``baseline`` = (revision, its tree) fits it again
+    with that code (module docstring)."""
     data = generate(name, seed=seed)
     system = data.system
     path = folder / f"{name}_{seed}.csv"
     write_csv(data.fit, path)
     responses = [word for c in system.coordinates for word in ("--response", c)]
-    command = [sys.executable, "-m", "gpjax", "fit", str(path), "--time", "t", *responses,
-               "--input", "u", "--out", str(folder / f"{name}_{seed}"), "--seed", str(seed)]
-    if name in FUNCTIONS:
-        command += ["--functions", FUNCTIONS[name]]
-    began = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True)
-    seconds = time.perf_counter() - began
+    extra = ["--functions", FUNCTIONS[name]] if name in FUNCTIONS else []
+
+    def fit_command(out: Path) -> list[str]:
+        return [sys.executable, "-m", "gpjax", "fit", str(path), "--time", "t", *responses,
+                "--input", "u", "--out", str(out), "--seed", str(seed), *extra]
+
+    command = fit_command(folder / f"{name}_{seed}")
+    cache = {} if baseline is None else {"GPJAX_COMPILATION_CACHE": "on",
+                                         "GPJAX_CACHE_DIR": str(folder / "cache-tree")}
+    done, seconds, figures = timed_fit(command, dict(os.environ, **cache))
     if done.returncode != 0:
         return {"system": name, "seed": seed, "revision": provenance()["revision"],
                 "error": done.stderr.strip()[-500:], "seconds": seconds}
     model = gpjax.Model.load(folder / f"{name}_{seed}" / "model.json")
+    compared = {}
+    if baseline is not None:
+        revision, tree = baseline
+        out = folder / f"{name}_{seed}_baseline"
+        env = dict(os.environ, PYTHONPATH=str(tree), GPJAX_COMPILATION_CACHE="on",
+                   GPJAX_CACHE_DIR=str(folder / "cache-baseline"))
+        old, old_seconds, old_figures = timed_fit(fit_command(out), env)
+        same = old.returncode == 0 and [str(e) for e in gpjax.Model.load(
+            out / "model.json").sympy()] == [str(e) for e in model.sympy()]
+        compared = {"baseline": {"revision": revision, "seconds": old_seconds,
+                                 "same_equations": same, **old_figures}}
     truth = [truth_terms(system, i) for i in range(len(system.coordinates))]
     found = [found_terms(model, i) for i in range(len(system.coordinates))]
     structure, error, nrms = scored(model, found, truth, data.extrapolation)
@@ -126,7 +166,8 @@ def run_one(name: str, seed: int, folder: Path) -> dict:
             "extrapolation_nrms": nrms.tolist(), "seconds": seconds,
             "equations": [str(e) for e in model.sympy()],
             "found": [{str(k): v for k, v in f.items()} for f in found],
-            "truth": [{str(k): v for k, v in t.items()} for t in truth]}
+            "truth": [{str(k): v for k, v in t.items()} for t in truth], **figures,
+            **compared}
 
 
 def main() -> None:
@@ -134,23 +175,29 @@ def main() -> None:
     parser.add_argument("--systems", default=",".join(SYSTEMS))
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--json", default="benchmarks/systems_front_door.json")
+    parser.add_argument("--baseline", help="git revision to time against in the same run")
     args = parser.parse_args()
     path = Path(args.json)
     rows = json.loads(path.read_text())["rows"] if path.is_file() else []
     done = {(r["system"], r["seed"]) for r in rows}
-    with tempfile.TemporaryDirectory() as folder:
+    with tempfile.TemporaryDirectory() as folder, (
+            baseline_tree(args.baseline) if args.baseline else contextlib.nullcontext()) as tree:
+        baseline = (args.baseline, tree) if args.baseline else None
         for name in args.systems.split(","):
             get_system(name)
             for seed in range(args.seeds):
                 if (name, seed) in done:
                     continue
-                row = run_one(name, seed, Path(folder))
+                row = run_one(name, seed, Path(folder), baseline)
                 rows.append(row)
+                old = row.get("baseline")
                 print(f"{name} seed {seed}: " + (f"ERROR {row['error']}" if "error" in row else
                       f"structure {'right' if row['structure_right'] else 'WRONG'}, max "
                       f"constant error {row['max_constant_error']:.2%}, extrapolation NRMS "
                       + ", ".join(f"{e:.2%}" for e in row["extrapolation_nrms"])
-                      + f", {row['seconds']:.0f} s"), flush=True)
+                      + f", {row['seconds']:.0f} s"
+                      + (f" ({old['seconds']:.0f} s at {old['revision']}, same equations: "
+                         f"{old['same_equations']})" if old else "")), flush=True)
                 path.write_text(json.dumps({**provenance(), "rows": rows}, indent=1))
     print(front_door_rows({"rows": rows}))
 

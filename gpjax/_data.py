@@ -310,9 +310,17 @@ def load_csv(path: str | Path, *, time: str, response: str | None = None,
             time not strictly increasing or not uniform, a response named twice or also
             an input, columns of different lengths (empty or NaN cells at the end of one).
         ValueError: both or neither of ``response`` and ``responses``.
+        TypeError: ``response`` not one name, or ``responses`` or ``inputs`` one name
+            instead of a list.
     """
     if (response is None) == (responses is None):
         raise ValueError("give either response= (one name) or responses= (a list of names)")
+    if response is not None and not isinstance(response, str):
+        raise TypeError(f"response= takes one column name; for several coordinates give "
+                        f"responses={list(response)!r}")
+    for label, given in (("responses", responses), ("inputs", inputs)):
+        if isinstance(given, str):
+            raise TypeError(f"{label}= takes a list of column names: {label}={[given]!r}")
     names = (response,) if response is not None else tuple(responses)
     if not names:
         raise DataError("no response named; give at least one --response")

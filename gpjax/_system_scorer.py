@@ -27,19 +27,18 @@ from ._system_final import better_fit_p
 from ._system_fit import SystemWeakForm
 from ._system_grammar import Equations
 
-#: Systems per compiled refinement call.
-REFINE_BATCH = 4
 
 
 class SystemScorer:
     """Objective of systems by structure, with least-squares and refined constants cached."""
 
     def __init__(self, weak: SystemWeakForm, equations: Equations,
-                 evaluator: PopulationEvaluator):
+                 evaluator: PopulationEvaluator, *, batch: int):
         self.equations, self.evaluator, self.weak = equations, evaluator, weak
+        self.batch = max(1, batch)  # systems per compiled refinement call
         self.objective: dict[tuple, float] = {}
         self.refined: dict[tuple, list[Coefficients]] = {}
-        self._refiners: dict[int, Refiner] = {}
+        self._refiners: dict[tuple[int, int], Refiner] = {}
         self._residuals: dict[tuple, float] = {}
 
     def key(self, system) -> tuple | None:
@@ -132,7 +131,7 @@ class SystemScorer:
         return np.array([PENALTY if k is None else self.objective[k] for k in keys])
 
     def refiners(self) -> list:
-        """The refiners compiled so far (one per Jacobian width)."""
+        """The refiners compiled so far (one per Jacobian width and batch)."""
         return list(self._refiners.values())
 
     def refine_best(self, systems, scores, top: int) -> None:
@@ -153,12 +152,18 @@ class SystemScorer:
                           for structure, ties in coupled])
         free = max(sum(1 + len(s) + len(f) + 2 for s, f in structure)
                    for structure, _ in coupled)
-        width = -(-free // 8) * 8  # few distinct Jacobian widths: few compiles
-        if width not in self._refiners:
-            self._refiners[width] = Refiner(self.evaluator, iterations=20, max_free=width,
-                                            batch=REFINE_BATCH)
+        # Few distinct Jacobian widths and batches: few compiles. A generation refines
+        # ``batch`` systems in one call, the selection's likelihood-ratio guard one: the
+        # cost of a call grows with its padded batch (a 3-mass chain of 8,000 samples:
+        # 6 s for one system alone, 12 s padded to 4, 15 s for 5).
+        width = -(-free // 8) * 8
+        batch = 1 if len(chosen) == 1 else self.batch
+        if (width, batch) not in self._refiners:
+            self._refiners[width, batch] = Refiner(self.evaluator, iterations=20,
+                                                   max_free=width, batch=batch)
         ties = [tie_columns(t, self.evaluator) for _, t in coupled]
-        refined = self._refiners[width].refine(population, fixed, ties=ties).population
+        refiner = self._refiners[width, batch]
+        refined = refiner.refine(population, fixed, ties=ties).population
         scores = self.evaluator.score(refined)
         for k, start, coefficients, value in zip(
                 chosen, starts, from_system_population(refined, self.evaluator, starts),

@@ -160,7 +160,7 @@ class SystemEvolution:
             w_time=config.w_time, w_freq=config.w_freq,
             input_interpolation=config.input_interpolation, batch=config.population,
             kinds=kinds, sign_scales=scales)
-        self.scorer = SystemScorer(weak, self.equations, evaluator)
+        self.scorer = SystemScorer(weak, self.equations, evaluator, batch=config.refine_top)
         self.fresh_columns = self.forcing_columns()
 
     # --- the generations ------------------------------------------------------------

@@ -51,6 +51,10 @@ def test_load_csv_reads_several_responses(tmp_path):
                                rtol=1e-15)
     with pytest.raises(DataError, match="'x1' is named twice"):
         gpjax.load_csv(tmp_path / "chain.csv", time="t", responses=["x1", "x1"])
+    with pytest.raises(TypeError, match=r"give responses=\['x1', 'x2'\]"):
+        gpjax.load_csv(tmp_path / "chain.csv", time="t", response=["x1", "x2"])
+    with pytest.raises(TypeError, match=r"inputs=\['u'\]"):
+        gpjax.load_csv(tmp_path / "chain.csv", time="t", response="x1", inputs="u")
 
 
 def test_columns_of_different_lengths_are_refused(tmp_path):
