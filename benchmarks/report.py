@@ -429,6 +429,25 @@ def systems_speed() -> str:
                     "D = 3 CPU ratio"], rows, "lrrrrrrr") + "\n\n" + _stamp(data))
 
 
+def systems_refine_ab() -> str:
+    """benchmarks/systems_refine_ab.json: whole `gpjax fit` processes of this revision and
+    of its ``--baseline`` on the same records, in one run."""
+    data = _load("benchmarks/systems_refine_ab.json")
+    rows = []
+    for r in data["rows"]:
+        b = r["baseline"]
+        rows.append([f"`{r['system']}` seed {r['seed']}", "first (cold)" if r["seed"] == 0
+                     else "later (warm)", f"{b['seconds']:.0f}", f"{r['seconds']:.0f}",
+                     f"{r['seconds'] / b['seconds']:.2f}×",
+                     *(f"{b[k]:.0f} → {r[k]:.0f}" for k in ("search_s", "selection_s",
+                                                           "compile_s")),
+                     "yes" if b["same_equations"] else "NO"])
+    revision = data["rows"][0]["baseline"]["revision"] if data["rows"] else "–"
+    return (_table(["record", "program cache", f"s at {revision}", "s now", "ratio",
+                    "search s", "selection s", "compiling s", "same equations"], rows,
+                   "llrrrrrrl") + "\n\n" + _stamp(data))
+
+
 # ---------------------------------------------------------------- islands, many records, cache
 
 
@@ -674,6 +693,7 @@ TABLES = {
     "systems-gear": systems_gear,
     "gear-front-door": gear_front_door,
     "systems-speed": systems_speed,
+    "systems-refine-ab": systems_refine_ab,
     "islands-compare": islands_compare,
     "islands-hard": islands_hard,
     "islands-model": islands_model,
