@@ -14,6 +14,8 @@ something (the equations are coupled, so a neighbour's residual may rise with it
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 from ._data import Measurement
@@ -86,8 +88,11 @@ def width_line(check: dict) -> str:
     """One line of a system's smoothed-sign width check
     (:func:`gpjax._system_final.width_check`)."""
     verdict = ("converged: the constants do not carry the smoothing" if check["converged"]
-               else "NOT converged: the constants carry some of the smoothing (the sign's "
-               "width is fixed for several coordinates)")
-    return (f"  smoothed sign tanh(z/ε), ε = {check['width']:.0%} of RMS z: {check['narrowing']}× "
+               else "NOT converged within the narrowing cap: the constants carry some of "
+               "the smoothing")
+    if not math.isfinite(check["ratio"]):
+        return (f"  smoothed sign tanh(z/ε), ε = {check['width']:.3g}·RMS z: NOT checked, the "
+                f"reference solver fails on the signs {check['narrowing']}× narrower")
+    return (f"  smoothed sign tanh(z/ε), ε = {check['width']:.3g}·RMS z: {check['narrowing']}× "
             f"narrower changes the response by {check['ratio']:.2%} of the residual RMS "
             f"(tolerance {check['tolerance']:.0%}), {verdict}")

@@ -1,6 +1,7 @@
 """The reported system at converged integration: a term its fit does not demonstrate is
 dropped (:func:`without_insignificant`, :func:`better_fit_p`), and the smoothed sign's width
-is checked (:func:`width_check`; :mod:`gpjax._system_bank`)."""
+is checked (:func:`width_check`; :mod:`gpjax._system_bank`) and narrowed where the
+constants carry the smoothing (:func:`sharpened`)."""
 
 from __future__ import annotations
 
@@ -83,16 +84,30 @@ def without_insignificant(key, fit: SystemFit, alpha: float):
     return key[:i] + (part,) + key[i + 1:]
 
 
-def width_check(fit: SystemFit, measurement: Measurement, tolerance: float) -> dict | None:
+def sharpened(equations, names: tuple[str, ...], factor: float) -> list:
+    """``equations`` (per coordinate :class:`~gpjax._coefficients.Coefficients`, or a
+    :data:`gpjax._system_fit.Structure`'s (state features, forcing) pairs) with every
+    smoothed sign ``factor`` times narrower, constants kept."""
+    out = []
+    for i, equation in enumerate(equations):
+        state = equation.state if hasattr(equation, "state") else equation[0]
+        sharp = sharpened_features(state, names, i, factor)
+        if hasattr(equation, "state"):
+            out.append(equation.replace(state={sharp.get(f, f): v for f, v in state.items()}))
+        else:
+            out.append((tuple(sharp.get(f, f) for f in state), equation[1]))
+    return out
+
+
+def width_check(fit: SystemFit, measurement: Measurement, tolerance: float, *,
+                width: float = SIGN_WIDTH) -> dict | None:
     """Whether the reported system depends on its smoothed signs' width (module docstring of
     :mod:`gpjax._system_bank`): ``ratio``, the RMS change of its scaled reference response
     with every sign :data:`gpjax._sign_width.NARROWING` times narrower (constants kept)
     over its scaled RMS residual; ``converged`` when below ``tolerance``; ``width`` the
     fraction of RMS z the signs were fitted at. ``None`` without a sign."""
     model = fit.model
-    sharper = [c.replace(state={sharp.get(f, f): v for f, v in c.state.items()})
-               for i, c in enumerate(model.system)
-               for sharp in [sharpened_features(c.state, model.coordinates, i, NARROWING)]]
+    sharper = sharpened(model.system, model.coordinates, NARROWING)
     if all(s.state == c.state for s, c in zip(sharper, model.system)):
         return None
     narrowed = Model.from_equations(model.coordinates, model.time, model.inputs, sharper,
@@ -104,5 +119,5 @@ def width_check(fit: SystemFit, measurement: Measurement, tolerance: float) -> d
     change = float(np.sqrt(np.mean(((sharp - base) / scale) ** 2)))
     residual = float(np.sqrt(np.mean(((base - measurement.responses) / scale) ** 2)))
     ratio = change / residual if residual > 0 and math.isfinite(change) else math.inf
-    return {"width": SIGN_WIDTH, "narrowing": NARROWING, "ratio": ratio,
+    return {"width": width, "narrowing": NARROWING, "ratio": ratio,
             "tolerance": tolerance, "converged": ratio < tolerance}
