@@ -28,7 +28,6 @@ from ._system_fit import SystemWeakForm
 from ._system_grammar import Equations
 
 
-
 class SystemScorer:
     """Objective of systems by structure, with least-squares and refined constants cached."""
 

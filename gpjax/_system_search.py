@@ -324,7 +324,8 @@ def _narrowed(fit: SystemFit, structure, measurement: Measurement, settings: dic
     from the constants of the last fit, until the check converges or after
     :data:`gpjax._sign_width.MAX_NARROWINGS` narrowings (one coordinate's rule,
     :mod:`gpjax._sign_width`), or where the check cannot be made (the reference solver
-    fails on the narrower signs: a ratio of inf)."""
+    fails on the narrower signs: a ratio of inf) or the narrower refit diverges (the last
+    fit and its check are kept)."""
     width = SIGN_WIDTH
     check = width_check(fit, measurement, settings["tolerance"], width=width)
     for _ in range(MAX_NARROWINGS):
@@ -335,9 +336,12 @@ def _narrowed(fit: SystemFit, structure, measurement: Measurement, settings: dic
                         f"(ε = {width:.3g}·RMS z): its constants carried the smoothing")
         names = measurement.response_names
         structure = tuple(sharpened(structure, names, NARROWING))
-        fit = fit_system(measurement, structure, start=sharpened(fit.model.system, names,
-                                                                 NARROWING),
-                         first_substeps=fit.model.substeps, **settings)
+        try:
+            fit = fit_system(measurement, structure, start=sharpened(fit.model.system, names,
+                                                                     NARROWING),
+                             first_substeps=fit.model.substeps, **settings)
+        except ValueError:  # the narrower refit diverged: the last fit and check stand
+            break
         check = width_check(fit, measurement, settings["tolerance"], width=width)
     return fit, check
 

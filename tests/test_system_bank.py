@@ -223,3 +223,25 @@ def test_width_line_says_when_the_narrower_check_cannot_be_made():
     line = width_line(check)
     assert "NOT checked" in line and "4× narrower" in line and "inf" not in line
     assert "converged" in width_line(dict(check, ratio=0.003, converged=True))
+
+
+def test_a_diverged_narrower_refit_keeps_the_last_fit_and_its_check(monkeypatch):
+    from types import SimpleNamespace
+
+    import gpjax._system_search as search
+
+    calls = []
+    monkeypatch.setattr(search, "width_check", lambda fit, measurement, tolerance, width: {
+        "converged": False, "ratio": 0.05, "width": width})
+    monkeypatch.setattr(search, "sharpened", lambda equations, names, factor: list(equations))
+
+    def diverged(*args, **kwargs):
+        calls.append(kwargs)
+        raise ValueError("the refined system diverged")
+
+    monkeypatch.setattr(search, "fit_system", diverged)
+    fit = SimpleNamespace(model=SimpleNamespace(system=[], substeps=2))
+    out, check = search._narrowed(fit, (), SimpleNamespace(response_names=("x1", "x2")),
+                                  {"tolerance": 0.01})
+    assert len(calls) == 1 and calls[0]["first_substeps"] == 2
+    assert out is fit and check["width"] == 0.01 and not check["converged"]
