@@ -35,6 +35,9 @@ from ._weak_form import (WeakForm, design, evaluate, least_squares, savgol_windo
 CAREFUL_HORIZONS = (0.1, 0.25, 0.5, 1.0)
 #: Contiguous folds of the equation-error mode's blocked cross-validation.
 FOLDS = 5
+#: :meth:`_Simulator.jacobian`'s directions come in multiples of this many.
+DIRECTIONS_STEP = 8
+
 
 @dataclasses.dataclass(frozen=True)
 class Structure:
@@ -349,10 +352,6 @@ class _Simulator:
         jacobian = self._jacobian(jnp.asarray(p), jnp.asarray(directions),
                                   jnp.asarray(ev.forcing_basis))
         return np.asarray(jacobian)[: ev.measurement.n_samples, : len(columns)]
-
-
-#: :meth:`Simulator.jacobian`'s directions come in multiples of this many.
-DIRECTIONS_STEP = 8
 
 
 def simulation_metrics(measured: np.ndarray, simulated: np.ndarray, n_train: int,

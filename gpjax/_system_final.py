@@ -85,17 +85,13 @@ def without_insignificant(key, fit: SystemFit, alpha: float):
 
 
 def sharpened(equations, names: tuple[str, ...], factor: float) -> list:
-    """``equations`` (per coordinate :class:`~gpjax._coefficients.Coefficients`, or a
-    :data:`gpjax._system_fit.Structure`'s (state features, forcing) pairs) with every
+    """``equations`` (per coordinate :class:`~gpjax._coefficients.Coefficients`) with every
     smoothed sign ``factor`` times narrower, constants kept."""
     out = []
     for i, equation in enumerate(equations):
-        state = equation.state if hasattr(equation, "state") else equation[0]
-        sharp = sharpened_features(state, names, i, factor)
-        if hasattr(equation, "state"):
-            out.append(equation.replace(state={sharp.get(f, f): v for f, v in state.items()}))
-        else:
-            out.append((tuple(sharp.get(f, f) for f in state), equation[1]))
+        sharp = sharpened_features(equation.state, names, i, factor)
+        out.append(equation.replace(state={sharp.get(f, f): v
+                                           for f, v in equation.state.items()}))
     return out
 
 

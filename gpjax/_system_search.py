@@ -334,11 +334,10 @@ def _narrowed(fit: SystemFit, structure, measurement: Measurement, settings: dic
         width /= NARROWING
         _progress.stage(f"refitting the system with its smoothed signs {NARROWING}× narrower "
                         f"(ε = {width:.3g}·RMS z): its constants carried the smoothing")
-        names = measurement.response_names
-        structure = tuple(sharpened(structure, names, NARROWING))
+        start = sharpened(fit.model.system, measurement.response_names, NARROWING)
+        structure = tuple((tuple(c.state), forcing) for c, (_, forcing) in zip(start, structure))
         try:
-            fit = fit_system(measurement, structure, start=sharpened(fit.model.system, names,
-                                                                     NARROWING),
+            fit = fit_system(measurement, structure, start=start,
                              first_substeps=fit.model.substeps, **settings)
         except ValueError:  # the narrower refit diverged: the last fit and check stand
             break
