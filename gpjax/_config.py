@@ -24,6 +24,8 @@ FUNCTIONS = {"add": 2, "sub": 2, "mul": 2, "div": 2, "sin": 1, "cos": 1, "tanh":
 #: Variable roles a tree may use: the response x, its derivatives, every input u, time t.
 VARIABLES = ("x", "x_dot", "x_ddot", "u", "t")
 COEFFICIENT_MODES = ("least_squares", "tree")
+#: How an input may enter the forcing (``GPConfig.input_forcing``).
+INPUT_FORCINGS = ("linear", "any")
 #: Fields of one coordinate's grammar, not (yet) of the search over systems: a system's
 #: trees use the states and inputs, its constants come from least squares, its refinements
 #: take 20 steps, and its RK4 steps and initial states are found. Its functions are those
@@ -104,6 +106,12 @@ class GPConfig:
             ``local_search`` best systems per generation (:mod:`gpjax._system_search`).
         p_swap: several coordinates: probability that a crossover swaps a whole equation
             between the parents instead of two subtrees of one equation.
+        input_forcing: how a measured input may enter the forcing side: ``"linear"`` (the
+            default) as g·u only — a measured force or torque acts linearly, and a
+            nonlinear function of an input measured inside a feedback loop (tanh u,
+            exp u) can stand in for friction or stiffness, since such an input follows the
+            state; ``"any"``: any function of time and inputs, the paper's rule (eq. 3's
+            F_k(t)). Constants and functions of time alone are allowed either way.
         third_law: several coordinates: each coupling force (a power of x_i − x_j or
             x_i' − x_j') acts on both of its coordinates with opposite signs, its constants
             shared (:mod:`gpjax._system_couplings`); no effect on one coordinate.
@@ -144,6 +152,7 @@ class GPConfig:
     local_steps: int = 4
     p_swap: float = 0.3
     third_law: bool = False
+    input_forcing: str = "linear"
 
     def __post_init__(self) -> None:
         _validate(self)
@@ -178,6 +187,7 @@ class GPConfig:
             functions=("add", "sub", "mul"),
             epsilon=0.01,
             variables=("x", "x_ddot", "u", "t"),
+            input_forcing="any",
             named_constants={"J": 7.918e-5, "N1": 19.0, "r1": 0.038},
             interval_constants={
                 "k1": ((0.1, 20.0), (800.0, 1000.0)),
@@ -253,7 +263,7 @@ def _convert(name: str, value: Any, source: str) -> Any:
         if not isinstance(value, bool):
             raise ConfigError(f"{source}: third_law must be true or false, got {value!r}")
         return value
-    if name in ("coefficients", "input_interpolation"):
+    if name in ("coefficients", "input_interpolation", "input_forcing"):
         if not isinstance(value, str):
             raise ConfigError(f"{source}: {name} must be a string, got {value!r}")
         return value
@@ -366,6 +376,8 @@ def _validate(c: GPConfig) -> None:
     need(c.local_search >= 0, f"local_search must be >= 0, got {c.local_search}")
     need(c.local_steps >= 0, f"local_steps must be >= 0, got {c.local_steps}")
     need(0 <= c.p_swap <= 1, f"p_swap must be in [0, 1], got {c.p_swap}")
+    need(c.input_forcing in INPUT_FORCINGS,
+         f"input_forcing must be one of {', '.join(INPUT_FORCINGS)}, got {c.input_forcing!r}")
     need(isinstance(c.third_law, bool), f"third_law must be true or false, got {c.third_law!r}")
     need(0 < c.selection_alpha < 1,
          f"selection_alpha must be in (0, 1), got {c.selection_alpha}")

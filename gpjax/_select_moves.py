@@ -17,6 +17,11 @@ A neighbour is the model with one of these changes, refitted afterwards:
 * **powers → function**: one or two powers of z replaced by one bank feature of z (z^k·|z|;
   sin/cos(z) with a = 1 and b = 0 held; tanh, exp, sinh, cosh from their default scale,
   which the least-squares start's grid and refinement then set);
+* **function → constant force and z**: a bank feature of z replaced by a constant force
+  and the first power of z (kept where the model has it): the model at the feature's
+  first-order expansion, f(a·z) ≈ f(0) + f'(0)·a·z. A feature whose argument stays small
+  over the record (exp(0.006·x') beside x', an offset in disguise) is then one or two
+  constants too many;
 * **Taylor pair dropped**: where a bank feature of z is in the model, two powers of z
   removed at once (the reverse of function → powers: k·tanh(x/a) beside x and x³ sheds the
   pair in one move, which two single removals, each through a worse model, may not);
@@ -122,6 +127,9 @@ def neighbours(fitness, record) -> list[Move]:
             moves.append(move({**rest, family.feature(symbols, (*theta[:-1], sign)): value},
                               forcing, added=[sign_slot]))
         z = family.variable(symbols)
+        if sp.Integer(1) not in forcing:  # function -> constant force and z
+            moves.append(move({**rest, z: rest.get(z, value)},
+                              {**forcing, sp.Integer(1): -value}, [name]))
         for j, k in itertools.combinations(range(1, fitness.config.max_degree + 1), 2):
             moves.append(move({**rest, z ** j: rest.get(z ** j, value),
                                z ** k: rest.get(z ** k, value)}, forcing, [name]))

@@ -5,7 +5,8 @@ Tree i's terminals are its own coordinate x_i, x_i', x_i'', the relative coordin
 d_ij = x_i − x_j and d_ij' (j ≠ i; with the third law of j > i only), the inputs, t and
 random constants; its functions add, sub, mul and those of the system bank
 (:mod:`gpjax._system_bank`). A term is valid as (non-zero constant)·x_i'', a power of one
-state variable up to ``max_degree``, a bank term of one, or a function of time and inputs.
+state variable up to ``max_degree``, a bank term of one, or a function of time and inputs
+(an input itself or a constant unless ``GPConfig.input_forcing`` is ``"any"``).
 """
 
 from __future__ import annotations
@@ -27,9 +28,10 @@ class Equations:
     the smoothed sign of variable z at θ = ``scales``' entry of z."""
 
     def __init__(self, measurement: Measurement, max_degree: int, third_law: bool = False,
-                 functions=("add", "sub", "mul"), scales=None):
+                 functions=("add", "sub", "mul"), scales=None, input_forcing: str = "linear"):
         names = measurement.response_names
         self.names, self.max_degree, self.third_law = names, max_degree, third_law
+        self.input_forcing = input_forcing
         self.functions = ("add", "sub", "mul") + tuple(
             f for f in functions if f in SYSTEM_FUNCTIONS and f not in ("add", "sub", "mul"))
         self.kinds = kinds_for(self.functions)
@@ -89,9 +91,13 @@ class Equations:
                 maker = next(f for f in MAKERS[kind] if f in self.functions)
                 term = ("mul", leaf, (maker, leaf)) if kind == "abs" else (maker, leaf)
             terms.append(term)
-        for feature in forcing:
-            terms.append(("u", self.inputs.index(feature)) if feature in self.inputs
-                         else ("n", 1.0))
+        for feature in forcing:  # a product of inputs, or 1
+            leaves = [("u", self.inputs.index(u)) for u, power in feature.as_powers_dict().items()
+                      if u in self.inputs for _ in range(int(power))] or [("n", 1.0)]
+            term = leaves[0]
+            for leaf in leaves[1:]:
+                term = ("mul", term, leaf)
+            terms.append(term)
         tree = terms[0]
         for term in terms[1:]:
             tree = ("add", tree, term)
@@ -178,6 +184,8 @@ def _structure(equations: Equations, i: int, tree) -> tuple | None:
                 return None
             state.append(meaning[used[0]] ** power)
         else:
+            if equations.input_forcing == "linear" and used and sum(exponents) > 1:
+                return None  # a power or product of inputs (GPConfig.input_forcing)
             forcing.append(sp.Mul(*(g ** e for g, e in zip(generators, exponents) if e)))
     if mass == 0.0 or len(set(state)) < len(state):
         return None

@@ -154,7 +154,7 @@ class SystemEvolution:
         scales = (sign_scales(measurement.response_names, weak.rms) if "sign" in kinds
                   else None)
         self.equations = Equations(measurement, config.max_degree, config.third_law,
-                                   config.functions, scales)
+                                   config.functions, scales, config.input_forcing)
         self.grammars = [self.equations.grammar(i, config)
                          for i in range(len(self.equations.names))]
         evaluator = PopulationEvaluator(

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from . import _progress
-from ._config import GPConfig
+from ._config import INPUT_FORCINGS, GPConfig
 from ._data import INPUT_INTERPOLATIONS
 from ._errors import UserInputError
 from ._report import check_out_folder
@@ -109,6 +109,9 @@ def _fit_options(parser, *, out: str) -> None:
                         help="function set, comma-separated (default: the paper's "
                         "add,sub,mul; for friction, pendulums and saturation e.g. "
                         "add,sub,mul,sin,abs,sign,tanh,exp)")
+    parser.add_argument("--input-forcing", choices=INPUT_FORCINGS, dest="input_forcing",
+                        help="how an input may enter the forcing: linear, as g·u (default); "
+                        "any, any function of time and inputs (the paper's rule)")
     parser.add_argument("--seed", type=_non_negative, default=0,
                         help="random seed (default: 0)")
     parser.add_argument("--out", default=out, help=f"output folder (default: {out})")
@@ -193,7 +196,7 @@ def _names(text: str) -> tuple[str, ...]:
 
 def _config(args, base: GPConfig) -> GPConfig:
     overrides = {k: getattr(args, k) for k in ("population", "generations", "functions",
-                                               "input_interpolation")
+                                               "input_interpolation", "input_forcing")
                  if getattr(args, k, None) is not None}
     return base.replace(**overrides) if overrides else base
 

@@ -385,3 +385,29 @@ def test_a_local_search_move_to_a_second_family_member_is_an_invalid_record(pend
     fitness.score_forms({"two sines": form})
     record = fitness.records["two sines"]
     assert not record.valid and "more members of one feature-bank family" in record.reason
+
+
+def test_an_input_enters_linearly_unless_input_forcing_is_any(pendulum):
+    """tanh(u) or u·t on the forcing side is refused by default (a function of an input
+    measured inside a loop can stand in for friction); input_forcing="any" (the paper's
+    rule, GPConfig.paper) allows it; a constant and a function of time alone pass both."""
+    from gpjax._config import ConfigError, GPConfig
+    from gpjax._fitness import Fitness
+
+    data, _ = pendulum
+    functions = ("add", "sub", "mul", "tanh", "sin")
+
+    def tree(forcing):
+        return ("sub", ("add", ("x_ddot",), ("x",)), ("add", ("u", 0), forcing))
+
+    linear = Fitness(data, GPConfig(population=8, functions=functions))
+    paper = Fitness(data, GPConfig(population=8, functions=functions, input_forcing="any"))
+    for forcing in (("tanh", ("u", 0)), ("mul", ("u", 0), ("t",)), ("mul", ("u", 0), ("u", 0))):
+        _, form, reason = linear.classify(tree(forcing))
+        assert form is None and "nonlinear function of an input" in reason, forcing
+        assert paper.classify(tree(forcing))[1] is not None, forcing
+    for forcing in (("n", 0.5), ("sin", ("t",))):
+        assert linear.classify(tree(forcing))[1] is not None, forcing
+    assert GPConfig.paper().input_forcing == "any"
+    with pytest.raises(ConfigError, match="input_forcing must be one of linear, any"):
+        GPConfig(input_forcing="quadratic")

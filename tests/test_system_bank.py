@@ -136,6 +136,19 @@ def test_structure_rules_read_bank_terms(tree, expected):
     assert equations.structure(0, equations.tree(0, state, forcing)) == found
 
 
+def test_a_system_input_enters_linearly_unless_input_forcing_is_any():
+    """u² on the forcing side is refused by default and kept with input_forcing="any",
+    and the local search's tree of that structure reads back as it."""
+    measurement = _record(duration=1.0)
+    tree = ("sub", ("add", ("s", "x1_ddot"), ("s", "x1")),
+            ("add", ("u", 0), ("mul", ("u", 0), ("u", 0))))
+    assert Equations(measurement, 3).structure(0, tree) is None
+    equations = Equations(measurement, 3, input_forcing="any")
+    state, forcing = equations.structure(0, tree)
+    assert state == (X1,) and forcing == tuple(sorted((U, U ** 2), key=str))
+    assert equations.structure(0, equations.tree(0, state, forcing)) == (state, forcing)
+
+
 def test_sign_scales_follow_the_variables_rms():
     scales = sign_scales(("x1", "x2"), lambda z: 2.0 if z == V1 - V2 else 0.0)
     assert scales[3] == pytest.approx(1 / (0.01 * 2.0)) and scales[0] == pytest.approx(100.0)
