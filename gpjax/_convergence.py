@@ -11,6 +11,13 @@ of the model against the data. Otherwise the step count grows and the model is r
   f_max below which :data:`BANDWIDTH_FRACTION` of the input's and the response's AC
   power lies must satisfy ω·h ≤ :data:`STEP_PHASE` (ω = 2π·f_max, h = Δt / substeps),
   where RK4's relative local error, ~(ωh)⁵/120, is 3e-4.
+* **Stability** (:func:`stable_substeps`): the RMS check alone passes a step that is
+  unstable where the model is stiff but bounded: a mass that sticks on a smoothed sign
+  tanh(z/ε) sees a damping rate F/(m·ε) that RK4 amplifies when h·|λ| exceeds its stability
+  interval, :data:`RK4_STABILITY`; the response chatters within the sign's width, which
+  the check does not see, but the sensitivities that refinement and the standard errors
+  integrate beside it grow without bound. So a check also needs h·ρ ≤ RK4_STABILITY, ρ
+  the largest rate of the model's linearisation where its response dwells.
 * **Window**: records longer than :data:`CHECK_SAMPLES` are checked on their first
   :data:`CHECK_SAMPLES` samples: the reference solve costs ~50–80 µs a sample on 2
   cores (linear in the samples), and the ODE a model names is the same on any stretch of
@@ -45,6 +52,9 @@ STEP_PHASE = 0.5
 MAX_SUBSTEPS = 64
 #: Longest stretch of a record the reference solve checks (see the module docstring).
 CHECK_SAMPLES = 65_536
+#: RK4's stability interval on the negative real axis: a mode λ is not amplified by a
+#: step h with h·|λ| ≤ 2.785.
+RK4_STABILITY = 2.785
 
 
 @dataclasses.dataclass(frozen=True)
@@ -59,6 +69,8 @@ class Convergence:
         ratio: ``difference_rms / rms_reference`` (inf if the reference solve failed).
         tolerance: the largest ratio accepted.
         samples: the samples compared (the record's first, at most :data:`CHECK_SAMPLES`).
+        stable_substeps: the fewest steps per sample at which RK4 is stable on the model
+            along the record (:func:`stable_substeps`); fewer do not converge.
     """
 
     substeps: int
@@ -68,13 +80,25 @@ class Convergence:
     ratio: float
     tolerance: float
     samples: int = 0
+    stable_substeps: int = 1
 
     @property
     def converged(self) -> bool:
-        return self.ratio < self.tolerance
+        return self.ratio < self.tolerance and self.substeps >= self.stable_substeps
 
     def to_json(self) -> dict:
         return dataclasses.asdict(self) | {"converged": self.converged}
+
+
+def check_line(check: dict) -> str:
+    """One line on a check (:meth:`Convergence.to_json`, as a model file records it)."""
+    stable = check.get("stable_substeps", 1)
+    unstable = (f"; RK4 is stable from {stable} steps per sample on"
+                if check["substeps"] < stable else "")
+    return (f"RMS by the reference solve (diffrax Dopri8) {check['rms_reference']:.4g}; RK4 at "
+            f"{check['substeps']} step(s) per sample differs by {check['ratio']:.2%} of it"
+            f"{unstable} ({'converged' if check['converged'] else 'NOT converged'}, tolerance "
+            f"{check['tolerance']:.0%})")
 
 
 def bandwidth_hz(measurement: Measurement) -> float:
@@ -97,13 +121,66 @@ def initial_substeps(measurement: Measurement) -> int:
     return int(min(MAX_SUBSTEPS, max(1, math.ceil(phase / STEP_PHASE))))
 
 
+def stable_substeps(model, measurement: Measurement, responses: np.ndarray) -> int:
+    """The fewest RK4 steps per sample with h·ρ ≤ :data:`RK4_STABILITY` wherever the
+    model's ``responses`` (N,) or (N, D) on ``measurement`` dwell (module docstring).
+
+    ρ_k bounds the rates of each equation's linearisation at sample k, Σ|∂a/∂v| +
+    √Σ|∂a/∂x| (a the acceleration, v every velocity and x every position it depends on:
+    the rate of a damped oscillator; velocities by central differences, slopes by central
+    differences of the features). A perturbation grows without bound only where the rate
+    stays high, as while a mass sticks on a smoothed sign; a response that crosses the
+    sign's narrow transition within one sample interval amplifies it by a bounded factor
+    once. So the bound is taken where two consecutive samples both have it:
+    max_k min(ρ_k, ρ_k+1)."""
+    import sympy as sp  # not at import: the CLI reads its settings before sympy loads
+
+    dt, names = measurement.dt, measurement.response_names
+    positions = np.reshape(responses, (measurement.n_samples, len(names)))
+    positions = np.where(np.isfinite(positions), positions, np.nan)  # a diverged stretch
+    velocities = np.gradient(positions, dt, axis=0)
+    values = {}
+    for i, name in enumerate(names):
+        values[sp.Symbol(name)] = positions[:, i]
+        values[sp.Symbol(f"{name}_dot")] = velocities[:, i]
+    speeds = {sp.Symbol(f"{name}_dot") for name in names}
+    states = set(values)
+    values[sp.Symbol(measurement.time_name)] = measurement.time
+    values |= {sp.Symbol(n): u for n, u in measurement.inputs.items()}
+    rate = np.zeros(measurement.n_samples)
+    for coefficients in model.system:
+        damping = stiffness = 0.0
+        for feature, value in coefficients.state.items():
+            symbols = sorted(feature.free_symbols, key=str)
+            f = sp.lambdify(symbols, feature, "numpy")
+            args = [values[s] for s in symbols]
+            for k, symbol in enumerate(symbols):
+                if symbol not in states:
+                    continue
+                spread = float(np.nanstd(args[k]))
+                step = 1e-7 * (spread if spread > 0 else 1.0)
+                up, down = list(args), list(args)
+                up[k], down[k] = args[k] + step, args[k] - step
+                with np.errstate(all="ignore"):
+                    slope = np.abs(value * (f(*up) - f(*down)) / (2 * step * coefficients.mass))
+                if symbol in speeds:
+                    damping = damping + slope
+                else:
+                    stiffness = stiffness + slope
+        rate = np.fmax(rate, damping + np.sqrt(stiffness))
+    rate = np.where(np.isfinite(rate), rate, 0.0)
+    dwelling = float(np.max(np.minimum(rate[:-1], rate[1:]), initial=0.0))
+    return max(1, math.ceil(dt * dwelling / RK4_STABILITY))
+
+
 def next_substeps(check: Convergence) -> int:
-    """The step count a failed check asks for (≥ 2× the last, at most MAX_SUBSTEPS)."""
+    """The step count a failed check asks for (≥ 2× the last and at least the stable
+    count, at most MAX_SUBSTEPS)."""
     if not math.isfinite(check.ratio):
         wanted = 4 * check.substeps
     else:
         wanted = math.ceil(check.substeps * (check.ratio / (0.5 * check.tolerance)) ** 0.25)
-    return int(min(MAX_SUBSTEPS, max(2 * check.substeps, wanted)))
+    return int(min(MAX_SUBSTEPS, max(2 * check.substeps, wanted, check.stable_substeps)))
 
 
 def needed_substeps(model, measurement: Measurement, check: Convergence,
@@ -119,7 +196,7 @@ def needed_substeps(model, measurement: Measurement, check: Convergence,
         trial, reference = check_model(dataclasses.replace(model, substeps=steps),
                                        measurement, tolerance=check.tolerance,
                                        reference=reference)
-        if trial.ratio < 0.5 * check.tolerance:
+        if trial.ratio < 0.5 * check.tolerance and trial.converged:
             break
         steps = next_substeps(trial)
     return steps
@@ -140,6 +217,7 @@ def check_model(model, measurement: Measurement, *, tolerance: float,
     if reference is None:
         reference = model.simulate(measurement, initial_conditions=y0)
     ok = bool(np.all(np.isfinite(reference)))
+    stable = stable_substeps(model, measurement, reference if ok else rk4)
     measured = measurement.response if np.ndim(rk4) == 1 else measurement.responses
     returned = reference
     if np.ndim(rk4) == 2:
@@ -149,13 +227,13 @@ def check_model(model, measurement: Measurement, *, tolerance: float,
     rms_rk4 = float(np.sqrt(np.mean((measured - rk4) ** 2)))
     if not ok:
         return Convergence(model.substeps, rms_rk4, math.inf, math.inf, math.inf,
-                           tolerance, measurement.n_samples), returned
+                           tolerance, measurement.n_samples, stable), returned
     rms_reference = float(np.sqrt(np.mean((measured - reference) ** 2)))
     difference = float(np.sqrt(np.mean((rk4 - reference) ** 2)))
     ratio = difference / rms_reference if rms_reference > 0 else (0.0 if difference == 0
                                                                   else math.inf)
     return Convergence(model.substeps, rms_rk4, rms_reference, difference, ratio,
-                       tolerance, measurement.n_samples), returned
+                       tolerance, measurement.n_samples, stable), returned
 
 
 def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int | None,

@@ -21,7 +21,8 @@ import numpy as np
 
 from . import _progress
 from ._config import GPConfig
-from ._convergence import MAX_SUBSTEPS, Convergence, check_model, needed_substeps
+from ._convergence import (MAX_SUBSTEPS, Convergence, check_line, check_model,
+                           needed_substeps)
 from ._data import Measurement
 from ._errors import UserInputError
 from ._evolve import Evolution, RunState, evolution_for
@@ -259,10 +260,13 @@ class Identifier:
                 # one, at most those left): the constants barely move between widths,
                 # and each intermediate refit is a whole fit at more steps.
                 jump = int(min(MAX_NARROWINGS - narrowings, max(1, width.narrowings_needed)))
+                steps = narrowed_steps(self.model_, fitness, tolerance=tolerance,
+                                       factor=NARROWING ** jump)
+                if steps is None:
+                    stopped = "unstable sign"
+                    break
                 narrowings, front_too = narrowings + jump, False
-                refit = {"substeps": narrowed_steps(self.model_, fitness, tolerance=tolerance,
-                                                    factor=NARROWING ** jump),
-                         "sign_width": fitness.sign_width / NARROWING ** jump}
+                refit = {"substeps": steps, "sign_width": fitness.sign_width / NARROWING ** jump}
             refits += 1
             # The structures were ranked at the coarser step or wider sign (the ranking,
             # unlike the constants, barely moves); the front and the reported model are
@@ -298,14 +302,18 @@ class Identifier:
                "narrowest sign": f"at the narrowest sign, {NARROWING ** MAX_NARROWINGS}× "
                                  "narrower than the default",
                "width not converging": "narrowing the sign further would not converge",
+               "unstable sign": f"a narrower sign would need more than {MAX_SUBSTEPS} steps "
+                                "per sample for a stable RK4 step where the mass sticks",
                "refit failed": "the refit at more steps or a narrower sign failed"}.get(stopped)
         if why and width is not None and not width.converged:
             why += f" ({_projection(width)})"
         if not check.converged:
+            unstable = (f"; RK4 is stable on it from {check.stable_substeps} steps per sample"
+                        if check.substeps < check.stable_substeps else "")
             warnings.warn(f"the reported model's RK4 response differs from the reference "
                           f"solve by {check.ratio:.1%} of its RMS residual at "
                           f"{check.substeps} steps per sample (tolerance "
-                          f"{tolerance:.1%}): {why}", stacklevel=3)
+                          f"{tolerance:.1%}){unstable}: {why}", stacklevel=3)
         elif width is not None and not width.converged:
             warnings.warn(f"the reported model's response changes by {width.ratio:.1%} of its "
                           f"RMS residual when its smoothed sign (width {width.fraction:.2g} × "
@@ -485,11 +493,7 @@ class Identifier:
                  f"   stopped by {self.stopped_by or 'n/a'}"]
         check = self.model_.convergence
         if check:
-            lines.append(f"  RMS by the reference solve (diffrax Dopri8) "
-                         f"{check['rms_reference']:.4g}; RK4 at {check['substeps']} step(s) "
-                         f"per sample differs by {check['ratio']:.2%} of it "
-                         f"({'converged' if check['converged'] else 'NOT converged'}, "
-                         f"tolerance {check['tolerance']:.0%})")
+            lines.append(f"  {check_line(check)}")
             width = check.get("sign_width")
             if width:
                 verdict = "converged" if width["converged"] else "NOT converged"

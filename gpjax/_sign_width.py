@@ -46,7 +46,7 @@ import numpy as np
 import sympy as sp
 
 from ._coefficients import Coefficients
-from ._convergence import check_model, needed_substeps
+from ._convergence import MAX_SUBSTEPS, check_model, needed_substeps
 from ._fitness import Fitness, Record, structure_key
 from ._model import Model
 
@@ -166,13 +166,15 @@ def sharpened(model: Model, fitness: Fitness, factor: float) -> Model | None:
 
 
 def narrowed_steps(model: Model, fitness: Fitness, *, tolerance: float,
-                   factor: float = NARROWING) -> int:
+                   factor: float = NARROWING) -> int | None:
     """RK4 steps per sample for ``model`` with its signs ``factor`` times narrower:
     its own step count if the step check (:func:`gpjax._convergence.check_model`) passes
     there, else the count that check asks for — measured, not assumed to grow with the
-    sign's steepness."""
+    sign's steepness; ``None`` where no count up to the cap keeps RK4 stable on it."""
     sharper = sharpened(model, fitness, factor)
     check, reference = check_model(sharper, fitness.measurement, tolerance=tolerance)
+    if check.stable_substeps > MAX_SUBSTEPS:
+        return None
     return (model.substeps if check.converged else
             needed_substeps(sharper, fitness.measurement, check, reference))
 

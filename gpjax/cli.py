@@ -341,6 +341,7 @@ def _check_system_diagnosis(args) -> None:
 def _run_diagnosis(args, measurement, model, out: Path) -> None:
     if model.n_coordinates > 1:
         return _run_system_diagnosis(args, measurement, model, out)
+    from ._convergence import check_line
     from ._diagnose import diagnose
     from ._diagnose_report import sign_cautions, write_report
 
@@ -364,15 +365,14 @@ def _run_diagnosis(args, measurement, model, out: Path) -> None:
                                            "would separate them" if change else ""))
     if result.convergence:
         c = result.convergence
-        print(f"  RMS by the reference solve (diffrax Dopri8) {c['rms_reference']:.4g}; RK4 at "
-              f"{c['substeps']} step(s) per sample differs by {c['ratio']:.2%} of it "
-              f"({'converged' if c['converged'] else 'NOT converged'})")
+        print(f"  {check_line(c)}")
     for caution in sign_cautions(result):
         print(f"  caution: {caution}")
     print(f"Report in {out}/ (report.md, report.json, model.json, figures)")
 
 
 def _run_system_diagnosis(args, measurement, model, out: Path) -> None:
+    from ._convergence import check_line
     from ._system_diagnose import summary_line
     from ._system_effects import diagnose_system
 
@@ -391,9 +391,7 @@ def _run_system_diagnosis(args, measurement, model, out: Path) -> None:
     for name, statistics in result.residuals.items():
         print(summary_line(name, statistics))
     c = result.after.checks[-1].to_json()
-    print(f"  RMS by the reference solve (diffrax Dopri8) {c['rms_reference']:.4g}; RK4 at "
-          f"{c['substeps']} step(s) per sample differs by {c['ratio']:.2%} of it "
-          f"({'converged' if c['converged'] else 'NOT converged'})")
+    print(f"  {check_line(c)}")
     print(f"Report in {out}/ (report.md, report.json, model.json)")
 
 

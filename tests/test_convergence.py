@@ -10,7 +10,7 @@ from scipy.linalg import expm
 
 from gpjax import Model, Symbols
 from gpjax._convergence import (Convergence, bandwidth_hz, check_model, initial_substeps,
-                                needed_substeps, next_substeps)
+                                needed_substeps, next_substeps, stable_substeps)
 from gpjax._data import Measurement
 
 S = Symbols("x", "t", ("u",))
@@ -117,3 +117,20 @@ def test_models_differing_only_in_a_features_numbers_share_one_reference_solve()
     assert a == b and names_a == names_b
     assert sorted(set(values_b) - set(values_a)) == [2.5, 2000.0]
     assert a[0].has(S.x ** 3)
+
+
+def test_a_sticking_mass_needs_a_stable_step_and_a_crossing_does_not():
+    """tanh(43799·x') on a 2 kg mass: rate 3·43799/2 ≈ 65,700 /s, so dt = 1 ms needs
+    ceil(65.7 / 2.785) = 24 steps while the mass sticks (x' = 0 for many samples); a
+    response that crosses x' = 0 within a sample interval keeps one step. A check at fewer
+    steps than the stable count does not converge, whatever its RMS ratio."""
+    t = np.arange(0.0, 2.0, 1e-3)
+    model = Model.single(S, mass=2.0, state={"x_dot": 4.0, "tanh(43799*x_dot)": 3.0},
+                         forcing={"u": 1.0})
+    data = Measurement(time=t, response=np.sin(3 * t), inputs={"u": np.sin(t)},
+                       time_name="t", response_name="x")
+    stuck = np.where(t < 1.0, 0.01, np.sin(3 * t))
+    assert stable_substeps(model, data, stuck) == 24
+    assert stable_substeps(model, data, np.sin(3 * t)) == 1
+    check = Convergence(4, 1.0, 1.0, 0.001, 0.001, 0.01, t.size, stable_substeps=24)
+    assert not check.converged and next_substeps(check) == 24
