@@ -253,6 +253,8 @@ CLI_CASES = [
                 ["population must be an integer", "'many'"]),
     config_case("config-boolean-for-number", "generations = true\n",
                 ["generations must be an integer", "True"]),
+    config_case("config-unknown-input-forcing", 'input_forcing = "cubic"\n',
+                ["input_forcing must be one of linear, any", "'cubic'"]),
     config_case("config-negative-population", "population = -3\n",
                 ["population must be at least 4", "-3"]),
     config_case("config-probabilities-not-summing-to-1",
@@ -287,6 +289,8 @@ CLI_CASES = [
     # --- command-line arguments -----------------------------------------------------------
     case("functions-unknown", (*FIT, *SMALL, "--functions", "add,sub,gamma"),
          {"data.csv": VALID_CSV}, ["unknown function 'gamma'", "choose from"]),
+    case("input-forcing-unknown", (*FIT, *SMALL, "--input-forcing", "quadratic"),
+         {"data.csv": VALID_CSV}, ["--input-forcing", "invalid choice: 'quadratic'"]),
     case("functions-empty", (*FIT, *SMALL, "--functions", " , "),
          {"data.csv": VALID_CSV}, ["--functions", "comma-separated names"]),
     case("functions-without-add-or-sub", (*FIT, *SMALL, "--functions", "mul,sin"),
@@ -524,7 +528,7 @@ _LOADED_PROBE = ("import sys\nfrom gpjax.cli import main\nstatus = main(sys.argv
     "response-named-twice", "coordinates-of-different-lengths", "islands-zero",
     "migrate-every-zero", "scheduler-malformed", "scheduler-without-islands",
     "fit-many-empty-folder", "fit-many-workers-zero", "config-unknown-function",
-    "functions-unknown"])
+    "functions-unknown", "input-forcing-unknown"])
 def test_a_user_error_is_reported_before_jax_loads(case_id, tmp_path):
     # One line at once (JAX, sympy, diffrax and Dask take seconds to import): every
     # command checks its settings, --out and data before it loads the engine.
