@@ -223,7 +223,8 @@ class Identifier:
         the sign its narrowest (:data:`~gpjax._sign_width.MAX_NARROWINGS`) or the width
         check's own rate of convergence
         (:attr:`~gpjax._sign_width.WidthCheck.narrowings_needed`) says that narrowing
-        does not converge. Once the sign is narrowed, only the reported model is refitted
+        does not converge, or a narrower sign would need more than MAX_SUBSTEPS steps for
+        a stable RK4 step (:func:`gpjax._convergence.stable_substeps`). Once the sign is narrowed, only the reported model is refitted
         (a sign's width changes the constants of the models that have one, not the
         ranking; refitting the front at every width cost a Coulomb fit of 8,000 samples
         13 minutes); the front's other rows keep their fit. Appends each refit's fitness
@@ -259,9 +260,14 @@ class Identifier:
                 # As many narrowings at once as the measured rate projects (at least
                 # one, at most those left): the constants barely move between widths,
                 # and each intermediate refit is a whole fit at more steps.
+                # A jump whose sign no step count up to the cap integrates stably is
+                # shortened.
                 jump = int(min(MAX_NARROWINGS - narrowings, max(1, width.narrowings_needed)))
-                steps = narrowed_steps(self.model_, fitness, tolerance=tolerance,
-                                       factor=NARROWING ** jump)
+                steps = None
+                while steps is None and jump > 0:
+                    steps = narrowed_steps(self.model_, fitness, tolerance=tolerance,
+                                           factor=NARROWING ** jump)
+                    jump -= steps is None
                 if steps is None:
                     stopped = "unstable sign"
                     break

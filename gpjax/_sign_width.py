@@ -24,7 +24,9 @@ smoothing's error absorbed into the constants, as a coarse RK4 step's would be
   below projects, at least one and at most those left: the constants barely move between
   widths, and every intermediate refit is a fit at more steps (on a Coulomb + viscous
   record of 8,000 samples one at 12 steps per sample took 2.5 minutes). Only with
-  ``substeps="auto"``, at most :data:`MAX_NARROWINGS` narrowings in all.
+  ``substeps="auto"``, at most :data:`MAX_NARROWINGS` narrowings in all, and none to a
+  sign that no step count up to the cap integrates stably where the mass sticks
+  (:func:`gpjax._convergence.stable_substeps`).
 * **Rate** (:attr:`WidthCheck.narrowings_needed`): the check also compares the sign
   NARROWING and NARROWING² times narrower, so it knows how fast its change falls and
   how many narrowings the check needs (geometric convergence, as the step check projects
