@@ -4,7 +4,9 @@ A candidate expression E (read as E = 0) is expanded and each additive term clas
 
 * a term holding x'' must be (non-zero constant)·x'' — constant inertia (eq. 3);
 * every other term depends on x only, on x' only (eqs. 5–6), or on time/inputs only;
-* anything else (x''·x, x·x', x·u, …) is a cross term and makes the candidate invalid.
+* anything else (x''·x, x·x', x·u, …) is a cross term and makes the candidate invalid;
+* with ``linear_inputs`` (the GP's check under ``input_forcing = "linear"``) a term that
+  holds an input is that input alone (g·u).
 
 Beyond the paper's polynomial function set, a state term may be any function of x alone or
 x' alone (sin x, x'·|x'|, sign x', …); with ``bank=True`` (the GP's check) such a term must
@@ -103,7 +105,8 @@ def tree_to_sympy(tree: Tree, symbols: Symbols, constants: dict[str, float]) -> 
 
 
 def check_tree(tree: Tree, symbols: Symbols, constants: dict[str, float], *,
-               max_degree: int | None = None, bank: bool = False) -> StructureCheck:
+               max_degree: int | None = None, bank: bool = False,
+               linear_inputs: bool = False) -> StructureCheck:
     """:func:`check_structure` of the expression a tree denotes (read as ``tree = 0``).
 
     Subtrees without division are multiplied out as sparse polynomials over the reals
@@ -114,9 +117,9 @@ def check_tree(tree: Tree, symbols: Symbols, constants: dict[str, float], *,
     """
     value = _expanded(tree, symbols, tuple(sorted(constants.items())))
     if isinstance(value, sp.Expr):  # already expanded: not expanded again (idempotent)
-        return _check_expanded(value, symbols, max_degree, bank)
+        return _check_expanded(value, symbols, max_degree, bank, linear_inputs)
     terms = tuple((float(c), _monomial(symbols, exponents)) for exponents, c in value.terms())
-    return _check_terms(terms, symbols, max_degree, bank)
+    return _check_terms(terms, symbols, max_degree, bank, linear_inputs)
 
 
 @lru_cache(maxsize=64)
@@ -196,7 +199,8 @@ def _degree(feature: sp.Expr, symbol: sp.Symbol) -> int:
 
 
 def check_structure(expression: sp.Expr | sp.Eq, symbols: Symbols, *,
-                    max_degree: int | None = None, bank: bool = False) -> StructureCheck:
+                    max_degree: int | None = None, bank: bool = False,
+                    linear_inputs: bool = False) -> StructureCheck:
     """Decide the §3 structure rules for ``expression`` (read as ``expression = 0``).
 
     Args:
@@ -205,6 +209,8 @@ def check_structure(expression: sp.Expr | sp.Eq, symbols: Symbols, *,
         max_degree: if given, a power of x or x' above it also makes the candidate invalid.
         bank: a non-polynomial state term must be a feature-bank member or sign(x), sign(x')
             (see the module docstring).
+        linear_inputs: a forcing term that holds an input must be the input itself, g·u
+            (``GPConfig.input_forcing = "linear"``).
 
     Returns:
         A :class:`StructureCheck`: ``valid`` and, if valid, the normalised canonical form,
@@ -214,22 +220,22 @@ def check_structure(expression: sp.Expr | sp.Eq, symbols: Symbols, *,
         expression = expression.lhs - expression.rhs
     if not isinstance(expression, sp.Expr):
         raise TypeError(f"expected a sympy expression or Eq, got {type(expression).__name__}")
-    return _check(expression, symbols, max_degree, bank)
+    return _check(expression, symbols, max_degree, bank, linear_inputs)
 
 
 @lru_cache(maxsize=200_000)
 def _check(expression: sp.Expr, symbols: Symbols, max_degree: int | None,
-           bank: bool) -> StructureCheck:
+           bank: bool, linear_inputs: bool = False) -> StructureCheck:
     known = {symbols.x, symbols.x_dot, symbols.x_ddot, symbols.t, *symbols.u}
     unknown = expression.free_symbols - known
     if unknown:
         return StructureCheck(False, f"unknown symbol {sorted(map(str, unknown))[0]}")
-    return _check_expanded(sp.expand(expression), symbols, max_degree, bank)
+    return _check_expanded(sp.expand(expression), symbols, max_degree, bank, linear_inputs)
 
 
 @lru_cache(maxsize=200_000)
 def _check_expanded(expanded: sp.Expr, symbols: Symbols, max_degree: int | None,
-                    bank: bool) -> StructureCheck:
+                    bank: bool, linear_inputs: bool = False) -> StructureCheck:
     """:func:`_check` of an expression that is already expanded, in known symbols."""
     if expanded.has(sp.zoo, sp.oo, -sp.oo, sp.nan):
         return StructureCheck(False, "the expression is not finite")
@@ -239,12 +245,13 @@ def _check_expanded(expanded: sp.Expr, symbols: Symbols, max_degree: int | None,
         if not feature.free_symbols:
             coefficient, feature = term, sp.Integer(1)
         terms.append((float(coefficient), feature))
-    return _check_terms(tuple(terms), symbols, max_degree, bank)
+    return _check_terms(tuple(terms), symbols, max_degree, bank, linear_inputs)
 
 
 @lru_cache(maxsize=200_000)
 def _check_terms(terms: tuple[tuple[float, sp.Expr], ...], symbols: Symbols,
-                 max_degree: int | None, bank: bool = False) -> StructureCheck:
+                 max_degree: int | None, bank: bool = False,
+                 linear_inputs: bool = False) -> StructureCheck:
     """The §3 rules on an expanded expression given as (coefficient, feature) terms."""
     x, v, a, t, u = symbols.x, symbols.x_dot, symbols.x_ddot, symbols.t, symbols.u
     mass = 0.0
@@ -279,6 +286,10 @@ def _check_terms(terms: tuple[tuple[float, sp.Expr], ...], symbols: Symbols,
                                              "sin/cos(a·z + b), exp(a·z), sign(z))")
             state[feature] = state.get(feature, 0.0) + coefficient
         else:
+            if linear_inputs and symbols_in & set(u) and feature not in u:
+                return StructureCheck(False, f"forcing term {feature} is a nonlinear function "
+                                             "of an input; inputs enter as g·u "
+                                             "(input_forcing=\"any\" allows it)")
             forcing[feature] = forcing.get(feature, 0.0) - coefficient
     scale = max([abs(mass), *map(abs, state.values()), *map(abs, forcing.values())], default=0.0)
     if scale == 0.0 or abs(mass) <= ZERO_TOLERANCE * scale:

@@ -195,7 +195,7 @@ def needed_substeps(model, measurement: Measurement, check: Convergence,
     while steps < MAX_SUBSTEPS:
         trial, reference = check_model(dataclasses.replace(model, substeps=steps),
                                        measurement, tolerance=check.tolerance,
-                                       reference=reference)
+                                       reference=reference, stable=check.stable_substeps)
         if trial.ratio < 0.5 * check.tolerance and trial.converged:
             break
         steps = next_substeps(trial)
@@ -203,21 +203,24 @@ def needed_substeps(model, measurement: Measurement, check: Convergence,
 
 
 def check_model(model, measurement: Measurement, *, tolerance: float,
-                reference: np.ndarray | None = None) -> tuple[Convergence, np.ndarray]:
+                reference: np.ndarray | None = None,
+                stable: int | None = None) -> tuple[Convergence, np.ndarray]:
     """Simulate ``model`` (its fitted initial state, its ``substeps``) by RK4 and by the
     reference solve over the first :data:`CHECK_SAMPLES` samples at most, and compare
     them: (:class:`Convergence`, the reference response on those samples, NaN if that
     solve failed). A system's responses (N, D) are compared with coordinate d weighted
     by s_1/s_d as in the objective, so the figures are in the first response's units.
     ``reference``: that response from an earlier check of the same model (constants and
-    initial state), which the step count does not change; solved when ``None``."""
+    initial state), which the step count does not change; solved when ``None``; likewise
+    ``stable``, its :func:`stable_substeps`."""
     measurement = measurement.segment(0, min(measurement.n_samples, CHECK_SAMPLES))
     y0 = model.initial_states
     rk4 = model.simulate(measurement, initial_conditions=y0, solver="rk4")
     if reference is None:
         reference = model.simulate(measurement, initial_conditions=y0)
     ok = bool(np.all(np.isfinite(reference)))
-    stable = stable_substeps(model, measurement, reference if ok else rk4)
+    if stable is None:
+        stable = stable_substeps(model, measurement, reference if ok else rk4)
     measured = measurement.response if np.ndim(rk4) == 1 else measurement.responses
     returned = reference
     if np.ndim(rk4) == 2:

@@ -262,13 +262,13 @@ class Identifier:
                 # and each intermediate refit is a whole fit at more steps.
                 # A jump whose sign no step count up to the cap integrates stably is
                 # shortened.
-                jump = int(min(MAX_NARROWINGS - narrowings, max(1, width.narrowings_needed)))
-                steps = None
-                while steps is None and jump > 0:
+                most = int(min(MAX_NARROWINGS - narrowings, max(1, width.narrowings_needed)))
+                for jump in range(most, 0, -1):
                     steps = narrowed_steps(self.model_, fitness, tolerance=tolerance,
                                            factor=NARROWING ** jump)
-                    jump -= steps is None
-                if steps is None:
+                    if steps is not None:
+                        break
+                else:
                     stopped = "unstable sign"
                     break
                 narrowings, front_too = narrowings + jump, False

@@ -177,7 +177,8 @@ class Fitness:
         """(key, canonical form or None, reason) of a tree, cached."""
         if tree not in self.checks:
             check = check_tree(tree, self.symbols, self.config.named_constants,
-                               max_degree=self.config.max_degree, bank=True)
+                               max_degree=self.config.max_degree, bank=True,
+                               linear_inputs=self.config.input_forcing == "linear")
             if check.valid:
                 form = self._bank_form(check.canonical)
                 reason = self.unsupported(form)
@@ -192,9 +193,8 @@ class Fitness:
 
     def unsupported(self, form: CanonicalForm) -> str:
         """Why the evaluator cannot score ``form`` ("" if it can): a state feature outside
-        its basis, two members of one family (one column each), a nonlinear function of an
-        input under ``input_forcing="linear"``, or a forcing term that is not finite on the
-        data."""
+        its basis, two members of one family (one column each), or a forcing term that is
+        not finite on the data."""
         columns = [c for c, _, _ in self.evaluator.state_columns([f for f, _ in form.state])]
         outside = [f for (f, _), c in zip(form.state, columns) if c is None]
         if outside:
@@ -203,12 +203,6 @@ class Fitness:
         if len(set(columns)) < len(columns):
             return ("more members of one feature-bank family than its slots (e.g. two sines "
                     "of x): a model holds one of each, two of exp")
-        if self.config.input_forcing == "linear":
-            inputs = set(self.symbols.u)
-            nonlinear = [g for g, _ in form.forcing if g.free_symbols & inputs and g not in inputs]
-            if nonlinear:
-                return (f"forcing term {nonlinear[0]} is a nonlinear function of an input; "
-                        "inputs enter as g·u (input_forcing=\"any\" allows it)")
         if not all(self.evaluator.forcing_finite(g) for g, _ in form.forcing):
             return "a forcing term is not finite on the data (e.g. exp(a·t) overflows)"
         return ""
