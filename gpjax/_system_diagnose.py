@@ -65,16 +65,29 @@ def residual_statistics(model: Model, measurement: Measurement, *, alpha: float 
     return out
 
 
-#: What to do where a coordinate's residual is far above its noise or the model diverges.
-HINT = ("the model misses physics or diverges: widen --functions (e.g. "
-        "add,sub,mul,sin,abs,sign,tanh,exp), raise --population and --generations, or add "
-        "--diagnose to name the missing effect")
+#: The README's wide function set, which :func:`hint` proposes to a run that used less.
+WIDE_FUNCTIONS = ("add", "sub", "mul", "sin", "abs", "sign", "tanh", "exp")
 
 
-def summary_line(name: str, statistics: dict) -> str:
-    """One line of a coordinate's residual statistics for the terminal."""
+def hint(functions: tuple[str, ...] = ()) -> str:
+    """What to try where a coordinate's residual is far above its noise floor or the model
+    diverges; widening ``--functions`` only where the run's ``functions`` lack part of
+    :data:`WIDE_FUNCTIONS`."""
+    widen = ("" if set(WIDE_FUNCTIONS) <= set(functions) else
+             f"widen --functions (e.g. {','.join(WIDE_FUNCTIONS)}), ")
+    return (f"the model misses physics or diverges: {widen}raise --population and "
+            "--generations, or add --diagnose to name the missing effect; a coordinate "
+            "without a restoring force (a free mass in a position loop) drifts when "
+            "simulated from its measured input, and the search cannot rank models on it "
+            "(docs: Known limitations)")
+
+
+def summary_line(name: str, statistics: dict, functions: tuple[str, ...] = ()) -> str:
+    """One line of a coordinate's residual statistics for the terminal (``functions``: the
+    run's function set, for :func:`hint`)."""
     if statistics["rms"] is None:
-        return f"  residual of {name}: the fitted model diverges on its record  <- {HINT}"
+        return (f"  residual of {name}: the fitted model diverges on its record  <- "
+                f"{hint(functions)}")
     floor = statistics["noise"]
     noise = ("noise floor not estimable (record too short)" if floor is None else
              f"{floor['ratio']:.2f}× its noise floor σ̂ = {floor['sigma']:.3g} "

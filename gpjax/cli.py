@@ -211,7 +211,7 @@ def _demo(args) -> int:
     constants = identifier.model_.constants()
     structure = sorted(identifier.model_.state), sorted(identifier.model_.forcing)
     print(identifier)
-    _print_residuals(identifier.model_)
+    _print_residuals(identifier.model_, config.functions)
     print(f"\nTruth (bundled generator): J = {truth['J']}, K1 = {truth['K1']}, K2 = {truth['K2']}")
     if structure == (["phi", "phi**2"], ["T"]):
         for name, key in (("J", "m"), ("K1", "k1"), ("K2", "k2")):
@@ -279,7 +279,7 @@ def _fit(args) -> int:
     identifier = _run(config, measurement, args.seed, Path(args.out), resume=args.resume,
                       **islands)
     print(identifier)
-    _print_residuals(identifier.model_, diagnosing=args.diagnose)
+    _print_residuals(identifier.model_, identifier.config.functions, diagnosing=args.diagnose)
     _timings(identifier, args.out)
     if identifier.stopped_by == "interrupted":
         return 130
@@ -288,17 +288,18 @@ def _fit(args) -> int:
     return 0
 
 
-def _print_residuals(model, *, diagnosing: bool = False) -> None:
+def _print_residuals(model, functions: tuple[str, ...], *, diagnosing: bool = False) -> None:
     """Each coordinate's residual against its noise floor (with the hint where one misses
-    something, unless the diagnosis follows), and a system's sign-width check."""
-    from ._system_diagnose import HINT, summary_line, width_line
+    something, unless the diagnosis follows), and a system's sign-width check;
+    ``functions``: the run's function set."""
+    from ._system_diagnose import hint, summary_line, width_line
 
     print("Residuals per coordinate (reference solve):")
     residuals = model.metrics["residuals"]
     for name, statistics in residuals.items():
-        print(summary_line(name, statistics))
+        print(summary_line(name, statistics, functions))
     if any(s["unexplained"] is not None for s in residuals.values()):
-        print("  the diagnosis follows" if diagnosing else f"  hint: {HINT}")
+        print("  the diagnosis follows" if diagnosing else f"  hint: {hint(functions)}")
     width = model.metrics.get("sign_width")
     if width:
         print(width_line(width))

@@ -145,7 +145,7 @@ def test_one_coordinate_gets_its_residual_against_the_noise_floor(capsys):
     from gpjax import Model
     from gpjax._coefficients import Coefficients
     from gpjax._synthetic import generate
-    from gpjax._system_diagnose import HINT, residual_statistics
+    from gpjax._system_diagnose import WIDE_FUNCTIONS, hint, residual_statistics
     from gpjax.cli import _print_residuals
     from gpjax.systems import get_system
 
@@ -164,10 +164,15 @@ def test_one_coordinate_gets_its_residual_against_the_noise_floor(capsys):
     linear = model({f: value for f, value in state.items() if f != x ** 3})
     missing = residual_statistics(linear, measurement)["x"]
     assert missing["noise"]["ratio"] > 3 and missing["unexplained"] is not None
-    _print_residuals(dataclasses.replace(linear, metrics={"residuals": {"x": missing}}))
+    flagged = dataclasses.replace(linear, metrics={"residuals": {"x": missing}})
+    _print_residuals(flagged, ("add", "sub", "mul"))
     out = capsys.readouterr().out
-    assert "residual of x: RMS" in out and "misses something" in out and HINT in out
-    _print_residuals(dataclasses.replace(linear, metrics={"residuals": {"x": missing}}),
+    assert "residual of x: RMS" in out and "misses something" in out
+    assert hint(("add", "sub", "mul")) in out and "widen --functions" in out
+    _print_residuals(flagged, WIDE_FUNCTIONS)  # the wide set already: not proposed again
+    out = capsys.readouterr().out
+    assert hint(WIDE_FUNCTIONS) in out and "widen" not in out and "--diagnose" in out
+    _print_residuals(flagged, ("add", "sub", "mul"),
                      diagnosing=True)  # gpjax fit --diagnose: no hint to add --diagnose
     out = capsys.readouterr().out
-    assert "the diagnosis follows" in out and HINT not in out
+    assert "the diagnosis follows" in out and "hint" not in out
