@@ -30,7 +30,9 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _baseline import ROOT, baseline_tree  # noqa: E402
 
-WIDE = "add,sub,mul,sin,abs,sign,tanh,exp"
+from gpjax._config import WIDE_FUNCTIONS  # noqa: E402
+
+WIDE = ",".join(WIDE_FUNCTIONS)
 #: (system, duration in s): issue 43's four records, 100 Hz, 7,601–7,991 samples, one
 #: length bucket (7,169–8,192); Coulomb + viscous exercises the sign-width loop.
 RECORDS = (("duffing", 79.9), ("pendulum", 78.0), ("quadratic_drag", 77.0),

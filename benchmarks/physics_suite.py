@@ -56,6 +56,7 @@ import sympy as sp
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import gpjax  # noqa: E402
+from gpjax._config import WIDE_FUNCTIONS  # noqa: E402
 from gpjax._scoring import TOLERANCE  # noqa: E402
 from gpjax.systems import (PHYSICS_SUITE, compare_structure, cramer_rao,  # noqa: E402
                            generate, simulate_equations, nrms, truth_refit)
@@ -66,7 +67,7 @@ QUICK = {"systems": "duffing,coulomb_viscous", "seeds": 1, "population": 100,
          "generations": 3}
 #: gpjax's default function set here: eq. 10's and the unary functions of mechanics (one
 #: set for every system; a user does not know the physics beforehand).
-FUNCTIONS = ("add", "sub", "mul", "sin", "abs", "sign", "tanh", "exp")
+FUNCTIONS = WIDE_FUNCTIONS
 #: The methods of gpjax's own (the peers are chosen with ``--peers``).
 METHODS = ("truth", "truth-refit", "gpjax", "gpjax-no-local-search")
 #: A simulated state beyond this multiple of the true record's largest |x| or |x'| counts

@@ -26,6 +26,8 @@ VARIABLES = ("x", "x_dot", "x_ddot", "u", "t")
 COEFFICIENT_MODES = ("least_squares", "tree")
 #: How an input may enter the forcing (``GPConfig.input_forcing``).
 INPUT_FORCINGS = ("linear", "any")
+#: The wide function set the README documents (friction, pendulums, saturation, stiffening).
+WIDE_FUNCTIONS = ("add", "sub", "mul", "sin", "abs", "sign", "tanh", "exp")
 #: Fields of one coordinate's grammar, not (yet) of the search over systems: a system's
 #: trees use the states and inputs, its constants come from least squares, its refinements
 #: take 20 steps, and its RK4 steps and initial states are found. Its functions are those

@@ -18,6 +18,7 @@ import math
 
 import numpy as np
 
+from ._config import WIDE_FUNCTIONS
 from ._data import Measurement
 from ._diagnose_evidence import input_lines
 from ._diagnose_noise import noise_floor
@@ -65,14 +66,10 @@ def residual_statistics(model: Model, measurement: Measurement, *, alpha: float 
     return out
 
 
-#: The README's wide function set, which :func:`hint` proposes to a run that used less.
-WIDE_FUNCTIONS = ("add", "sub", "mul", "sin", "abs", "sign", "tanh", "exp")
-
-
 def hint(functions: tuple[str, ...] = ()) -> str:
     """What to try where a coordinate's residual is far above its noise floor or the model
     diverges; widening ``--functions`` only where the run's ``functions`` lack part of
-    :data:`WIDE_FUNCTIONS`."""
+    :data:`gpjax._config.WIDE_FUNCTIONS`."""
     widen = ("" if set(WIDE_FUNCTIONS) <= set(functions) else
              f"widen --functions (e.g. {','.join(WIDE_FUNCTIONS)}), ")
     return (f"the model misses physics or diverges: {widen}raise --population and "

@@ -17,7 +17,7 @@ import sys
 from pathlib import Path
 
 from . import _progress
-from ._config import INPUT_FORCINGS, GPConfig
+from ._config import INPUT_FORCINGS, WIDE_FUNCTIONS, GPConfig
 from ._data import INPUT_INTERPOLATIONS
 from ._errors import UserInputError
 from ._report import check_out_folder
@@ -108,7 +108,7 @@ def _fit_options(parser, *, out: str) -> None:
     parser.add_argument("--functions", type=_names,
                         help="function set, comma-separated (default: the paper's "
                         "add,sub,mul; for friction, pendulums and saturation e.g. "
-                        "add,sub,mul,sin,abs,sign,tanh,exp)")
+                        f"{','.join(WIDE_FUNCTIONS)})")
     parser.add_argument("--input-forcing", choices=INPUT_FORCINGS, dest="input_forcing",
                         help="how an input may enter the forcing: linear, as g·u (default); "
                         "any, any function of time and inputs (the paper's rule)")

@@ -145,7 +145,8 @@ def test_one_coordinate_gets_its_residual_against_the_noise_floor(capsys):
     from gpjax import Model
     from gpjax._coefficients import Coefficients
     from gpjax._synthetic import generate
-    from gpjax._system_diagnose import WIDE_FUNCTIONS, hint, residual_statistics
+    from gpjax._config import WIDE_FUNCTIONS
+    from gpjax._system_diagnose import hint, residual_statistics
     from gpjax.cli import _print_residuals
     from gpjax.systems import get_system
 
