@@ -12,13 +12,13 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import shutil
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
+from _provenance import provenance
 import numpy as np
 
 
@@ -66,9 +66,8 @@ def main() -> None:
         print(f"| {label} | {s['median_wall_s']:.2f} | {s['median_compile_s']:.2f} |")
     if args.json:
         Path(args.json).write_text(json.dumps(
-            {"machine": platform.platform(), "cpus": os.cpu_count(),
-             "load_average_after": os.getloadavg(),
-             "command": "gpjax demo (paper protocol, P = 500, eps = 0.01), one process each",
+            {**provenance(), "load_average_after": os.getloadavg(),
+             "runs_of": "gpjax demo (paper protocol, P = 500, eps = 0.01), one process each",
              "summary": summary, "runs": rows}, indent=1) + "\n", encoding="utf-8")
 
 

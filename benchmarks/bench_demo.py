@@ -15,6 +15,7 @@ import json
 import platform
 import time
 
+from _provenance import provenance
 import numpy as np
 
 from gpjax import GPConfig, Identifier
@@ -69,7 +70,7 @@ def main() -> None:
     print(f"\nrecovered eq. 14 within 2 %: {recovered} of {args.seeds} seeds")
     if args.json:
         with open(args.json, "w", encoding="utf-8") as handle:
-            json.dump({"machine": platform.platform(), "processor": platform.processor(),
+            json.dump({**provenance(), "processor": platform.processor(),
                        "recovered": recovered, "seeds": args.seeds, "runs": rows}, handle,
                       indent=2)
 

@@ -26,12 +26,11 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
-import sys
 import tempfile
 import time
 from pathlib import Path
 
+from _provenance import provenance
 import numpy as np
 
 HERE = Path(__file__).resolve().parent
@@ -181,9 +180,7 @@ def main() -> None:
     args = parser.parse_args()
     result = (compare(args.seeds, args.cache, args.hard) if args.part == "compare" else
               overhead() if args.part == "overhead" else model())
-    result |= {"machine": platform.platform(), "cpus": os.cpu_count(),
-               "load_average_after": os.getloadavg(),
-               "command": " ".join([Path(sys.executable).name, *sys.argv])}
+    result |= {**provenance(), "load_average_after": os.getloadavg()}
     if args.part == "model":
         for row in result["projection"]:
             print(f"{row['workers']:>4} workers: epoch {row['epoch_s']:.3f} s, "

@@ -18,10 +18,9 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
-import sys
 from pathlib import Path
 
+from _provenance import provenance
 from _baseline import ROOT, baseline_tree, run_child
 
 CHILD = """
@@ -87,8 +86,7 @@ def main(argv=None) -> int:
               f"{'never' if s['fits_to_map_limit'] is None else round(s['fits_to_map_limit'])} fits")
     if args.json:
         Path(args.json).write_text(json.dumps({
-            "command": "python benchmarks/bench_many_fits.py " + " ".join(argv or sys.argv[1:]),
-            "machine": platform.platform(), "max_map_count": limit,
+            **provenance(), "max_map_count": limit,
             "baseline": theirs, "this_tree": ours, "summary": summary}, indent=1))
     return 0
 

@@ -19,7 +19,6 @@ import contextlib
 import dataclasses
 import json
 import os
-import platform
 import re
 import subprocess
 import sys
@@ -28,6 +27,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _provenance import provenance  # noqa: E402
 from _baseline import ROOT, baseline_tree  # noqa: E402
 
 from gpjax._config import WIDE_FUNCTIONS  # noqa: E402
@@ -118,15 +118,8 @@ def main() -> None:
             cells += f"   {after / before:5.2f}"
         print(f"{path.stem:24s}{cells}")
     if args.json:
-        revision = subprocess.run(["git", "-C", str(ROOT), "rev-parse", "--short", "HEAD"],
-                                  capture_output=True, text=True).stdout.strip()
-        dirty = bool(subprocess.run(["git", "-C", str(ROOT), "status", "--porcelain"],
-                                    capture_output=True, text=True).stdout.strip())
         Path(args.json).write_text(json.dumps({
-            "command": " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
-            "revision": revision + ("+changes" if dirty else ""),
-            "date": time.strftime("%Y-%m-%d"), "machine": platform.platform(),
-            "cpus": os.cpu_count(), "population": args.population,
+            **provenance(), "population": args.population,
             "generations": args.generations, "functions": WIDE, "results": results},
             indent=1) + "\n", encoding="utf-8")
 

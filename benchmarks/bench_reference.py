@@ -14,10 +14,10 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
 import time
 from pathlib import Path
 
+from _provenance import provenance
 import numpy as np
 
 from gpjax import Measurement, Model, Symbols
@@ -63,8 +63,7 @@ def main() -> None:
               f"{row['ratio_to_rk4']:.0f} |", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(
-            {"machine": platform.platform(), "cpus": os.cpu_count(),
-             "load_average_after": os.getloadavg(), "rows": rows}, indent=1) + "\n",
+            {**provenance(), "load_average_after": os.getloadavg(), "rows": rows}, indent=1) + "\n",
             encoding="utf-8")
 
 

@@ -19,13 +19,13 @@ import argparse
 import csv
 import json
 import os
-import platform
 import subprocess
 import sys
 import tempfile
 import time
 from pathlib import Path
 
+from _provenance import provenance
 import numpy as np
 
 FS_HZ = 1000.0
@@ -138,8 +138,7 @@ def main() -> None:
               f" | {row['wall_s']:.1f} | {row.get('substeps', '')} | "
               f"{row.get('convergence_ratio', float('nan')):.2%} |")
     with open(args.json, "w") as handle:
-        json.dump({"machine": {"cpus": os.cpu_count(), "python": platform.python_version()},
-                   "command": " ".join(["python", *sys.argv]), "rows": rows}, handle, indent=1)
+        json.dump({**provenance(), "rows": rows}, handle, indent=1)
         handle.write("\n")
 
 

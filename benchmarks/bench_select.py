@@ -19,12 +19,11 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import re
 import sys
 from pathlib import Path
 
+from _provenance import provenance
 from _baseline import ROOT, baseline_tree, run_child
 
 CASES = ("saturating_spring:3", "softening_spring:0", "coulomb_viscous:1", "coulomb_viscous:2",
@@ -101,8 +100,7 @@ def main(argv: list[str] | None = None) -> int:
                   f"{'yes' if r['same_model'] else 'NO':>5}", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(
-            {"command": " ".join(["python", *sys.argv]), "machine": platform.platform(),
-             "cpus": os.cpu_count(), "baseline": args.baseline, "rows": rows}, indent=1) + "\n")
+            {**provenance(), "baseline": args.baseline, "rows": rows}, indent=1) + "\n")
     return 0
 
 

@@ -2,11 +2,13 @@
 controls.
 
 Usage: python benchmarks/diagnose_sweep.py [--json FILE] [--seeds S ...] [--noise K ...]
-       [--effects NAME ...] [--no-controls] [--rescore] [--merge FILE ...]
+       [--effects NAME ...] [--no-controls] [--resume] [--rescore] [--merge FILE ...]
        python benchmarks/diagnose_sweep.py --nearest [--seeds S ...] [--json FILE]
 
-Rows are written to ``--json`` as each case ends, so a run cut short is still evidence;
-``--merge`` joins the files of runs made in parts.
+Rows are written to ``--json`` as each case ends, each with the revision it ran at, so a run
+cut short is still evidence; ``--resume`` keeps the rows of ``--json`` that record a revision
+and runs only the other cases (a row of an earlier file without one is replaced when its
+case runs again); ``--merge`` joins the files of runs made in parts.
 
 Runs :func:`gpjax.diagnose` on the cases of :func:`gpjax.gear.undeclared_effect_case`
 (every library effect, the effects outside the library of :data:`gpjax.gear.OUTSIDE`, and
@@ -34,6 +36,7 @@ import json
 import time
 from pathlib import Path
 
+from _provenance import provenance
 from gpjax import diagnose
 from gpjax.gear import (EFFECTS, NEAREST, NOISE_LEVELS, NOISE_PHI, OUTSIDE, REPORTING_SEEDS,
                         TUNING_SEEDS, undeclared_effect_case)
@@ -55,12 +58,14 @@ def run(name: str, seed: int, torque_noise: float) -> dict:
                   "p_values": [s["test"]["p_adjusted"] for s in result.steps],
                   "unexplained": result.unexplained is not None,
                   "noise_floor_ratio": (result.noise.get("after") or {}).get("ratio"),
-                  "seconds": seconds})
+                  "seconds": seconds, "revision": provenance()["revision"]})
 
 
 def score(row: dict) -> dict:
-    """``row`` with ``named_first``, ``spurious`` and ``passed`` (module docstring)."""
+    """``row`` with ``kind``, ``named_first``, ``spurious`` and ``passed`` (module
+    docstring)."""
     name, added = row["effect"], row["added"]
+    row["kind"] = "control" if name == "control" else "outside" if name in OUTSIDE else "library"
     allowed = NEAREST.get(name, (name,))
     row["named_first"] = bool(added) and added[0] in allowed
     row["spurious"] = added if name == "control" else [a for a in added if a not in allowed]
@@ -101,6 +106,8 @@ def main() -> None:
     parser.add_argument("--noise", nargs="+", type=float, default=list(NOISE_LEVELS))
     parser.add_argument("--effects", nargs="*", default=list(EFFECTS + OUTSIDE))
     parser.add_argument("--no-controls", action="store_true")
+    parser.add_argument("--resume", action="store_true",
+                        help="keep the rows of --json that record a revision; run the rest")
     parser.add_argument("--rescore", action="store_true",
                         help="re-score the rows of --json with this version's criteria")
     parser.add_argument("--merge", nargs="+", metavar="FILE",
@@ -127,14 +134,20 @@ def main() -> None:
              if not args.no_controls]
     order += [(name, noise, seed) for seed in args.seeds for noise in args.noise
               for name in args.effects]
-    rows = []
+    rows = json.loads(Path(args.json).read_text())["rows"] if args.resume else []
+    done = {_case(r) for r in rows if r.get("revision")}
+    order = [case for case in order if case not in done]
     print("| effect | seed | torque noise | added | first? | after / σ | true model / σ | "
           "passed | s |")
     for name, noise, seed in order:
-        rows.append(run(name, seed, noise))
+        rows = [r for r in rows if _case(r) != (name, noise, seed)] + [run(name, seed, noise)]
         _print(rows[-1])
         _write(args.json, rows)
     print(json.dumps(totals(rows), indent=1))
+
+
+def _case(row: dict) -> tuple:
+    return row["effect"], row["torque_noise"], row["seed"]
 
 
 def _nearest(seeds: list[int], path: str) -> None:
@@ -150,12 +163,12 @@ def _nearest(seeds: list[int], path: str) -> None:
                          "best_in_nearest": ranked[0][0] in NEAREST[name]})
             print(f"| {name} | {seed} | " + " | ".join(f"{k} ({v:.3f})" for k, v in ranked[:3])
                   + f" | {'yes' if rows[-1]['best_in_nearest'] else 'no'} |", flush=True)
-    Path(path).write_text(json.dumps({"nearest": NEAREST, "rows": rows}, indent=2) + "\n",
+    Path(path).write_text(json.dumps({**provenance(), "nearest": NEAREST, "rows": rows}, indent=2) + "\n",
                           encoding="utf-8")
 
 
 def _write(path: str, rows: list[dict]) -> None:
-    Path(path).write_text(json.dumps({"tuning_seeds": TUNING_SEEDS,
+    Path(path).write_text(json.dumps({**provenance(), "tuning_seeds": TUNING_SEEDS,
                                       "reporting_seeds": REPORTING_SEEDS,
                                       "totals": totals(rows), "rows": rows}, indent=2) + "\n",
                           encoding="utf-8")

@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
-import sys
 import time
 from pathlib import Path
 
+from _provenance import provenance
 import sympy as sp
 
 from gpjax import GPConfig, Identifier
@@ -83,8 +82,7 @@ def main() -> None:
               f"{sum(r['recovered'] for r in rows):>4}/{len(rows):<4} {seconds:>9.1f}")
     if args.json:
         Path(args.json).write_text(json.dumps({
-            "machine": platform.platform(), "command": " ".join(["python", *sys.argv]),
-            "intervals": intervals, "truth": {k: truth[k] for k in ("J", "K1", "K2")},
+            **provenance(), "intervals": intervals, "truth": {k: truth[k] for k in ("J", "K1", "K2")},
             "runs": runs}, indent=2) + "\n", encoding="utf-8")
 
 

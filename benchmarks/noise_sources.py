@@ -32,6 +32,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
+from _provenance import provenance  # noqa: E402
 import gpjax  # noqa: E402
 from gpjax._canonical import check_structure  # noqa: E402
 from gpjax._fitness import Fitness  # noqa: E402
@@ -96,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
             print(f"| {system} | {seed} | " + " | ".join(cells)
                   + f" | {100 * max(r['cramer_rao'].values()):.2f} % |", flush=True)
     if args.json:
-        args.json.write_text(json.dumps({"command": " ".join(sys.argv), "noise": args.noise,
+        args.json.write_text(json.dumps({**provenance(), "noise": args.noise,
                                          "rows": rows}, indent=1))
     return 0
 

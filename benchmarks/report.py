@@ -271,9 +271,13 @@ def diagnose_sweep() -> str:
         seeds = t["seeds"]
         rows.append([kind, noise, f"{min(seeds)}–{max(seeds)}", t["cases"], t["passed"],
                      "–" if kind == "control" else t["named_first"], t["with_spurious"],
-                     t["within_1.5x_truth"]])
+                     t["within_1.5x_truth"],
+                     ", ".join(sorted({r.get("revision", "not recorded") for r in data["rows"]
+                                       if r["kind"] == kind
+                                       and f"{r['torque_noise']:g}x" == noise}))])
     return (_table(["kind", "torque noise", "seeds", "cases", "passed", "right effect first",
-                    "with a spurious effect", "final RMS ≤ 1.5× true model's"], rows, "llrrrrrr")
+                    "with a spurious effect", "final RMS ≤ 1.5× true model's", "revision"],
+                   rows, "llrrrrrrl")
             + "\n\n" + _stamp(data))
 
 

@@ -29,6 +29,7 @@ import argparse
 import json
 import statistics
 
+from _provenance import provenance
 import numpy as np
 import sympy as sp
 
@@ -144,7 +145,7 @@ def main(argv: list[str] | None = None) -> int:
               f"{100 * line['nrms_vs_exact_median']:.3f} % |")
     if args.json:
         with open(args.json, "w") as out:
-            json.dump({"system": SYSTEM, "tolerance": TOLERANCE, "rows": rows,
+            json.dump({**provenance(), "system": SYSTEM, "tolerance": TOLERANCE, "rows": rows,
                        "summary": summary}, out, indent=1)
     return 0
 

@@ -20,6 +20,7 @@ import json
 import time
 from pathlib import Path
 
+from _provenance import provenance
 import numpy as np
 
 from gpjax import Measurement, Model, Symbols, diagnose
@@ -95,7 +96,7 @@ def main() -> None:
                   f"{row['f0'] if row['f0'] is None else round(row['f0'], 3)} ({t['f0']:.3f}) | "
                   f"{'yes' if row['passed'] else 'no'} | {row['seconds']:.0f} |", flush=True)
             Path(args.json).write_text(json.dumps(
-                {"passed": sum(r["passed"] for r in rows), "cases": len(rows), "rows": rows},
+                {**provenance(), "passed": sum(r["passed"] for r in rows), "cases": len(rows), "rows": rows},
                 indent=2) + "\n", encoding="utf-8")
     print(f"passed {sum(r['passed'] for r in rows)} of {len(rows)}")
 
