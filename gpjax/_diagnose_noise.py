@@ -8,7 +8,10 @@ the noise's, so its median over those bins / ln 2 (the median of an exponential 
 ln 2 × its mean; the median ignores a stray line) is the noise's density, and
 σ̂ = √(density · bins / N) its standard deviation. Inside the band, under the hypothesis
 "the residual is that noise", the summed periodogram over K bins / density is Gamma(K)
-distributed: :func:`noise_floor` gives the p-value of the in-band excess.
+distributed: :func:`noise_floor` gives the p-value of the in-band excess. A band of fewer
+than :data:`MIN_BINS` bins (a slowly drifting response on a short record) is widened to the
+lowest :data:`MIN_BINS`: under the hypothesis every bin is the noise's, so the test stays
+exact on any fixed set of bins; it only becomes less sensitive.
 
 **Input lines.** A measured input (a torque) carries sensor noise, which a simulation of the
 model feeds through its dynamics: at a lightly damped resonance that noise rings and a
@@ -35,6 +38,8 @@ from ._objective import SPECTRAL_ENERGY_FRACTION
 
 #: Most lines fitted to an input; one that needs more is broadband, left as measured.
 MAX_LINES = 48
+#: Fewest periodogram bins in the band tested and above it (the noise's median density).
+MIN_BINS = 16
 
 
 def _periodogram(values: np.ndarray) -> np.ndarray:
@@ -46,14 +51,16 @@ def _periodogram(values: np.ndarray) -> np.ndarray:
 def noise_floor(residual: np.ndarray, dt: float, band_hz: float) -> dict | None:
     """The residual's noise floor (module docstring): ``sigma`` (residual units),
     ``rms`` of the residual, ``ratio`` = rms/σ̂, ``band_hz``, ``p_excess`` (p-value of the
-    in-band power under white noise at σ̂), or ``None`` with fewer than 16 bins on either
-    side of the band or a non-finite residual."""
-    if not np.all(np.isfinite(residual)):
-        return None
+    in-band power under white noise at σ̂; a band of fewer than :data:`MIN_BINS` bins is
+    widened to them), or ``None`` with fewer than :data:`MIN_BINS` bins above the band (a
+    record too short) or a non-finite residual."""
     power = _periodogram(residual)
+    if not np.all(np.isfinite(residual)) or power.size < 2 * MIN_BINS:
+        return None
     frequency = np.arange(1, power.size + 1) / (residual.size * dt)
+    band_hz = max(band_hz, frequency[MIN_BINS - 1])
     inside, outside = power[frequency <= band_hz], power[frequency > band_hz]
-    if inside.size < 16 or outside.size < 16:
+    if outside.size < MIN_BINS:
         return None
     density = float(np.median(outside)) / math.log(2.0)
     sigma = math.sqrt(density / residual.size)

@@ -102,6 +102,23 @@ def test_noise_floor_of_white_noise_under_a_band_limited_signal():
     assert at_floor["ratio"] == pytest.approx(1.0, abs=0.1) and at_floor["p_excess"] > 1e-3
 
 
+def test_noise_floor_of_a_slow_drift_tests_the_lowest_bins_when_its_band_is_narrower():
+    # a drift inside 3 bins of a 20 s record (a stage's position): the band is widened to
+    # the lowest 16 bins, so the misfit is judged instead of left unjudged
+    rng = np.random.default_rng(5)
+    dt, n = 5e-3, 4000
+    t = np.arange(n) * dt
+    noise = 0.01 * rng.standard_normal(n)
+    drift = np.sin(2 * np.pi * 0.1 * t)
+    floor = noise_floor(drift + noise, dt, 0.1)
+    assert floor["band_hz"] == pytest.approx(16 / (n * dt))
+    assert floor["p_excess"] < 1e-6 and floor["ratio"] > 10
+    at_floor = [noise_floor(0.01 * rng.standard_normal(n), dt, 0.1)["p_excess"]
+                for _ in range(200)]
+    assert 0.01 < np.mean(np.array(at_floor) < 0.05) < 0.12  # the test's level holds
+    assert noise_floor(noise[:40], dt, 0.1) is None  # too short for 2 × 16 bins
+
+
 def test_input_lines_removes_sensor_noise_from_a_multisine_not_from_a_broadband_input():
     rng = np.random.default_rng(4)
     dt, n = 5e-5, 1334
