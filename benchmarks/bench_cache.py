@@ -12,14 +12,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
 
-from _provenance import provenance
 import numpy as np
+
+from _provenance import provenance
 
 
 def timed_demo(env: dict, out: Path) -> dict:
@@ -30,8 +32,7 @@ def timed_demo(env: dict, out: Path) -> dict:
     run = subprocess.run(command, env=dict(os.environ, JAX_PLATFORMS="cpu", **env),
                          capture_output=True, text=True, check=True)
     wall, peak = run.stderr.strip().splitlines()[-1].split()[1:]
-    line = next(x for x in run.stdout.splitlines() if "of it compiling" in x)
-    compile_s = float(line.split(" s of it compiling")[0].rsplit(" ", 1)[-1])
+    compile_s = float(re.search(r"([\d.]+) s (?:of it )?compiling or loading", run.stdout)[1])
     return {"wall_s": float(wall), "peak_mb": int(peak) / 1024, "compile_s": compile_s,
             "load_average_1min": os.getloadavg()[0]}  # the machine's load as it ended
 

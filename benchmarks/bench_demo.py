@@ -15,11 +15,12 @@ import json
 import platform
 import time
 
-from _provenance import provenance
 import numpy as np
 
 from gpjax import GPConfig, Identifier
 from gpjax.gear import load_bundled_example
+
+from _provenance import provenance
 
 EQ14 = (["phi", "phi**2"], ["T"])
 

@@ -30,8 +30,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from _provenance import provenance
 import numpy as np
+
+from _provenance import provenance
 
 HERE = Path(__file__).resolve().parent
 

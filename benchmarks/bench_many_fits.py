@@ -20,8 +20,8 @@ import argparse
 import json
 from pathlib import Path
 
-from _provenance import provenance
 from _baseline import ROOT, baseline_tree, run_child
+from _provenance import provenance
 
 CHILD = """
 import gc, json, sys

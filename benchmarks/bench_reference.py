@@ -17,11 +17,12 @@ import os
 import time
 from pathlib import Path
 
-from _provenance import provenance
 import numpy as np
 
 from gpjax import Measurement, Model, Symbols
 from gpjax.gear import PAPER_TRUTH, load_bundled_example
+
+from _provenance import provenance
 
 
 def timed(fn) -> tuple[float, np.ndarray]:

@@ -25,8 +25,9 @@ import tempfile
 import time
 from pathlib import Path
 
-from _provenance import provenance
 import numpy as np
+
+from _provenance import provenance
 
 FS_HZ = 1000.0
 MASS, FREQUENCY_HZ, DAMPING_RATIO, BAND_HZ = 1.0, 5.0, 0.05, 20.0

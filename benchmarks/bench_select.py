@@ -23,8 +23,8 @@ import re
 import sys
 from pathlib import Path
 
-from _provenance import provenance
 from _baseline import ROOT, baseline_tree, run_child
+from _provenance import provenance
 
 CASES = ("saturating_spring:3", "softening_spring:0", "coulomb_viscous:1", "coulomb_viscous:2",
          "quadratic_drag:0", "stribeck_resolved:0")

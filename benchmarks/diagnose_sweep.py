@@ -36,10 +36,11 @@ import json
 import time
 from pathlib import Path
 
-from _provenance import provenance
 from gpjax import diagnose
 from gpjax.gear import (EFFECTS, NEAREST, NOISE_LEVELS, NOISE_PHI, OUTSIDE, REPORTING_SEEDS,
                         TUNING_SEEDS, undeclared_effect_case)
+
+from _provenance import provenance
 
 
 def run(name: str, seed: int, torque_noise: float) -> dict:

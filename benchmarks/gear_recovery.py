@@ -17,11 +17,12 @@ import json
 import time
 from pathlib import Path
 
-from _provenance import provenance
 import sympy as sp
 
 from gpjax import GPConfig, Identifier
 from gpjax.gear import GearPair, load_bundled_example, stiffness_report
+
+from _provenance import provenance
 
 TOLERANCE = 0.02
 

@@ -389,8 +389,6 @@ def systems_gear() -> str:
     data = _load("benchmarks/systems_gear.json")
     labels = {"line_of_action": "line of action, structure given",
               "line_of_action_third_law": "line of action, structure given, third law",
-              "line_of_action_search": "line of action, structure found by the GP",
-              "line_of_action_search_third_law": "line of action, found by the GP, third law",
               "angles": "angles Θ1, Θ2, structure given"}
     columns = ["J1", "J2", "k_m (eq. 21)", "k_m (eq. 22)", "c_m (eq. 21)", "c_m (eq. 22)"]
     rows = []

@@ -29,7 +29,6 @@ import argparse
 import json
 import statistics
 
-from _provenance import provenance
 import numpy as np
 import sympy as sp
 
@@ -39,6 +38,8 @@ from gpjax._convergence import MAX_SUBSTEPS, check_model
 from gpjax._features import SIGN_WIDTH
 from gpjax._fitness import Fitness
 from gpjax.systems import generate, get_system
+
+from _provenance import provenance
 
 SYSTEM = "stribeck_resolved"
 TOLERANCE = 0.01

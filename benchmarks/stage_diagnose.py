@@ -20,11 +20,12 @@ import json
 import time
 from pathlib import Path
 
-from _provenance import provenance
 import numpy as np
 
 from gpjax import Measurement, Model, Symbols, diagnose
 from gpjax.systems import generate, get_system
+
+from _provenance import provenance
 
 SYMBOLS = Symbols("x", "t", ("u",))
 #: Seeds whose stages were examined while the equation-error mode was improved: 201–210
