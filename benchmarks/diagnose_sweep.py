@@ -8,7 +8,8 @@ Usage: python benchmarks/diagnose_sweep.py [--json FILE] [--seeds S ...] [--nois
 Rows are written to ``--json`` as each case ends, each with the revision it ran at, so a run
 cut short is still evidence; ``--resume`` keeps the rows of ``--json`` that record a revision
 and runs only the other cases (a row of an earlier file without one is replaced when its
-case runs again); ``--merge`` joins the files of runs made in parts.
+case runs again); ``--merge`` joins the files of runs made in parts, a case's row from a
+later file replacing an earlier file's.
 
 Runs :func:`gpjax.diagnose` on the cases of :func:`gpjax.gear.undeclared_effect_case`
 (every library effect, the effects outside the library of :data:`gpjax.gear.OUTSIDE`, and
@@ -123,7 +124,9 @@ def main() -> None:
     args.json = args.json or str(Path(__file__).with_name("diagnose_sweep.json"))
     if args.rescore or args.merge:
         files = args.merge or [args.json]
-        rows = [score(r) for f in files for r in json.loads(Path(f).read_text())["rows"]]
+        cases = {_case(r): score(r) for f in files
+                 for r in json.loads(Path(f).read_text())["rows"]}
+        rows = list(cases.values())
         _write(args.json, rows)
         print(json.dumps(totals(rows), indent=1))
         return
@@ -135,7 +138,8 @@ def main() -> None:
              if not args.no_controls]
     order += [(name, noise, seed) for seed in args.seeds for noise in args.noise
               for name in args.effects]
-    rows = json.loads(Path(args.json).read_text())["rows"] if args.resume else []
+    resumed = args.resume and Path(args.json).exists()
+    rows = json.loads(Path(args.json).read_text())["rows"] if resumed else []
     done = {_case(r) for r in rows if r.get("revision")}
     order = [case for case in order if case not in done]
     print("| effect | seed | torque noise | added | first? | after / σ | true model / σ | "
