@@ -34,7 +34,9 @@ held-out predictive test at level ``selection_alpha``: from the best system foun
 system one term smaller replaces it unless the larger one predicts the held-out windows of
 the weak-form equation error significantly better (blocked cross-validation,
 :meth:`gpjax._system_fit.SystemWeakForm.held_out`; Diebold–Mariano by batch means), the
-removals tried in the order of their held-out mean square, until none qualifies. So an input
+removals tried in the order of their held-out mean square, until none qualifies; a power
+swap (a bank term for its polynomial stand-in near 0, :func:`_power_swaps`) is tried as a
+removal is. So an input
 in an equation that the data do not need, or a coupling term, goes unless the held-out
 windows demonstrate it. Where the held-out test cannot tell the two apart either way (the
 equation error has little power where the states' smoothing blurs a term's effect: a
@@ -460,6 +462,28 @@ def _removals(key, i: int):
         yield key[:i] + ((state, forcing[:k] + forcing[k + 1:]),) + key[i + 1:]
 
 
+#: A bank kind's polynomial stand-in near z = 0 (sin z ≈ z, tanh θz ≈ θz, cos z ≈ 1 − z²/2).
+STAND_IN_DEGREE = {"sign": 1, "sin": 1, "cos": 2}
+
+
+def _power_swaps(key, i: int, scorer: SystemScorer):
+    """``key`` with one bank term of equation ``i`` replaced by its variable's polynomial
+    stand-in (:data:`STAND_IN_DEGREE`), where the equation lacks that power: where a
+    variable stays small (a coupling's relative displacement) sin z and z are nearly
+    collinear, and the selection keeps the transcendental term only where the data
+    demonstrate it, as they must any term."""
+    equations = scorer.equations
+    state, forcing = key[i]
+    for z in equations.meaning[i].values():
+        for kind, degree in STAND_IN_DEGREE.items():
+            if kind not in equations.kinds:
+                continue
+            feature, power = equations.feature(i, kind, z), z ** degree
+            if feature in state and power not in state:
+                swapped = tuple(sorted((*(f for f in state if f != feature), power), key=str))
+                yield key[:i] + ((swapped, forcing),) + key[i + 1:]
+
+
 def _survivors(pool, scores, scorer: SystemScorer, count: int):
     """The best ``count`` of ``pool``: distinct structures first, then repeats."""
     order = np.argsort(scores, kind="stable")
@@ -473,15 +497,16 @@ def _survivors(pool, scores, scorer: SystemScorer, count: int):
 
 
 def _simplest(best, scorer: SystemScorer, alpha: float, resolution: float):
-    """From ``best``, one-term removals by the held-out test (module docstring), tried in
-    the order of their held-out mean square. A removal replaces the current system when
-    it predicts the held-out windows significantly better (level ``alpha``: the term
-    demonstrably hurts), or when neither predicts significantly better and it does not
-    simulate significantly worse once refined (:meth:`SystemScorer.simulates_better`). Ends when
-    no removal qualifies."""
+    """From ``best``, one-term removals and power swaps (:func:`_power_swaps`) by the
+    held-out test (module docstring), tried in the order of their held-out mean square. A
+    change replaces the current system when it predicts the held-out windows significantly
+    better (level ``alpha``: the term demonstrably hurts), or when neither predicts
+    significantly better and it does not simulate significantly worse once refined
+    (:meth:`SystemScorer.simulates_better`). Ends when no change qualifies."""
     current = best
     while True:
-        candidates = [c for i in range(len(current)) for c in _removals(current, i)
+        candidates = [c for i in range(len(current))
+                      for c in (*_removals(current, i), *_power_swaps(current, i, scorer))
                       if all(part[0] or part[1] for part in c)]
         base = scorer.held_out(current)
         residuals = [scorer.held_out(c) for c in candidates]

@@ -258,3 +258,24 @@ def test_a_diverged_narrower_refit_keeps_the_last_fit_and_its_check(monkeypatch)
                                   {"tolerance": 0.01})
     assert len(calls) == 1 and calls[0]["first_substeps"] == 2
     assert out is fit and check["width"] == 0.01 and not check["converged"]
+
+
+def test_the_selection_offers_each_bank_term_its_polynomial_stand_in():
+    """sin z -> z, the smoothed sign of z -> z, cos z -> z² (the selection keeps the bank
+    term only where the held-out test demonstrates it); none where the power is already in
+    the equation, and none for z·|z|."""
+    from types import SimpleNamespace
+
+    from gpjax._system_search import _power_swaps
+
+    equations = Equations(_record(duration=1.0), 3, functions=(
+        "add", "sub", "mul", "sign", "abs", "sin", "cos"))
+    scorer = SimpleNamespace(equations=equations)
+    sign = equations.feature(0, "sign", V1 - V2)
+    key = (((X1, sp.sin(X1 - X2), sign, sp.cos(X1), V1 * sp.Abs(V1)), (U,)),
+           ((X2 - X1,), ()))
+    swapped = {tuple(sorted(set(c[0][0]) - set(key[0][0]), key=str))
+               for c in _power_swaps(key, 0, scorer)}
+    assert swapped == {(X1 - X2,), (V1 - V2,), (X1 ** 2,)}
+    assert all(c[1] == key[1] and c[0][1] == (U,) for c in _power_swaps(key, 0, scorer))
+    assert list(_power_swaps(key, 1, scorer)) == []
