@@ -36,9 +36,9 @@ the weak-form equation error significantly better (blocked cross-validation,
 :meth:`gpjax._system_fit.SystemWeakForm.held_out`; Diebold–Mariano by batch means), the
 removals tried in the order of their held-out mean square, until none qualifies; a power
 swap (a bank term for its polynomial stand-in near 0, :func:`_power_swaps`) is tried as a
-removal is. So an input
-in an equation that the data do not need, or a coupling term, goes unless the held-out
-windows demonstrate it. Where the held-out test cannot tell the two apart either way (the
+removal is. So an input in an equation that the data do not need, a coupling term, or a
+sin(x1 − x2) standing in for a linear spring, goes unless the held-out windows demonstrate
+it. Where the held-out test cannot tell the two apart either way (the
 equation error has little power where the states' smoothing blurs a term's effect: a
 gear's mesh damping), the removal must also not simulate significantly worse
 (:meth:`SystemScorer.simulates_better`: a likelihood-ratio test on the refined systems' simulated
