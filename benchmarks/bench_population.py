@@ -16,7 +16,6 @@ import argparse
 import cProfile
 import json
 import os
-import platform
 import pstats
 import resource
 import subprocess
@@ -35,6 +34,7 @@ import optimistix as optx  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
 from _baseline import baseline_tree  # noqa: E402
+from _provenance import provenance  # noqa: E402
 from gpjax import GPConfig, Identifier, Measurement, Symbols  # noqa: E402
 from gpjax.engine import PopulationEvaluator  # noqa: E402
 from gpjax._weak_form import WeakForm, least_squares, smoothed_derivatives  # noqa: E402
@@ -305,7 +305,7 @@ def main() -> None:
     args = parser.parse_args()
     measurement, truth = load_bundled_example()
     symbols = Symbols("phi", "t", ("T",))
-    result = {"machine": platform.platform(), "cpus": os.cpu_count(),
+    result = {**provenance(),
               "devices": len(jax.devices()), "N": measurement.n_samples, "P": 500}
     rate, compile_s = evaluation(measurement, truth, symbols, 500, False)
     rate_ic, _ = evaluation(measurement, truth, symbols, 500, True)

@@ -55,6 +55,12 @@ def _machine(data: dict) -> str:
     return "machine not recorded"
 
 
+def _cpus(data: dict) -> int | None:
+    """The CPU count a file records (in its provenance's machine, or beside it)."""
+    machine = data.get("machine")
+    return machine.get("cpus") if isinstance(machine, dict) else data.get("cpus")
+
+
 def _stamp(*files: dict) -> str:
     parts = []
     for data in files:
@@ -560,7 +566,7 @@ def population() -> str:
                  "; ".join(" / ".join(_pct(perturb[p][k], 0) for p in ("0.02", "0.1", "0.3"))
                            for k in ("lm_converged", "continuation_converged",
                                      "equation_error_start_converged")), "–"])
-    header = ["quantity", f"CPU ({cpu['cpus']} cores)", f"GPU run ({gpu['cpus']} host cores)"]
+    header = ["quantity", f"CPU ({_cpus(cpu)} cores)", f"GPU run ({_cpus(gpu)} host cores)"]
     return _table(header, rows, "lrr") + "\n\n" + _stamp(cpu, gpu)
 
 
