@@ -22,6 +22,8 @@ def test_notebooks_are_small_state_a_question_and_end_with_findings():
         assert path.stat().st_size < MAX_BYTES, f"{path.name} is {path.stat().st_size} bytes"
         cells = nbformat.read(path, as_version=4).cells
         assert "**Question.**" in cells[0].source, f"{path.name} states no question first"
+        assert "Full settings take" in cells[0].source, (
+            f"{path.name} does not state how long its full settings take")
         assert cells[-1].cell_type == "markdown" and cells[-1].source.startswith(
             "## What it found"), f"{path.name} does not end with its findings"
 
