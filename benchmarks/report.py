@@ -43,22 +43,19 @@ def _load(path: str) -> dict:
     return json.loads((ROOT / path).read_text()) | {"_file": path}
 
 
-def _machine(data: dict) -> str:
-    machine = data.get("machine")
-    if isinstance(machine, dict):
-        return ", ".join(str(x) for x in [machine.get("platform"),
-                                           machine.get("cpus") and f"{machine['cpus']} CPUs",
-                                           machine.get("python") and f"Python {machine['python']}"] if x)
-    if machine:
-        cpus = data.get("cpus")
-        return f"{machine}" + (f", {cpus} CPUs" if cpus else "")
-    return "machine not recorded"
-
-
 def _cpus(data: dict) -> int | None:
     """The CPU count a file records (in its provenance's machine, or beside it)."""
     machine = data.get("machine")
     return machine.get("cpus") if isinstance(machine, dict) else data.get("cpus")
+
+
+def _machine(data: dict) -> str:
+    machine, cpus = data.get("machine"), _cpus(data)
+    if not machine:
+        return "machine not recorded"
+    parts = ([machine.get("platform"), machine.get("python") and f"Python {machine['python']}"]
+             if isinstance(machine, dict) else [machine])
+    return ", ".join(str(x) for x in [parts[0], cpus and f"{cpus} CPUs", *parts[1:]] if x)
 
 
 def _stamp(*files: dict) -> str:
