@@ -79,17 +79,23 @@ def hint(functions: tuple[str, ...] = ()) -> str:
             "(docs: Known limitations)")
 
 
-def summary_line(name: str, statistics: dict, functions: tuple[str, ...] = ()) -> str:
+def summary_line(name: str, statistics: dict, functions: tuple[str, ...] = (), *,
+                 alpha: float = 0.05) -> str:
     """One line of a coordinate's residual statistics for the terminal (``functions``: the
-    run's function set, for :func:`hint`)."""
+    run's function set, for :func:`hint`; ``alpha``: the level of
+    :func:`residual_statistics`). A significant in-band excess below
+    :data:`~gpjax._diagnose_residual.FAR_ABOVE` × σ̂ is marked as not flagged."""
     if statistics["rms"] is None:
         return (f"  residual of {name}: the fitted model diverges on its record  <- "
                 f"{hint(functions)}")
     floor = statistics["noise"]
+    flag = "  <- misses something" if statistics["unexplained"] is not None else ""
+    small = ("" if floor is None or flag or floor["ratio"] >= FAR_ABOVE
+             or floor["p_excess"] >= alpha else
+             f"; below the {FAR_ABOVE:g}× gate, so not flagged")
     noise = ("noise floor not estimable (record too short)" if floor is None else
              f"{floor['ratio']:.2f}× its noise floor σ̂ = {floor['sigma']:.3g} "
-             f"(in-band excess p = {floor['p_excess']:.2g})")
-    flag = "  <- misses something" if statistics["unexplained"] is not None else ""
+             f"(in-band excess p = {floor['p_excess']:.2g}{small})")
     return (f"  residual of {name}: RMS {statistics['rms']:.4g} (NRMS "
             f"{statistics['nrms']:.3%}), {noise}{flag}")
 

@@ -390,7 +390,7 @@ def _run_system_diagnosis(args, measurement, model, out: Path) -> None:
     print("  constants (± half the 95 % interval): " + ", ".join(
         f"{name} = {text}" for name, text in final.constant_texts().items()))
     for name, statistics in result.residuals.items():
-        print(summary_line(name, statistics))
+        print(summary_line(name, statistics, alpha=args.alpha))
     c = result.after.checks[-1].to_json()
     print(f"  {check_line(c)}")
     print(f"Report in {out}/ (report.md, report.json, model.json)")

@@ -211,6 +211,21 @@ def test_a_diverged_coordinate_gets_a_hint():
     assert "diverges on its record" in line and hint() in line and "--functions" in hint()
 
 
+def test_a_small_significant_excess_is_marked_as_below_the_gate():
+    """A residual at about its noise floor with a significant in-band excess is printed with
+    its p-value and said to be below the gate; an insignificant one is printed plainly."""
+    from gpjax._system_diagnose import summary_line
+
+    def line(ratio, p, unexplained=None):
+        return summary_line("x", {"rms": 1.0, "nrms": 0.01, "noise": {
+            "ratio": ratio, "sigma": 0.004, "p_excess": p}, "unexplained": unexplained})
+
+    assert "below the 1.5× gate, so not flagged" in line(0.99, 6e-6)
+    assert "gate" not in line(0.99, 0.3) and "misses" not in line(0.99, 0.3)
+    flagged = line(3.0, 1e-9, unexplained={})
+    assert "misses something" in flagged and "gate" not in flagged
+
+
 def test_width_check_compares_a_narrower_sign():
     """The reported system's sign narrowed 4× (constants kept) against its own response,
     over its residual: a ratio and a verdict; no sign, no check."""
