@@ -55,16 +55,16 @@ def _one_coordinate(name: str, truth: dict, interpolation: str):
 
 
 def _chain(truth: dict):
-    """(structure, {constant name: true value}) of the 2-mass chain; equation 2 has no input,
-    so its mass is held at 1 and its constants are the truth's over m2."""
+    """(structure, {(equation, feature): true value}) of the 2-mass chain; equation 2 has no
+    input, so its mass is held at 1 and its constants are the truth's over m2."""
     x1, x2, v1, v2 = sp.symbols("x1 x2 x1_dot x2_dot")
     structure = (((v1, x1, x1 - x2, (x1 - x2) ** 3), {U: 1.0}),
                  ((v2, x2, x2 - x1, (x2 - x1) ** 3), {}))
-    values = {"x1: m": truth["m1"]}
+    values = {(0, ""): truth["m1"]}
     for e, (state, _) in enumerate(structure):
         scale = 1.0 if e == 0 else truth["m2"]
         for feature, key in zip(state, ("c", "k", "kc", "k3")):
-            values[f"x{e + 1}: {feature}"] = truth[key] / scale
+            values[(e, str(feature))] = truth[key] / scale
     return structure, values
 
 
@@ -78,6 +78,9 @@ def run_seed(system: str, seed: int, interpolation: str) -> dict:
         fit = fit_system(synthetic.fit.system_measurement(), structure,
                          input_interpolation=interpolation)
         uncertainty, converged = fit.uncertainty, fit.checks[-1].converged
+        names = {(e, feature): name for name, (e, _, feature)
+                 in fit.model.constant_names().items()}
+        values = {names[key]: true for key, true in values.items()}
     else:
         model, values = _one_coordinate(system, truth, interpolation)
         fitted = refit(model, synthetic.fit.measurement())
