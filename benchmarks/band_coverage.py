@@ -36,8 +36,7 @@ SYSTEMS = ("duffing", "pendulum")
 
 def run_seed(system: str, seed: int) -> dict:
     """One record: the band's pointwise coverage of the true response and its width."""
-    from gpjax._model import fitted_initial_state
-    from gpjax._reference import measurement_scale
+    from gpjax._model import fitted_initial_state, measurement_scale
     from gpjax._weak_form import estimate_initial_conditions
 
     synthetic = generate(system, seed=seed, noise=0.01, input_noise=0.01)

@@ -1,5 +1,6 @@
-"""benchmarks/coverage.py runs at this revision: one seed of each of its systems names every
-true constant by the fitted model's own constant names and checks its interval."""
+"""The coverage benchmarks run at this revision: one seed of each of ``coverage.py``'s
+systems names every true constant by the fitted model's own constant names and checks its
+interval, and one seed of ``band_coverage.py`` draws a prediction band."""
 
 import importlib.util
 import sys
@@ -10,11 +11,12 @@ import pytest
 BENCHMARKS = Path(__file__).resolve().parents[1] / "benchmarks"
 
 
-def _coverage():
-    sys.path.insert(0, str(BENCHMARKS))  # the script imports its sibling _provenance
+def _script(name: str):
+    """The benchmark script ``benchmarks/<name>.py`` as a module (it imports its siblings)."""
+    sys.path.insert(0, str(BENCHMARKS))
     try:
-        spec = importlib.util.spec_from_file_location("coverage_benchmark",
-                                                      BENCHMARKS / "coverage.py")
+        spec = importlib.util.spec_from_file_location(f"{name}_benchmark",
+                                                      BENCHMARKS / f"{name}.py")
         module = importlib.util.module_from_spec(spec)
         spec.loader.exec_module(module)
     finally:
@@ -25,8 +27,14 @@ def _coverage():
 @pytest.mark.slow
 @pytest.mark.parametrize("system", ["duffing_load", "pendulum", "chain2"])
 def test_one_seed_of_each_system_scores_every_true_constant(system):
-    row = _coverage().run_seed(system, 0, "bandlimited")
+    row = _script("coverage").run_seed(system, 0, "bandlimited")
     assert row["converged"] and row["constants"]
     for name, constant in row["constants"].items():
         assert constant["low"] <= constant["value"] <= constant["high"], name
         assert abs(constant["value"] - constant["truth"]) < 5 * constant["se"], name
+
+
+@pytest.mark.slow
+def test_one_seed_of_the_band_coverage_benchmark_covers_the_true_response():
+    row = _script("band_coverage").run_seed("pendulum", 0)
+    assert "no_band" not in row and row["coverage"] > 0.5 and row["diverged"] == 0
