@@ -298,7 +298,9 @@ def load_csv(path: str | Path, *, time: str, response: str | None = None,
     """Read a measurement from a CSV file with a header row.
 
     Args:
-        path: the CSV file (comma-separated; a trailing comma on every row is accepted).
+        path: the CSV file with a header row, separated by commas (a trailing comma on every
+            row is accepted), tabs, semicolons or whitespace, as its header is; lines
+            starting with ``#`` are skipped.
         time: name of the time column, in seconds.
         response: name of the measured response column (one coordinate), or
         responses: names of several measured coordinates of one system, in order.
@@ -333,7 +335,8 @@ def load_csv(path: str | Path, *, time: str, response: str | None = None,
 
 def read_columns(path: str | Path, wanted: list[str], *,
                  optional: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
-    """Columns of a CSV file with a header row, by name (``optional`` ones only if present).
+    """Columns of a CSV file with a header row, by name (``optional`` ones only if present);
+    separators and comment lines as :func:`load_csv` reads them.
 
     Raises:
         DataError: missing file or wanted column, a column named twice, non-numeric cell,
@@ -342,7 +345,8 @@ def read_columns(path: str | Path, wanted: list[str], *,
     path = Path(path)
     try:
         with open(path, newline="", encoding="utf-8-sig") as handle:
-            rows = list(csv.reader(handle))
+            lines = [line for line in handle if not line.lstrip().startswith("#")]
+        rows = _split_rows(lines)
     except FileNotFoundError:
         raise DataError(f"data file {path} does not exist; check the path") from None
     except IsADirectoryError:
@@ -357,9 +361,6 @@ def read_columns(path: str | Path, wanted: list[str], *,
         header.pop()
     if len(set(wanted)) != len(wanted):
         raise DataError(f"the same column is named twice in {wanted}; name each column once")
-    if len(header) == 1 and any(sep in header[0] for sep in ";\t|"):
-        raise DataError(f"{path} does not look comma-separated (header {header[0]!r}); "
-                        "convert it to a comma-separated file")
     wanted = wanted + [name for name in optional if name in header and name not in wanted]
     for name in wanted:
         if header.count(name) > 1:
@@ -379,8 +380,10 @@ def read_columns(path: str | Path, wanted: list[str], *,
             try:
                 value = float(cell)
             except ValueError:
-                raise DataError(f"{path} line {line}, column {name!r}: {cell!r} is not a number; "
-                                "fix or remove that row") from None
+                comma = (" (a decimal comma? write decimal points)"
+                         if _is_number(cell.replace(",", ".", 1)) else "")
+                raise DataError(f"{path} line {line}, column {name!r}: {cell!r} is not a "
+                                f"number{comma}; fix or remove that row") from None
             if not math.isfinite(value):
                 raise DataError(f"{path} line {line}, column {name!r} is {cell}; remove or fill "
                                 "NaN/inf values")
@@ -388,6 +391,16 @@ def read_columns(path: str | Path, wanted: list[str], *,
     if len(rows) - 1 < MIN_SAMPLES:
         raise DataError(f"{path} has {len(rows) - 1} data rows; gpjax needs at least {MIN_SAMPLES}")
     return {name: np.array(values) for name, values in data.items()}
+
+
+def _split_rows(lines: list[str]) -> list[list[str]]:
+    """The cells of each line, split at the header's separator: a comma, else a tab, else a
+    semicolon, else runs of whitespace."""
+    header = next((line for line in lines if line.strip()), "")
+    separator = next((sep for sep in ",\t;" if sep in header), None)
+    if separator is None:
+        return [line.split() for line in lines]
+    return list(csv.reader(lines, delimiter=separator))
 
 
 def _check_lengths(rows: list[list[str]], index: dict[str, int], path: Path) -> None:

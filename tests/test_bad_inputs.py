@@ -160,8 +160,8 @@ CLI_CASES = [
     data_case("empty-file", "", ["empty", "header row"]),
     data_case("header-only", "t,x,u\n", ["0 data rows", "at least 20"]),
     data_case("no-header-row", csv_text(header_row=False), ["not found", "no header row"]),
-    data_case("semicolon-delimited", csv_text("t;x;u", sep=";"), ["comma-separated"]),
-    data_case("tab-delimited", csv_text("t\tx\tu", sep="\t"), ["comma-separated"]),
+    data_case("decimal-comma", csv_text("t;x;u", sep=";", cells={(3, 1): "0,25"}),
+              ["line 5", "'0,25' is not a number", "decimal comma"]),
     data_case("not-utf8", b"\xff\xfe\x00t,x,u\n" + VALID_CSV.encode()[6:],
               ["cannot read", "data.csv"]),
     # --- columns --------------------------------------------------------------------------

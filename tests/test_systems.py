@@ -97,6 +97,24 @@ def test_csv_round_trips_through_load_csv(tmp_path):
     assert np.array_equal(loaded.inputs["u"], data.fit.input_measured)
 
 
+@pytest.mark.parametrize("layout", ["tab", "semicolon", "whitespace", "comment lines"])
+def test_load_csv_reads_other_separators_and_skips_comment_lines(tmp_path, layout):
+    """A rig's export separated by tabs, semicolons or spaces, or with ``#`` lines before
+    its header, reads as the same values as the comma-separated file."""
+    data = generate(short("saturating_spring"), seed=0)
+    write_csv(data.fit, tmp_path / "fit.csv")
+    text = (tmp_path / "fit.csv").read_text()
+    text = {"tab": text.replace(",", "\t"), "semicolon": text.replace(",", ";"),
+            "whitespace": text.replace(",", "   "),
+            "comment lines": "# rig 3, channel map v2\n  # units: s, m, N\n" + text}[layout]
+    (tmp_path / "other.csv").write_text(text)
+    other = gpjax.load_csv(tmp_path / "other.csv", time="t", response="x", inputs=["u"])
+    comma = gpjax.load_csv(tmp_path / "fit.csv", time="t", response="x", inputs=["u"])
+    assert np.array_equal(other.time, comma.time)
+    assert np.array_equal(other.response, comma.response)
+    assert np.array_equal(other.inputs["u"], comma.inputs["u"])
+
+
 def test_chain_gives_several_response_columns(tmp_path):
     data = generate(short("chain3"), seed=0)
     assert data.fit.response_true.shape == (3, data.fit.time.size)
