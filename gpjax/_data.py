@@ -345,18 +345,17 @@ def read_columns(path: str | Path, wanted: list[str], *,
     path = Path(path)
     try:
         with open(path, newline="", encoding="utf-8-sig") as handle:
-            lines = [line for line in handle if not line.lstrip().startswith("#")]
-        rows = _split_rows(lines)
+            rows = _numbered_rows(handle)
     except FileNotFoundError:
         raise DataError(f"data file {path} does not exist; check the path") from None
     except IsADirectoryError:
         raise DataError(f"data file {path} is a directory; give a CSV file") from None
     except (OSError, UnicodeDecodeError, csv.Error) as err:
         raise DataError(f"cannot read {path} as CSV text: {err}") from None
-    rows = [r for r in rows if any(cell.strip() for cell in r)]
+    rows = [(n, r) for n, r in rows if any(cell.strip() for cell in r)]
     if not rows:
         raise DataError(f"data file {path} is empty; it needs a header row and data rows")
-    header = [cell.strip() for cell in rows[0]]
+    header = [cell.strip() for cell in rows[0][1]]
     while header and header[-1] == "":
         header.pop()
     if len(set(wanted)) != len(wanted):
@@ -371,9 +370,9 @@ def read_columns(path: str | Path, wanted: list[str], *,
                     else f"columns are: {', '.join(map(repr, header))}")
             raise DataError(f"column {name!r} not found in {path}; {hint}")
     index = {name: header.index(name) for name in wanted}
-    _check_lengths(rows[1:], index, path)
+    _check_lengths(rows, index, path)
     data = {name: [] for name in wanted}
-    for line, row in enumerate(rows[1:], start=2):
+    for line, row in rows[1:]:
         for name in wanted:
             j = index[name]
             cell = row[j].strip() if j < len(row) else ""
@@ -393,24 +392,32 @@ def read_columns(path: str | Path, wanted: list[str], *,
     return {name: np.array(values) for name, values in data.items()}
 
 
-def _split_rows(lines: list[str]) -> list[list[str]]:
-    """The cells of each line, split at the header's separator: a comma, else a tab, else a
-    semicolon, else runs of whitespace."""
-    header = next((line for line in lines if line.strip()), "")
-    separator = next((sep for sep in ",\t;" if sep in header), None)
+def _numbered_rows(lines) -> list[tuple[int, list[str]]]:
+    """(line number in the file, cells) of each line that is neither blank nor a comment
+    (``#``), split at the header's separator: a comma, else a tab, else a semicolon, else
+    runs of whitespace."""
+    kept = [(n, line) for n, line in enumerate(lines, start=1)
+            if line.strip() and not line.lstrip().startswith("#")]
+    if not kept:
+        return []
+    separator = next((sep for sep in ",\t;" if sep in kept[0][1]), None)
     if separator is None:
-        return [line.split() for line in lines]
-    return list(csv.reader(lines, delimiter=separator))
+        return [(n, line.split()) for n, line in kept]
+    reader = csv.reader((line for _, line in kept), delimiter=separator)
+    return [(kept[reader.line_num - 1][0], row) for row in reader]
 
 
-def _check_lengths(rows: list[list[str]], index: dict[str, int], path: Path) -> None:
+def _check_lengths(rows: list[tuple[int, list[str]]], index: dict[str, int],
+                   path: Path) -> None:
     """Refuse columns of different lengths: one whose cells are all empty or NaN from some
-    row to the end while another goes on (DataError)."""
+    row to the end while another goes on (DataError). ``rows``: the header's and the data
+    rows' (line number, cells)."""
     def length(j: int) -> int:
-        for i in range(len(rows) - 1, -1, -1):
-            cell = rows[i][j].strip().lower() if j < len(rows[i]) else ""
+        for i in range(len(rows) - 1, 0, -1):
+            cells = rows[i][1]
+            cell = cells[j].strip().lower() if j < len(cells) else ""
             if cell not in ("", "nan"):
-                return i + 1
+                return i
         return 0
 
     lengths = {name: length(j) for name, j in index.items()}
@@ -418,7 +425,7 @@ def _check_lengths(rows: list[list[str]], index: dict[str, int], path: Path) -> 
     for name, n in lengths.items():
         if n < lengths[longest]:
             raise DataError(f"column {name!r} of {path} has {n} samples but {longest!r} has "
-                            f"{lengths[longest]} (empty or NaN after line {n + 1}); give "
+                            f"{lengths[longest]} (empty or NaN after line {rows[n][0]}); give "
                             "every column the same length (trim the rows to the shortest)")
 
 

@@ -225,6 +225,8 @@ CLI_CASES = [
               ["line 14", "'' is not a number", "fix or remove"]),
     data_case("short-row", truncate_row(csv_text(), 30, 1), ["line 32", "'' is not a number"]),
     data_case("nan-cell", csv_text(cells={(7, 1): "nan"}), ["line 9", "NaN/inf"]),
+    data_case("nan-cell-after-comments", "# rig 3\n# units: s, m, N\n\n"
+              + csv_text(cells={(7, 1): "nan"}), ["line 12", "NaN/inf"]),
     data_case("inf-cell", csv_text(cells={(7, 2): "inf"}), ["line 9", "'u'", "NaN/inf"]),
     data_case("minus-infinity-in-time", csv_text(cells={(0, 0): "-Infinity"}),
               ["line 2", "'t'", "NaN/inf"]),
