@@ -39,7 +39,7 @@ from gpjax import GPConfig, Identifier, Measurement, Symbols  # noqa: E402
 from gpjax.engine import PopulationEvaluator  # noqa: E402
 from gpjax._weak_form import WeakForm, least_squares, smoothed_derivatives  # noqa: E402
 from gpjax._coefficients import Population  # noqa: E402
-from gpjax._refine import LINEAR_SOLVER, Refiner  # noqa: E402
+from gpjax._refine import Refiner, linear_solver as refine_linear_solver  # noqa: E402
 from gpjax.gear import generate_gear_example, load_bundled_example  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent
@@ -200,12 +200,13 @@ def baseline_refinement(revision, iterations, count, rounds=3):
             "current_over_baseline": current / baseline}
 
 
-def lm_floor(samples, width, iterations, count, linear_solver=LINEAR_SOLVER):
+def lm_floor(samples, width, iterations, count, linear_solver=None):
     """Models/s of optimistix Levenberg–Marquardt alone, vmapped like the refiner, on a
     residual as long as the record and as wide as the refiner's Jacobian, but costing
     almost nothing to evaluate: the ceiling the solver's own per-step work sets (with the
     refiner's linear solver; ``lineax.QR()``, optimistix's default, shows XLA's slow QR)."""
     matrices = jnp.asarray(np.random.default_rng(0).normal(size=(count, samples, width)))
+    linear_solver = refine_linear_solver() if linear_solver is None else linear_solver
 
     def one(matrix):
         def residuals(delta, _):

@@ -4,7 +4,8 @@ integrators and the variational equations.
 
 Two integrators run the same RK4 tableau on the same stage grid: ``"scan"`` (default), a
 hand-written step in ``lax.scan`` over (x, x') arrays of shape (P,) with Horner-form
-polynomials, and ``"diffrax"`` (:class:`RK4`, one ``diffeqsolve`` of the (P, 2) state).
+polynomials, and ``"diffrax"`` (:func:`~gpjax._integrate.rk4_solver`, one ``diffeqsolve``
+of the (P, 2) state).
 They agree to rounding; the scan step has none of diffrax's per-step bookkeeping: about
 as fast on the CPU, several times faster on a GPU (``benchmarks/bench_population.py``
 measures both; :mod:`gpjax._integrate`). Arrays inside carry a coordinate axis of length
@@ -15,11 +16,10 @@ from __future__ import annotations
 
 import weakref
 
-import diffrax
 import jax
 import jax.numpy as jnp
 
-from ._integrate import RK4, rk4_scan
+from ._integrate import rk4_scan, rk4_solver
 
 HOLD_WITH_DIFFRAX = ('the "diffrax" integrator cannot simulate "hold" inputs (it looks the '
                      'forcing up by time alone); use integrator="scan"')
@@ -121,6 +121,8 @@ class Dynamics:
         Differentiable in forward and reverse mode (the diffrax path in forward mode).
         """
         if self.integrator == "diffrax":
+            import diffrax  # on first use (gpjax._integrate.rk4_solver)
+
             return self.solve(mass, state, forcing_matrix, y0, inner,
                               adjoint=diffrax.ForwardMode())
         return self.scan_solve(mass, state, forcing_matrix, y0, inner)
@@ -380,6 +382,8 @@ class Dynamics:
                 alone, which cannot tell a step's end (the input's left limit) from the next
                 step's start; use the ``"scan"`` integrator.
         """
+        import diffrax  # on first use (gpjax._integrate.rk4_solver)
+
         if self.split_stages:
             raise ValueError(HOLD_WITH_DIFFRAX)
         t0, h = self.record.start, self.record.step
@@ -401,7 +405,7 @@ class Dynamics:
                                                                forcing_matrix[index], t))])
 
         solution = diffrax.diffeqsolve(
-            diffrax.ODETerm(field), RK4(), t0=t0, t1=t0 + h * self.n_steps, dt0=h,
+            diffrax.ODETerm(field), rk4_solver(), t0=t0, t1=t0 + h * self.n_steps, dt0=h,
             y0=jnp.transpose(y0, (2, 1, 0)),
             args=(mass, state, inner, forcing_matrix, t0, half, self.record.bounds[:, 1:]),
             saveat=diffrax.SaveAt(t0=True, steps=True),

@@ -28,7 +28,6 @@ from __future__ import annotations
 import dataclasses
 from functools import lru_cache
 
-import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -71,9 +70,12 @@ class ReferenceSolver:
 
 
 def input_path(time: np.ndarray, inputs: list[np.ndarray], method: str):
-    """Inputs sampled at uniform ``time`` (s) for the reference solve: a diffrax path
-    (``path.evaluate(t) -> (K,)``) for ``linear`` and ``bandlimited``, the samples (N, K)
-    themselves for ``hold`` (module docstring).
+    """Inputs sampled at uniform ``time`` (s) for the reference solve: for ``linear`` and
+    ``bandlimited`` the arrays of a diffrax path (knot times and values, or a cubic's
+    coefficients), which :func:`_path` makes the path (``path.evaluate(t) -> (K,)``)
+    inside the compiled solve, so a solve loaded from the cache runs without importing
+    diffrax (:func:`gpjax._integrate.rk4_solver`); the samples (N, K) themselves for
+    ``hold`` (module docstring).
 
     Raises:
         ValueError: an unknown method.
@@ -82,7 +84,7 @@ def input_path(time: np.ndarray, inputs: list[np.ndarray], method: str):
     times = jnp.asarray(time)
     values = np.stack(inputs, axis=1) if inputs else np.zeros((n, 0))
     if method == "linear":
-        return diffrax.LinearInterpolation(ts=times, ys=jnp.asarray(values))
+        return times, jnp.asarray(values)
     if method == "hold":
         return jnp.asarray(values)
     if method == "bandlimited":
@@ -92,8 +94,19 @@ def input_path(time: np.ndarray, inputs: list[np.ndarray], method: str):
         # to seconds are diffrax's (d, c, b, a); one column per input
         coeffs = tuple(jnp.asarray(np.stack([s.c[i] for s in splines], axis=-1).reshape(
             fine.size - 1, len(splines)) / dt ** (3 - i)) for i in range(4))
-        return diffrax.CubicInterpolation(ts=jnp.asarray(time[0] + fine * dt), coeffs=coeffs)
+        return jnp.asarray(time[0] + fine * dt), coeffs
     raise ValueError(f"unknown input interpolation {method!r}")
+
+
+def _path(method: str, data):
+    """The diffrax path of :func:`input_path`'s arrays ``data`` (``linear`` or
+    ``bandlimited``)."""
+    import diffrax  # on first use (gpjax._integrate.rk4_solver)
+
+    times, values = data
+    if method == "linear":
+        return diffrax.LinearInterpolation(ts=times, ys=values)
+    return diffrax.CubicInterpolation(ts=times, coeffs=values)
 
 
 def _structure(equations: tuple[Coefficients, ...]) -> tuple[
@@ -152,11 +165,14 @@ def _solve_program(expressions: tuple[sp.Expr, ...], names: tuple, constants: tu
                                      *(u[k] for k in range(n_inputs)), values))
         return jnp.stack([velocity, acceleration]) / scale
 
-    term = diffrax.ODETerm(field)
-    controller = diffrax.PIDController(rtol=solver.rtol, atol=solver.atol)
-    knots = jnp.arange(BANDLIMITED_FACTOR + 1) / BANDLIMITED_FACTOR  # of one interval
-
     def solve(values, path, ts, y0, scale):
+        import diffrax  # traced only when compiled (gpjax._integrate.rk4_solver)
+
+        term = diffrax.ODETerm(field)
+        controller = diffrax.PIDController(rtol=solver.rtol, atol=solver.atol)
+        knots = jnp.arange(BANDLIMITED_FACTOR + 1) / BANDLIMITED_FACTOR  # of one interval
+        path = path if hold else _path(method, path)
+
         def advance(y, k):
             # The band-limited input is a cubic between knots 1/BANDLIMITED_FACTOR of an
             # interval apart, its third derivative jumping at each: steps end on them

@@ -38,9 +38,7 @@ import weakref
 
 import jax
 import jax.numpy as jnp
-import lineax as lx
 import numpy as np
-import optimistix as optx
 
 from jax.sharding import AxisType, PartitionSpec
 
@@ -49,12 +47,22 @@ from ._coefficients import Population, padded_chunks
 from ._evaluator import STAGE_ELEMENTS_PER_CALL, PopulationEvaluator
 
 JACOBIANS = ("variational", "autodiff")
-#: The damped Gauss–Newton step solves the normal equations (JᵀJ + λI)·δ = Jᵀr by LU: the
-#: default QR of the (N + k) × k system slows sharply on XLA's CPU from k = 8 (optimistix
-#: alone, 64 models: 1,204 models/s at k = 6, 583 at k = 8, 248 at k = 12; LU 1,604 at k = 8;
-#: ``lm_floor`` in benchmarks/bench_population.py). Constants are scaled by their start
-#: values, so JᵀJ stays well conditioned.
-LINEAR_SOLVER = lx.Normal(lx.LU())
+
+
+def linear_solver(jacobian: str = "variational"):
+    """The damped Gauss–Newton step's linear solver. With the variational Jacobian the
+    normal equations (JᵀJ + λI)·δ = Jᵀr by LU: the default QR of the (N + k) × k system
+    slows sharply on XLA's CPU from k = 8 (optimistix alone, 64 models: 1,204 models/s at
+    k = 6, 583 at k = 8, 248 at k = 12; LU 1,604 at k = 8; ``lm_floor`` in
+    benchmarks/bench_population.py). Constants are scaled by their start values, so JᵀJ
+    stays well conditioned. Autodiff through a while loop (diffrax) cannot be transposed,
+    so that path keeps QR. lineax is imported here, on first use
+    (:func:`gpjax._integrate.rk4_solver`)."""
+    import lineax as lx
+
+    return lx.Normal(lx.LU()) if jacobian == "variational" else lx.QR()
+
+
 #: Default models per compiled refinement call and free constants per model.
 BATCH, MAX_FREE = 8, 8
 
@@ -315,10 +323,10 @@ class Refiner(CompileFigures):
         index = jnp.arange(record.valid.size)
         index = index if single else index[:, None]
         noise_scale = record.noise_scale[0] if single else record.noise_scale
-        # The normal equations need Jᵀ: a matrix with the variational Jacobian, but autodiff
-        # through a while loop (diffrax) cannot be transposed, so that path keeps QR.
-        linear_solver = LINEAR_SOLVER if self.jacobian == "variational" else lx.QR()
-        solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-9, linear_solver=linear_solver)
+        import optimistix as optx  # traced only when compiled (linear_solver)
+
+        solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-9,
+                                         linear_solver=linear_solver(self.jacobian))
         delta = jnp.zeros(moves[0].shape)
         ok, steps = jnp.array(True), jnp.array(0)
         for samples, limit in zip(self.horizon_samples, limits):

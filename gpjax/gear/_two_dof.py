@@ -47,11 +47,10 @@ Units: SI throughout (kg·m², m, N/m, N·s/m, N·m, rad, s). Invalid settings r
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 from typing import Callable, Union
 
-import diffrax
-import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -203,8 +202,6 @@ def _one_dof_field(t, y, args):
     return jnp.stack([phi1_dot, (torque1 - r1 * k_m * (r1 * phi1)) / j1])
 
 
-_TWO_DOF_TERM = diffrax.ODETerm(_two_dof_field)
-_ONE_DOF_TERM = diffrax.ODETerm(_one_dof_field)
 
 
 def _max_stiffness(system: TwoDofGearPair, t_end: float) -> float:
@@ -239,33 +236,41 @@ def _check_span(t_end: float, samples: int) -> None:
         raise ConfigError(f"samples must be an integer >= 2, got {samples!r}")
 
 
-@eqx.filter_jit
-def _integrate(term, args, y0, dt, substeps, samples: int):
-    """Fixed-step Tsit5: ``samples − 1`` blocks of ``substeps`` steps; states at block ends.
+@functools.cache
+def _integrator():
+    """The compiled fixed-step Tsit5 integrator (built on first use: importing diffrax costs
+    a process that only reads the bundled example ~0.6 s; :func:`gpjax._integrate.rk4_solver`)."""
+    import diffrax
+    import equinox as eqx
 
-    ``dt`` and ``substeps`` are traced, so one compilation serves every step size.
-    """
-    solver = diffrax.Tsit5()
-    state0 = solver.init(term, 0.0, dt, y0, args)
+    @eqx.filter_jit
+    def integrate(field, args, y0, dt, substeps, samples: int):
+        """Fixed-step Tsit5: ``samples − 1`` blocks of ``substeps`` steps; states at block
+        ends. ``dt`` and ``substeps`` are traced, so one compilation serves every step size."""
+        term = diffrax.ODETerm(field)
+        solver = diffrax.Tsit5()
+        state0 = solver.init(term, 0.0, dt, y0, args)
 
-    def step(_, carry):
-        index, y, state = carry
-        t = index * dt
-        y, _, _, state, _ = solver.step(term, t, t + dt, y, args, state, made_jump=False)
-        return index + 1, y, state
+        def step(_, carry):
+            index, y, state = carry
+            t = index * dt
+            y, _, _, state, _ = solver.step(term, t, t + dt, y, args, state, made_jump=False)
+            return index + 1, y, state
 
-    def block(carry, _):
-        carry = jax.lax.fori_loop(0, substeps, step, carry)
-        return carry, carry[1]
+        def block(carry, _):
+            carry = jax.lax.fori_loop(0, substeps, step, carry)
+            return carry, carry[1]
 
-    _, ys = jax.lax.scan(block, (jnp.asarray(0.0), y0, state0), None, length=samples - 1)
-    return jnp.concatenate([y0[None], ys])
+        _, ys = jax.lax.scan(block, (jnp.asarray(0.0), y0, state0), None, length=samples - 1)
+        return jnp.concatenate([y0[None], ys])
+
+    return integrate
 
 
-def _solve(term, args, y0, t_end: float, dt: float, samples: int):
+def _solve(field, args, y0, t_end: float, dt: float, samples: int):
     substeps = max(1, math.ceil(t_end / ((samples - 1) * dt) - 1e-9))
     step = t_end / ((samples - 1) * substeps)
-    ys = _integrate(term, args, jnp.asarray(y0, dtype=jnp.float64), jnp.asarray(step),
+    ys = _integrator()(field, args, jnp.asarray(y0, dtype=jnp.float64), jnp.asarray(step),
                     jnp.asarray(substeps), samples)
     return np.linspace(0.0, t_end, samples), np.asarray(ys)
 
@@ -292,7 +297,7 @@ def simulate_two_dof(system: TwoDofGearPair, *, t_end: float, dt: float | None =
                            system.c2, system.k1, system.k2])
     args = ((*numbers, constants), functions)
     y0 = [float(theta0[0]), float(theta0[1]), float(omega0[0]), float(omega0[1])]
-    t, ys = _solve(_TWO_DOF_TERM, args, y0, t_end, dt, samples)
+    t, ys = _solve(_two_dof_field, args, y0, t_end, dt, samples)
     delta = system.r1 * ys[:, 0] - system.r2 * ys[:, 1]
     return TwoDofResponse(t=t, theta1=ys[:, 0], theta2=ys[:, 1], omega1=ys[:, 2],
                           omega2=ys[:, 3], relative_displacement=delta,
@@ -314,7 +319,7 @@ def simulate_one_dof(system: TwoDofGearPair, *, t_end: float, dt: float | None =
     split = [_split(system.k_m), _split(system.T1)]
     args = ((jnp.asarray(system.J1), jnp.asarray(system.r1),
              jnp.asarray([c for _, c in split])), tuple(f for f, _ in split))
-    t, ys = _solve(_ONE_DOF_TERM, args, [float(phi0), float(phi_dot0)], t_end, dt, samples)
+    t, ys = _solve(_one_dof_field, args, [float(phi0), float(phi_dot0)], t_end, dt, samples)
     return OneDofResponse(t=t, phi1=ys[:, 0], phi1_dot=ys[:, 1], phi=system.r1 * ys[:, 0])
 
 
