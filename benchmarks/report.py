@@ -516,10 +516,15 @@ def fit_many() -> str:
 def cache_demo() -> str:
     data = _load("benchmarks/cache_demo.json")
     off = data["summary"]["off"]["median_wall_s"]
+    base = data.get("baseline")
     rows = [[mode, f"{s['median_wall_s']:.2f}", f"{s['median_compile_s']:.1f}", f"{s['median_wall_s'] / off:.2f}"]
+            + ([f"{base['summary'][mode]['median_wall_s']:.2f}", f"{base['ratio'][mode]:.2f}"]
+               if base else [])
             for mode, s in data["summary"].items()]
-    return (_table(["cache", "wall s (median)", "compiling or loading s", "ratio to off"], rows, "lrrr")
-            + "\n\n" + _stamp(data))
+    header = ["cache", "wall s (median)", "compiling or loading s", "ratio to off"]
+    if base:
+        header += [f"{base['revision']} wall s (median)", f"ratio to {base['revision']}"]
+    return _table(header, rows, "l" + "r" * (len(header) - 1)) + "\n\n" + _stamp(data)
 
 
 # ---------------------------------------------------------------- performance
