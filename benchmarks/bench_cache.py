@@ -37,7 +37,10 @@ def timed_demo(env: dict, out: Path, tree: Path | None = None) -> dict:
     command = ["/usr/bin/time", "-f", "TIME %e %M", sys.executable, "-m", "gpjax", "demo",
                "--out", str(out)]
     code = {} if tree is None else {"PYTHONPATH": str(tree)}
+    # Run outside the repository: ``python -m`` puts the working folder first on sys.path,
+    # before PYTHONPATH, so from the repository every tree would run this one's code.
     run = subprocess.run(command, env=dict(os.environ, JAX_PLATFORMS="cpu", **env, **code),
+                         cwd=out.parent,
                          capture_output=True, text=True, check=True)
     wall, peak = run.stderr.strip().splitlines()[-1].split()[1:]
     compile_s = float(re.search(r"([\d.]+) s (?:of it )?compiling or loading", run.stdout)[1])

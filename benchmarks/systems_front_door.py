@@ -110,11 +110,13 @@ def found_terms(model: gpjax.Model, i: int) -> dict:
     return out
 
 
-def timed_fit(command: list[str], env: dict | None = None) -> tuple:
+def timed_fit(command: list[str], env: dict | None = None, cwd: Path | None = None) -> tuple:
     """(completed process, whole seconds, the summary's figures: ``compile_s``,
-    ``programs`` and its stages) of one ``gpjax fit`` process."""
+    ``programs`` and its stages) of one ``gpjax fit`` process, run in ``cwd`` (a
+    baseline's tree: ``python -m`` puts the working folder first on sys.path, before
+    PYTHONPATH)."""
     began = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True, env=env)
+    done = subprocess.run(command, capture_output=True, text=True, env=env, cwd=cwd)
     seconds = time.perf_counter() - began
     found = next((m for m in (p.search(done.stdout) for p in SUMMARIES) if m), None)
     figures = {"compile_s": float(found[2]) if found else None,
@@ -152,7 +154,7 @@ def run_one(name: str, seed: int, folder: Path, baseline: tuple | None = None) -
         out = folder / f"{name}_{seed}_baseline"
         env = dict(os.environ, PYTHONPATH=str(tree), GPJAX_COMPILATION_CACHE="on",
                    GPJAX_CACHE_DIR=str(folder / "cache-baseline"))
-        old, old_seconds, old_figures = timed_fit(fit_command(out), env)
+        old, old_seconds, old_figures = timed_fit(fit_command(out), env, tree)
         same = old.returncode == 0 and [str(e) for e in gpjax.Model.load(
             out / "model.json").sympy()] == [str(e) for e in model.sympy()]
         compared = {"baseline": {"revision": revision, "seconds": old_seconds,
