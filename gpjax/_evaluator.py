@@ -417,7 +417,7 @@ def _record_arrays(measurement: Measurement, n_padded: int, n_bins: int, n_bins_
     return RecordArrays(
         responses=responses, valid=(np.arange(n_padded) < n).astype(float),
         count=np.asarray(float(n)), dft=padded_dft,
-        amplitude=np.asarray(_amplitude(padded_dft, responses, n_bins_padded)),
+        amplitude=_amplitude(padded_dft, responses, n_bins_padded, np),
         weights=np.std(measured[:, :1]) / np.std(measured, axis=0), bounds=bounds,
         step=np.asarray(step), start=np.asarray(float(measurement.time[0])),
         noise_scale=np.where(noise_scale == 0, 1.0, noise_scale), sign_scales=sign_scales)
