@@ -28,12 +28,21 @@ def baseline_tree(revision: str):
                            check=True, capture_output=True)
 
 
+def in_tree(tree: Path | None, **variables: str) -> dict:
+    """``subprocess.run``'s ``env`` and ``cwd`` for a child process that runs the code at
+    ``tree`` (this tree when ``None``), with ``variables`` added to the environment: the
+    tree first on ``PYTHONPATH`` and as the working folder, since ``python -m`` and
+    ``python -c`` put the working folder on ``sys.path`` before ``PYTHONPATH`` (from this
+    repository a baseline's child would import this tree's code)."""
+    tree = ROOT if tree is None else tree
+    return {"env": dict(os.environ, **variables, PYTHONPATH=str(tree)), "cwd": tree}
+
+
 def run_child(tree: Path, script: str, *args: str):
     """``script`` (Python source) run with ``args`` in a fresh process on the tree at
     ``tree`` (CPU, compilation cache off: it compiles as a first run does); its last stdout
     line parsed as JSON. Raises ``subprocess.CalledProcessError`` when the child fails."""
-    env = dict(os.environ, PYTHONPATH=str(tree), JAX_PLATFORMS="cpu",
-               GPJAX_COMPILATION_CACHE="off")
-    out = subprocess.run([sys.executable, "-c", script, *args], env=env, check=True,
-                         capture_output=True, text=True, cwd=tree)
+    out = subprocess.run([sys.executable, "-c", script, *args], check=True,
+                         capture_output=True, text=True,
+                         **in_tree(tree, JAX_PLATFORMS="cpu", GPJAX_COMPILATION_CACHE="off"))
     return json.loads(out.stdout.strip().splitlines()[-1])

@@ -26,7 +26,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _baseline import baseline_tree
+from _baseline import baseline_tree, in_tree
 from _provenance import provenance
 
 
@@ -36,11 +36,7 @@ def timed_demo(env: dict, out: Path, tree: Path | None = None) -> dict:
     and the 1-minute load average after it."""
     command = ["/usr/bin/time", "-f", "TIME %e %M", sys.executable, "-m", "gpjax", "demo",
                "--out", str(out)]
-    code = {} if tree is None else {"PYTHONPATH": str(tree)}
-    # Run outside the repository: ``python -m`` puts the working folder first on sys.path,
-    # before PYTHONPATH, so from the repository every tree would run this one's code.
-    run = subprocess.run(command, env=dict(os.environ, JAX_PLATFORMS="cpu", **env, **code),
-                         cwd=out.parent,
+    run = subprocess.run(command, **in_tree(tree, JAX_PLATFORMS="cpu", **env),
                          capture_output=True, text=True, check=True)
     wall, peak = run.stderr.strip().splitlines()[-1].split()[1:]
     compile_s = float(re.search(r"([\d.]+) s (?:of it )?compiling or loading", run.stdout)[1])

@@ -30,7 +30,7 @@ from pathlib import Path
 
 import numpy as np
 
-from _baseline import baseline_tree
+from _baseline import baseline_tree, in_tree
 from _provenance import provenance
 
 REPEATS = 7
@@ -61,9 +61,8 @@ print(json.dumps(500 / min(times)))
 
 def child_rate(path: Path, repeats: int) -> float:
     """models/s of the polynomial population with the engine at ``path``."""
-    env = dict(os.environ, PYTHONPATH=str(path), JAX_PLATFORMS="cpu")
-    out = subprocess.run([sys.executable, "-c", CHILD, str(repeats)], env=env, check=True,
-                         capture_output=True, text=True, cwd=path)
+    out = subprocess.run([sys.executable, "-c", CHILD, str(repeats)], check=True,
+                         capture_output=True, text=True, **in_tree(path, JAX_PLATFORMS="cpu"))
     return float(out.stdout.strip().splitlines()[-1])
 
 

@@ -18,7 +18,6 @@ import argparse
 import contextlib
 import dataclasses
 import json
-import os
 import re
 import subprocess
 import sys
@@ -28,7 +27,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _provenance import provenance  # noqa: E402
-from _baseline import ROOT, baseline_tree  # noqa: E402
+from _baseline import ROOT, baseline_tree, in_tree  # noqa: E402
 
 from gpjax._config import WIDE_FUNCTIONS  # noqa: E402
 
@@ -60,8 +59,8 @@ def _write_records(folder: Path, count: int) -> list[Path]:
 
 def _fit_all(tree: Path, records: list[Path], cache: Path, args) -> list[dict]:
     rows = []
-    env = dict(os.environ, PYTHONPATH=str(tree), JAX_PLATFORMS="cpu",
-               GPJAX_COMPILATION_CACHE="on", GPJAX_CACHE_DIR=str(cache))
+    child = in_tree(tree, JAX_PLATFORMS="cpu", GPJAX_COMPILATION_CACHE="on",
+                    GPJAX_CACHE_DIR=str(cache))
     for path in records:
         began = time.perf_counter()
         try:
@@ -70,7 +69,7 @@ def _fit_all(tree: Path, records: list[Path], cache: Path, args) -> list[dict]:
                  "x", "--input", "u", "--functions", WIDE, "--population",
                  str(args.population), "--generations", str(args.generations), "--out",
                  str(cache.parent / f"{cache.name}-{path.stem}")],
-                env=env, capture_output=True, text=True, cwd=tree, timeout=args.timeout)
+                capture_output=True, text=True, timeout=args.timeout, **child)
         except subprocess.TimeoutExpired:
             rows.append({"record": path.stem, "exit": "timeout", "whole_s": args.timeout,
                          "fit_s": None, "compile_s": None, "programs": None,

@@ -33,7 +33,7 @@ import numpy as np  # noqa: E402
 import optimistix as optx  # noqa: E402
 from scipy.integrate import solve_ivp  # noqa: E402
 
-from _baseline import baseline_tree  # noqa: E402
+from _baseline import baseline_tree, in_tree  # noqa: E402
 from _provenance import provenance  # noqa: E402
 from gpjax import GPConfig, Identifier, Measurement, Symbols  # noqa: E402
 from gpjax.engine import PopulationEvaluator  # noqa: E402
@@ -263,9 +263,8 @@ def child(function, *args, path=None):
     ``path`` first on ``PYTHONPATH`` when given); its last stdout line is JSON."""
     code = (f"import sys; sys.argv=['x']; sys.path.insert(0, {os.path.dirname(__file__)!r});"
             f"import bench_population as b; b.{function}(*{args!r})")
-    env = dict(os.environ, PYTHONPATH=str(path)) if path is not None else os.environ
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         env=env, cwd=path, check=False)  # cwd: "" on sys.path finds path's
+                         check=False, **in_tree(path))
     if out.returncode:
         return {"error": f"exit {out.returncode}: {out.stderr.strip()[-300:]}"}
     return json.loads(out.stdout.strip().splitlines()[-1])

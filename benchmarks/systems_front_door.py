@@ -33,7 +33,6 @@ from __future__ import annotations
 import argparse
 import contextlib
 import json
-import os
 import subprocess
 import sys
 import tempfile
@@ -47,7 +46,7 @@ from gpjax._system_bank import match_bank, system_variables
 from gpjax.systems import generate, get_system, write_csv
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _baseline import baseline_tree  # noqa: E402
+from _baseline import baseline_tree, in_tree  # noqa: E402
 from _provenance import provenance  # noqa: E402
 from bench_new_record import STAGES, SUMMARIES  # noqa: E402
 from bench_systems import scored  # noqa: E402
@@ -110,13 +109,12 @@ def found_terms(model: gpjax.Model, i: int) -> dict:
     return out
 
 
-def timed_fit(command: list[str], env: dict | None = None, cwd: Path | None = None) -> tuple:
+def timed_fit(command: list[str], child: dict | None = None) -> tuple:
     """(completed process, whole seconds, the summary's figures: ``compile_s``,
-    ``programs`` and its stages) of one ``gpjax fit`` process, run in ``cwd`` (a
-    baseline's tree: ``python -m`` puts the working folder first on sys.path, before
-    PYTHONPATH)."""
+    ``programs`` and its stages) of one ``gpjax fit`` process, run with ``child``'s
+    ``subprocess.run`` options (a baseline's: :func:`_baseline.in_tree`)."""
     began = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True, env=env, cwd=cwd)
+    done = subprocess.run(command, capture_output=True, text=True, **(child or {}))
     seconds = time.perf_counter() - began
     found = next((m for m in (p.search(done.stdout) for p in SUMMARIES) if m), None)
     figures = {"compile_s": float(found[2]) if found else None,
@@ -143,7 +141,7 @@ def run_one(name: str, seed: int, folder: Path, baseline: tuple | None = None) -
     command = fit_command(folder / f"{name}_{seed}")
     cache = {} if baseline is None else {"GPJAX_COMPILATION_CACHE": "on",
                                          "GPJAX_CACHE_DIR": str(folder / "cache-tree")}
-    done, seconds, figures = timed_fit(command, dict(os.environ, **cache))
+    done, seconds, figures = timed_fit(command, in_tree(None, **cache))
     if done.returncode != 0:
         return {"system": name, "seed": seed, "revision": provenance()["revision"],
                 "error": done.stderr.strip()[-500:], "seconds": seconds}
@@ -152,9 +150,8 @@ def run_one(name: str, seed: int, folder: Path, baseline: tuple | None = None) -
     if baseline is not None:
         revision, tree = baseline
         out = folder / f"{name}_{seed}_baseline"
-        env = dict(os.environ, PYTHONPATH=str(tree), GPJAX_COMPILATION_CACHE="on",
-                   GPJAX_CACHE_DIR=str(folder / "cache-baseline"))
-        old, old_seconds, old_figures = timed_fit(fit_command(out), env, tree)
+        old, old_seconds, old_figures = timed_fit(fit_command(out), in_tree(
+            tree, GPJAX_COMPILATION_CACHE="on", GPJAX_CACHE_DIR=str(folder / "cache-baseline")))
         same = old.returncode == 0 and [str(e) for e in gpjax.Model.load(
             out / "model.json").sympy()] == [str(e) for e in model.sympy()]
         compared = {"baseline": {"revision": revision, "seconds": old_seconds,
