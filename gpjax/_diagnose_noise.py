@@ -114,34 +114,41 @@ def lines(values: np.ndarray, dt: float, *, alpha: float
     bins = (n - 1) // 2
     time, step = np.arange(n) * dt, 1.0 / (n * dt)  # step: one DFT bin, Hz
 
-    def columns(frequencies):
-        angles = 2 * np.pi * np.multiply.outer(time, np.asarray(frequencies, dtype=float))
-        return np.column_stack([np.ones(n), np.cos(angles), np.sin(angles)])
+    def pair(frequency):
+        angle = 2 * np.pi * frequency * time
+        return np.column_stack([np.cos(angle), np.sin(angle)])
 
-    def fit(frequencies):
-        basis = columns(frequencies)
-        return basis @ np.linalg.lstsq(basis, values, rcond=None)[0]
+    def basis(frequencies):
+        """An orthonormal basis (n, 1 + 2·lines) of the mean and ``frequencies``' lines."""
+        return np.linalg.qr(np.column_stack([np.ones(n), *map(pair, frequencies)]))[0]
 
-    def refine(frequencies, k):
-        """Line k's frequency by least squares, the others projected out once."""
-        q = np.linalg.qr(columns(frequencies[:k] + frequencies[k + 1:]))[0]
+    def extended(q, frequency):
+        """``q`` with the line at ``frequency`` added (Gram–Schmidt, twice for accuracy)."""
+        new = pair(frequency)
+        for _ in range(2):
+            new = new - q @ (q.T @ new)
+        return np.column_stack([q, np.linalg.qr(new)[0]])
+
+    def refine(q, frequency):
+        """The frequency of a line near ``frequency`` by least squares, the lines of ``q``
+        (an orthonormal basis of the others) projected out."""
         rest = values - q @ (q.T @ values)
 
         def error(f):
-            pair = columns([f])[:, 1:]
-            pair = pair - q @ (q.T @ pair)
-            coefficients = np.linalg.lstsq(pair, rest, rcond=None)[0]
-            return float(np.sum((rest - pair @ coefficients) ** 2))
-        low = max(frequencies[k] - step, step / 8)
-        best = minimize_scalar(error, method="bounded", bounds=(low, frequencies[k] + step),
-                               options={"xatol": 1e-3 * step})
-        frequencies[k] = float(best.x)
+            columns = pair(f)
+            columns = columns - q @ (q.T @ columns)
+            coefficients = np.linalg.lstsq(columns, rest, rcond=None)[0]
+            return float(np.sum((rest - columns @ coefficients) ** 2))
+        low = max(frequency - step, step / 8)
+        return float(minimize_scalar(error, method="bounded", bounds=(low, frequency + step),
+                                     options={"xatol": 1e-3 * step}).x)
 
     power = _periodogram(values)
     threshold = math.log(bins / alpha) / math.log(2.0)  # × the median periodogram
     if np.count_nonzero(power > threshold * np.median(power)) > bins // 4:
         return None, []  # broadband: more significant bins than lines may hold
     frequencies: list[float] = []
+    q = basis([])  # the mean and the lines found so far
     fitted = np.full(n, np.mean(values))
     while True:
         remaining = values - fitted
@@ -155,11 +162,12 @@ def lines(values: np.ndarray, dt: float, *, alpha: float
             break
         if len(frequencies) >= min(bins // 8, MAX_LINES):  # 2 columns per line
             return None, []
-        frequencies.append(peak * step / 8)
-        refine(frequencies, len(frequencies) - 1)
-        fitted = fit(frequencies)
+        frequencies.append(refine(q, peak * step / 8))
+        q = extended(q, frequencies[-1])
+        fitted = q @ (q.T @ values)
     if not frequencies:
         return None, []  # no line: not a sum of lines
     for k in range(len(frequencies)):
-        refine(frequencies, k)
-    return fit(frequencies), frequencies
+        frequencies[k] = refine(basis(frequencies[:k] + frequencies[k + 1:]), frequencies[k])
+    q = basis(frequencies)
+    return q @ (q.T @ values), frequencies

@@ -337,3 +337,23 @@ def test_a_tied_step_records_the_set_and_the_report_names_it():
         steps=[{"effect": "static_offset"} | out])))
     assert "Cannot be told apart on this record:** static_offset (accepted) and " \
            "cubic_stiffness" in lines and out["separating_input"]["change"] in lines
+
+
+def test_band_limited_noise_input_is_left_as_measured():
+    """Noise filtered to a tenth of the band lights fewer than a quarter of the bins, so
+    lines are sought one at a time; it needs more than ``MAX_LINES`` of them: broadband."""
+    from scipy.signal import butter, sosfiltfilt
+
+    from gpjax._diagnose_noise import MAX_LINES, lines
+
+    rng = np.random.default_rng(11)
+    n, dt = 6000, 1e-3
+    values = sosfiltfilt(butter(6, 0.1, output="sos"), rng.standard_normal(n))
+    values += 1e-3 * rng.standard_normal(n)
+    fitted, frequencies = lines(values, dt, alpha=0.05)
+    assert fitted is None and frequencies == []
+    twelve = sum(np.sin(2 * np.pi * f * np.arange(n) * dt + f) for f in range(10, 130, 10))
+    fitted, frequencies = lines(twelve + 0.1 * rng.standard_normal(n), dt, alpha=0.05)
+    assert len(frequencies) == 12 < MAX_LINES
+    assert max(abs(np.sort(frequencies) - np.arange(10, 130, 10))) < 0.01
+    assert np.std(fitted - twelve) < 0.02
