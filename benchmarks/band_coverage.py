@@ -2,7 +2,7 @@
 
     python benchmarks/band_coverage.py --seeds 20 --json benchmarks/band_coverage.json
 
-For Duffing and the pendulum (as in ``benchmarks/coverage.py``): the true structure fitted
+For Duffing and the pendulum (as in ``benchmarks/interval_coverage.py``): the true structure fitted
 to a record with 1 % noise on the response and on the measured input (:func:`gpjax.refit`,
 band-limited input reconstruction), then its band (:func:`gpjax.prediction_band`) on the
 extrapolation record (another input realisation, 20 % larger), from the initial state the
@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 
 from _provenance import provenance
-from coverage import _one_coordinate
+from interval_coverage import _one_coordinate
 
 from gpjax import UserInputError, prediction_band, refit
 from gpjax.systems import generate

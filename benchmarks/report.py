@@ -229,8 +229,8 @@ def sign_width() -> str:
 
 
 def coverage_table() -> str:
-    """benchmarks/coverage.json: coverage of the 95 % intervals per system."""
-    data = _load("benchmarks/coverage.json")
+    """benchmarks/interval_coverage.json: coverage of the 95 % intervals per system."""
+    data = _load("benchmarks/interval_coverage.json")
     lines = ["| system | input reconstruction | seeds | coverage (all constants) | "
              "per constant | mean \\|z\\| | median half-width / truth | revision |",
              "| --- | --- | ---: | ---: | --- | ---: | ---: | --- |"]

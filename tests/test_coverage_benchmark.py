@@ -1,4 +1,4 @@
-"""The coverage benchmarks run at this revision: one seed of each of ``coverage.py``'s
+"""The coverage benchmarks run at this revision: one seed of each of ``interval_coverage.py``'s
 systems names every true constant by the fitted model's own constant names and checks its
 interval, and one seed of ``band_coverage.py`` draws a prediction band."""
 
@@ -27,7 +27,7 @@ def _script(name: str):
 @pytest.mark.slow
 @pytest.mark.parametrize("system", ["duffing_load", "pendulum", "chain2"])
 def test_one_seed_of_each_system_scores_every_true_constant(system):
-    row = _script("coverage").run_seed(system, 0, "bandlimited")
+    row = _script("interval_coverage").run_seed(system, 0, "bandlimited")
     assert row["converged"] and row["constants"]
     for name, constant in row["constants"].items():
         assert constant["low"] <= constant["value"] <= constant["high"], name

@@ -1,7 +1,7 @@
 """How often the 95 % intervals of the constants cover the truth (issue 44).
 
-    python benchmarks/coverage.py --seeds 40 --json benchmarks/coverage.json
-    python benchmarks/coverage.py --seeds 40 --json benchmarks/coverage.json --resume
+    python benchmarks/interval_coverage.py --seeds 40 --json benchmarks/interval_coverage.json
+    python benchmarks/interval_coverage.py --seeds 40 --json benchmarks/interval_coverage.json --resume
 
 For four systems of the catalogue — Duffing (polynomial), Duffing under a static load (a
 constant force, fitted by the spectrum's zero bin alone), the pendulum (k·sin x: a
