@@ -109,12 +109,12 @@ def found_terms(model: gpjax.Model, i: int) -> dict:
     return out
 
 
-def timed_fit(command: list[str], child: dict | None = None) -> tuple:
+def timed_fit(command: list[str], child: dict) -> tuple:
     """(completed process, whole seconds, the summary's figures: ``compile_s``,
     ``programs`` and its stages) of one ``gpjax fit`` process, run with ``child``'s
-    ``subprocess.run`` options (a baseline's: :func:`_baseline.in_tree`)."""
+    ``subprocess.run`` options (:func:`_baseline.in_tree`)."""
     began = time.perf_counter()
-    done = subprocess.run(command, capture_output=True, text=True, **(child or {}))
+    done = subprocess.run(command, capture_output=True, text=True, **child)
     seconds = time.perf_counter() - began
     found = next((m for m in (p.search(done.stdout) for p in SUMMARIES) if m), None)
     figures = {"compile_s": float(found[2]) if found else None,

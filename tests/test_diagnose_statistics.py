@@ -4,13 +4,14 @@ data; a residual's structure is described; the drifting stage, the held-out swee
 
 import numpy as np
 import pytest
-from scipy.signal import lfilter
+from scipy.signal import butter, lfilter, sosfiltfilt
 
 from gpjax import Model, Symbols, diagnose
 from gpjax._data import Measurement
 from gpjax._diagnose_acceptance import (accepted, long_run_variance, predictive_test,
                                         score_test)
-from gpjax._diagnose_noise import input_lines_only, noise_floor, signal_band_hz
+from gpjax._diagnose_noise import MAX_LINES, input_lines_only, noise_floor, signal_band_hz
+from gpjax._diagnose_noise import lines as spectral_lines
 from gpjax._diagnose_residual import describe_residual
 
 
@@ -342,18 +343,14 @@ def test_a_tied_step_records_the_set_and_the_report_names_it():
 def test_band_limited_noise_input_is_left_as_measured():
     """Noise filtered to a tenth of the band lights fewer than a quarter of the bins, so
     lines are sought one at a time; it needs more than ``MAX_LINES`` of them: broadband."""
-    from scipy.signal import butter, sosfiltfilt
-
-    from gpjax._diagnose_noise import MAX_LINES, lines
-
     rng = np.random.default_rng(11)
     n, dt = 6000, 1e-3
     values = sosfiltfilt(butter(6, 0.1, output="sos"), rng.standard_normal(n))
     values += 1e-3 * rng.standard_normal(n)
-    fitted, frequencies = lines(values, dt, alpha=0.05)
+    fitted, frequencies = spectral_lines(values, dt, alpha=0.05)
     assert fitted is None and frequencies == []
     twelve = sum(np.sin(2 * np.pi * f * np.arange(n) * dt + f) for f in range(10, 130, 10))
-    fitted, frequencies = lines(twelve + 0.1 * rng.standard_normal(n), dt, alpha=0.05)
+    fitted, frequencies = spectral_lines(twelve + 0.1 * rng.standard_normal(n), dt, alpha=0.05)
     assert len(frequencies) == 12 < MAX_LINES
     assert max(abs(np.sort(frequencies) - np.arange(10, 130, 10))) < 0.01
     assert np.std(fitted - twelve) < 0.02
