@@ -262,6 +262,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         self._forcing_basis = np.zeros((self.stage_times.size, 0))
         self._extra_fns = [sp.lambdify((symbols.x, symbols.x_dot, symbols.t), f, modules="jax")
                            for f in extra_state_features]
+        self._extra_jets = _jets(extra_state_features, symbols)
         #: The record as the programs' argument (:class:`~gpjax._record.RecordArrays`).
         self.record_arrays = _record_arrays(measurement, self.n_padded, self.n_bins,
                                             self.n_bins_padded, dft, self.h, self.sign_scales)
@@ -442,3 +443,19 @@ def _pad_columns(array: np.ndarray, columns: int) -> np.ndarray:
     out = np.zeros(array.shape[:-1] + (columns,))
     out[..., : array.shape[-1]] = array
     return out
+
+
+def _jets(features, symbols):
+    """``jets(x, x', t)``: the features' values and their partial derivatives by x and by x'
+    (three lists of arrays), from one function that computes their common subexpressions
+    once (a tanh and its slope share the tanh); ``None`` without features."""
+    if not features:
+        return None
+    x, v, t = (sp.Dummy(real=True) for _ in range(3))  # |x|' is sign(x) for a real x
+    real = [sp.sympify(f).subs({symbols.x: x, symbols.x_dot: v, symbols.t: t})
+            for f in features]
+    def slope(f, z):  # a jump's delta is 0, as forward-mode autodiff takes it
+        return sp.diff(f, z).replace(sp.DiracDelta, lambda *_: sp.S.Zero)
+
+    return sp.lambdify((x, v, t), [real, [slope(f, x) for f in real],
+                                   [slope(f, v) for f in real]], modules="jax", cse=True)

@@ -174,13 +174,16 @@ def test_dft_matrix_and_fft_amplitudes_agree(shape):
 
 def test_variational_scan_equals_forward_mode_autodiff_of_the_solve():
     """scan_jvp's sensitivities = jax.jvp of scan_solve, for directions in every kind of
-    constant (mass, polynomial and extra state features, forcing, initial state)."""
+    constant (mass, polynomial and extra state features, forcing, initial state); the
+    extra features (a tanh, a parametric term, a dead zone's kinks, a jump) with their
+    slopes from sympy in one pass (_extra_pass), the rest by the generic path."""
     measurement = _measurement()
-    extra = (sp.tanh(20 * S.x_dot), sp.cos(9 * S.t) * S.x)
+    extra = (sp.tanh(20 * S.x_dot), sp.cos(9 * S.t) * S.x,
+             sp.Abs(S.x - 0.01) - sp.Abs(S.x + 0.02), sp.sign(S.x_dot))
     evaluator = PopulationEvaluator(measurement, S, max_degree=3, batch=6,
                                     extra_state_features=extra)
     pop = _random_models(evaluator, np.random.default_rng(3), 6)
-    pop.state[:, -2:] = [0.3, 4.0]
+    pop.state[:, -4:] = [0.3, 4.0, 2.0, 0.05]
     basis = jnp.asarray(evaluator._forcing_basis)
     mass, state, forcing, y0 = map(jnp.asarray, (pop.mass, pop.state, pop.forcing, pop.y0))
     rng = np.random.default_rng(4)
