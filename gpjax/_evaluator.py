@@ -454,6 +454,7 @@ def _jets(features, symbols):
     x, v, t = (sp.Dummy(real=True) for _ in range(3))  # |x|' is sign(x) for a real x
     real = [sp.sympify(f).subs({symbols.x: x, symbols.x_dot: v, symbols.t: t})
             for f in features]
+
     def slope(f, z):  # a jump's delta is 0, as forward-mode autodiff takes it
         return sp.diff(f, z).replace(sp.DiracDelta, lambda *_: sp.S.Zero)
 
