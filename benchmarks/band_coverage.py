@@ -2,8 +2,8 @@
 
     python benchmarks/band_coverage.py --seeds 20 --json benchmarks/band_coverage.json
 
-For Duffing and the pendulum (as in ``benchmarks/interval_coverage.py``): the true structure fitted
-to a record with 1 % noise on the response and on the measured input (:func:`gpjax.refit`,
+For Duffing and the pendulum (as in ``benchmarks/interval_coverage.py``): the true structure
+fitted to a record with 1 % noise on the response and on the measured input (:func:`gpjax.refit`,
 band-limited input reconstruction), then its band (:func:`gpjax.prediction_band`) on the
 extrapolation record (another input realisation, 20 % larger), from the initial state the
 true model fits on that record. The truth is the true model's reference response to the

@@ -260,8 +260,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         self._forcing_index: dict[sp.Expr, int] = {}
         self._finite: dict[sp.Expr, bool] = {}  # forcing_finite's verdicts
         self._forcing_basis = np.zeros((self.stage_times.size, 0))
-        self._extra_fns = [sp.lambdify((symbols.x, symbols.x_dot, symbols.t), f, modules="jax")
-                           for f in extra_state_features]
+        self._n_extra = len(extra_state_features)
         self._extra_jets = _jets(extra_state_features, symbols)
         #: The record as the programs' argument (:class:`~gpjax._record.RecordArrays`).
         self.record_arrays = _record_arrays(measurement, self.n_padded, self.n_bins,
@@ -448,12 +447,12 @@ def _pad_columns(array: np.ndarray, columns: int) -> np.ndarray:
 def _jets(features, symbols):
     """``jets(x, x', t)``: the features' values and their partial derivatives by x and by x'
     (three lists of arrays), from one function that computes their common subexpressions
-    once (a tanh and its slope share the tanh); ``None`` without features."""
+    once (a tanh and its slope share the tanh); ``None`` without features. ``features``
+    are sympy expressions (parsed by the whitelist of :mod:`gpjax._expressions`)."""
     if not features:
         return None
     x, v, t = (sp.Dummy(real=True) for _ in range(3))  # |x|' is sign(x) for a real x
-    real = [sp.sympify(f).subs({symbols.x: x, symbols.x_dot: v, symbols.t: t})
-            for f in features]
+    real = [f.subs({symbols.x: x, symbols.x_dot: v, symbols.t: t}) for f in features]
 
     def slope(f, z):  # a jump's delta is 0, as forward-mode autodiff takes it
         return sp.diff(f, z).replace(sp.DiracDelta, lambda *_: sp.S.Zero)

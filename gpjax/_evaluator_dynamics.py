@@ -27,7 +27,7 @@ HOLD_WITH_DIFFRAX = ('the "diffrax" integrator cannot simulate "hold" inputs (it
 
 class Dynamics:
     """Mixin of :class:`gpjax._evaluator.PopulationEvaluator` (uses its ``n_coordinates``,
-    ``max_degree``, ``families``, ``_inner_slots``, ``_extra_fns``, ``_extra_jets``,
+    ``max_degree``, ``families``, ``_inner_slots``, ``_n_extra``, ``_extra_jets``,
     ``record`` (the record's step, start time and bounds, :mod:`gpjax._record`),
     ``substeps``, ``n_steps``, ``split_stages``, ``integrator``, :meth:`_layout_of` and the
     systems' :class:`SystemTerms`)."""
@@ -94,7 +94,7 @@ class Dynamics:
         d = self.max_degree
         position, velocity = (jnp.moveaxis(state[..., 0, k * d:(k + 1) * d], -1, 0)
                               for k in (0, 1))
-        n_poly, n_extra = 2 * d, len(self._extra_fns) if extras else 0
+        n_poly, n_extra = 2 * d, self._n_extra if extras else 0
         extra = jnp.moveaxis(state[..., 0, n_poly:n_poly + n_extra], -1, 0)
         bank = self._bank_columns(state) if families else jnp.zeros((0,))
         family_sum = self._family_sum(bank, inner) if bank.shape[0] else None
@@ -108,8 +108,9 @@ class Dynamics:
         def restoring(xs, vs, t):
             x, v = xs[0], vs[0]
             total = horner(position, x) + horner(velocity, v)
-            for c, fn in zip(extra, self._extra_fns):
-                total = total + c * fn(x, v, t)
+            if n_extra:  # the values only: jit drops the slopes no one uses
+                for c, f in zip(extra, self._extra_jets(x, v, t)[0]):
+                    total = total + c * f
             if family_sum is not None:
                 total = total + family_sum(x, v)
             return [total]
@@ -272,7 +273,7 @@ class Dynamics:
     def _bank_columns(self, state):
         """One coordinate's family coefficients of ``state`` (internal, (..., P, 1, F)),
         family first: (F_bank, ..., P); none on the plain layout."""
-        return jnp.moveaxis(state[..., 0, 2 * self.max_degree + len(self._extra_fns):], -1, 0)
+        return jnp.moveaxis(state[..., 0, 2 * self.max_degree + self._n_extra:], -1, 0)
 
     def _has_families(self, state) -> bool:
         """Whether ``state`` (internal) is of one coordinate and holds the families'
@@ -357,7 +358,7 @@ class Dynamics:
         Σ dc·f along the directions ((Q, P); ``None`` without ``d_state``), from one
         evaluation of every feature and its two partial derivatives
         (:attr:`_extra_jets`)."""
-        first, count = 2 * self.max_degree, len(self._extra_fns)
+        first, count = 2 * self.max_degree, self._n_extra
         c = state[..., 0, first:first + count]  # (P, E)
         d_c = None if d_state is None else d_state[..., 0, first:first + count]  # (Q, P, E)
         bx, bv = self.record.bounds[0, 0], self.record.bounds[0, 1]

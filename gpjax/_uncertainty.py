@@ -44,8 +44,8 @@ interpolation of a band-limited input is a systematic error that moved the const
 one to two standard errors on Duffing records; each such fit records the shift,
 ``reconstruction_shift``, and ``input_interpolation = "bandlimited"`` removes it) and a smoothed sign's width (:mod:`gpjax._sign_width`); inner constants of a
 family (a sin's frequency, a tanh's width) get the same linearised interval, poor where the
-objective is far from quadratic in them. ``benchmarks/interval_coverage.py`` measures how often the
-intervals cover the truth.
+objective is far from quadratic in them. ``benchmarks/interval_coverage.py`` measures how
+often the intervals cover the truth.
 """
 
 from __future__ import annotations

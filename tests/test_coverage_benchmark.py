@@ -1,6 +1,7 @@
-"""The coverage benchmarks run at this revision: one seed of each of ``interval_coverage.py``'s
-systems names every true constant by the fitted model's own constant names and checks its
-interval, and one seed of ``band_coverage.py`` draws a prediction band."""
+"""The coverage benchmarks run at this revision: one seed of each of
+``interval_coverage.py``'s systems names every true constant by the fitted model's own
+constant names and checks its interval, and one seed of ``band_coverage.py`` draws a
+prediction band."""
 
 import importlib.util
 import sys
