@@ -39,7 +39,8 @@ from gpjax import GPConfig, Identifier, Measurement, Symbols  # noqa: E402
 from gpjax.engine import PopulationEvaluator  # noqa: E402
 from gpjax._weak_form import WeakForm, least_squares, smoothed_derivatives  # noqa: E402
 from gpjax._coefficients import Population  # noqa: E402
-from gpjax._refine import Refiner, linear_solver as refine_linear_solver  # noqa: E402
+from gpjax._levenberg_marquardt import linear_solver as refine_linear_solver  # noqa: E402
+from gpjax._refine import Refiner  # noqa: E402
 from gpjax.gear import generate_gear_example, load_bundled_example  # noqa: E402
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -45,22 +45,9 @@ from jax.sharding import AxisType, PartitionSpec
 from ._aot import CompileFigures, Program, fingerprint
 from ._coefficients import Population, padded_chunks
 from ._evaluator import STAGE_ELEMENTS_PER_CALL, PopulationEvaluator
+from ._levenberg_marquardt import ResolvedLevenbergMarquardt, linear_solver
 
 JACOBIANS = ("variational", "autodiff")
-
-
-def linear_solver(jacobian: str = "variational"):
-    """The damped Gauss–Newton step's linear solver. With the variational Jacobian the
-    normal equations (JᵀJ + λI)·δ = Jᵀr by LU: the default QR of the (N + k) × k system
-    slows sharply on XLA's CPU from k = 8 (optimistix alone, 64 models: 1,204 models/s at
-    k = 6, 583 at k = 8, 248 at k = 12; LU 1,604 at k = 8; ``lm_floor`` in
-    benchmarks/bench_population.py). Constants are scaled by their start values, so JᵀJ
-    stays well conditioned. Autodiff through a while loop (diffrax) cannot be transposed,
-    so that path keeps QR. lineax is imported here, on first use
-    (:func:`gpjax._integrate.rk4_solver`)."""
-    import lineax as lx
-
-    return lx.Normal(lx.LU()) if jacobian == "variational" else lx.QR()
 
 
 #: Default models per compiled refinement call and free constants per model.
@@ -323,10 +310,9 @@ class Refiner(CompileFigures):
         index = jnp.arange(record.valid.size)
         index = index if single else index[:, None]
         noise_scale = record.noise_scale[0] if single else record.noise_scale
-        import optimistix as optx  # traced only when compiled (linear_solver)
+        import optimistix as optx
 
-        solver = optx.LevenbergMarquardt(rtol=1e-9, atol=1e-9,
-                                         linear_solver=linear_solver(self.jacobian))
+        free = jnp.sum(moves[1] != 0)
         delta = jnp.zeros(moves[0].shape)
         ok, steps = jnp.array(True), jnp.array(0)
         for samples, limit in zip(self.horizon_samples, limits):
@@ -341,6 +327,10 @@ class Refiner(CompileFigures):
                 measured, valid, noise_scale = args[4:]
                 return jnp.where(valid, x - measured, 0.0) / noise_scale
 
+            # Stops at rounding level (Cauchy) or once resolved to 0.1 standard error.
+            solver = ResolvedLevenbergMarquardt(
+                rtol=1e-9, atol=1e-9, dof=jnp.maximum(limit * ev.n_coordinates - free, 1),
+                linear_solver=linear_solver(self.jacobian))
             solution = optx.least_squares(
                 residuals, solver, delta,
                 args=(start, moves, forcing_basis, record, measured[:samples], valid[:samples],
