@@ -45,7 +45,6 @@ from jax.sharding import AxisType, PartitionSpec
 from ._aot import CompileFigures, Program, fingerprint
 from ._coefficients import Population, padded_chunks
 from ._evaluator import STAGE_ELEMENTS_PER_CALL, PopulationEvaluator
-from ._levenberg_marquardt import ResolvedLevenbergMarquardt, linear_solver
 
 JACOBIANS = ("variational", "autodiff")
 
@@ -310,7 +309,9 @@ class Refiner(CompileFigures):
         index = jnp.arange(record.valid.size)
         index = index if single else index[:, None]
         noise_scale = record.noise_scale[0] if single else record.noise_scale
-        import optimistix as optx
+        import optimistix as optx  # traced only when compiled: a loaded program needs neither
+
+        from ._levenberg_marquardt import ResolvedLevenbergMarquardt, linear_solver
 
         free = jnp.sum(moves[1] != 0)
         delta = jnp.zeros(moves[0].shape)
