@@ -20,6 +20,7 @@ so the first input's linear forcing coefficient is 1 (mass 1 when no such term e
 from __future__ import annotations
 
 import dataclasses
+import math
 from functools import lru_cache
 
 import sympy as sp
@@ -179,6 +180,10 @@ def _unary(name: str, a: sp.Expr) -> sp.Expr:
     function = {"sin": sp.sin, "cos": sp.cos, "tanh": sp.tanh, "exp": sp.exp, "sinh": sp.sinh,
                 "cosh": sp.cosh, "abs": sp.Abs,
                 "sign": sp.sign, "sqrt": lambda z: sp.sqrt(sp.Abs(z))}[name]
+    if name in ("sin", "cos") and a.is_Number and not math.isfinite(float(a)):
+        # beyond float64 (sin(exp(exp(N1))) from GP): reducing it by π needs π to as many
+        # digits as its exponent has — hours — and float64 has no such number anyway
+        return sp.zoo
     try:
         out = sp.expand(function(a))
     except OverflowError:  # a constant beyond mpmath's range: exp(exp(exp(977))) from GP

@@ -109,3 +109,19 @@ def test_a_constant_beyond_floating_range_makes_a_tree_invalid_not_a_crash():
             ("mul", ("exp", ("exp", ("exp", ("k", "k2", 977.637010629853)))), ("x",)))
     check = check_tree(tree, S, {}, max_degree=3, bank=True)
     assert not check.valid and "not finite" in check.reason
+
+
+def test_a_periodic_function_of_a_constant_beyond_float64_is_invalid_at_once():
+    """sin(exp(|exp(N1)|)) with N1 = 19 (the wide set's initial population wrote it, seed 160
+    of the test above): exp(exp(19)) ≈ 10^(7.7e7) is beyond float64, and sympy's sin of it
+    computes π to ~10^8 digits (the fast tier hung there). The check rejects it instead."""
+    import time
+
+    tree = ("add", ("mul", ("k", "k1", 2.0), ("x_ddot",)),
+            ("mul", ("sin", ("exp", ("abs", ("exp", ("c", "N1"))))), ("x",)))
+    started = time.perf_counter()
+    for check in (check_tree(tree, S, {"N1": 19.0}, max_degree=3, bank=True),
+                  check_structure(tree_to_sympy(tree, S, {"N1": 19.0}), S, max_degree=3,
+                                  bank=True)):
+        assert not check.valid and "not finite" in check.reason
+    assert time.perf_counter() - started < 10
