@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import equinox as eqx
 import jax.numpy as jnp
+import lineax as lx
 import optimistix as optx
 
 #: Stop when the optimum lies within this many standard errors (Mahalanobis distance).
@@ -34,10 +35,8 @@ def linear_solver(jacobian: str = "variational"):
     k = 6, 583 at k = 8, 248 at k = 12; LU 1,604 at k = 8; ``lm_floor`` in
     benchmarks/bench_population.py). Constants are scaled by their start values, so JᵀJ
     stays well conditioned. Autodiff through a while loop (diffrax) cannot be transposed,
-    so that path keeps QR. lineax is imported here, on first use
-    (:func:`gpjax._integrate.rk4_solver`)."""
-    import lineax as lx
-
+    so that path keeps QR. This module (and with it optimistix and lineax) is imported when
+    a refinement is traced (:meth:`gpjax._refine.Refiner._refine_one`)."""
     return lx.Normal(lx.LU()) if jacobian == "variational" else lx.QR()
 
 
@@ -67,9 +66,8 @@ class ResolvedLevenbergMarquardt(optx.LevenbergMarquardt):
 
     dof: jnp.ndarray
 
-    def __init__(self, rtol: float, atol: float, *, dof, linear_solver=None):
-        super().__init__(rtol, atol, **({} if linear_solver is None else
-                                       {"linear_solver": linear_solver}))
+    def __init__(self, rtol: float, atol: float, *, dof, linear_solver=lx.QR()):
+        super().__init__(rtol, atol, linear_solver=linear_solver)
         self.dof = jnp.asarray(dof, dtype=float)
 
     def step(self, fn, y, args, options, state, tags):
