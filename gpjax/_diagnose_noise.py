@@ -20,7 +20,8 @@ false discovery). Where the input is a sum of lines (a periodic or multisine dri
 noise is removed: lines are fitted (frequency, amplitude, phase, by least squares — no
 leakage, unlike zeroing DFT bins of a record that is not a whole number of periods) while
 the strongest remaining periodogram peak exceeds the noise floor (median periodogram / ln 2)
-at level α with a Bonferroni bound over the 8× padded bins, P > density · ln(8·bins/α). The
+at level α with a Bonferroni bound over the padded bins searched (zero-padded at least 8×, to
+a length the FFT is fast at), P > density · ln(padded bins/α). The
 median is the noise's only while the lines hold a minority of the bins, so an input that needs lines
 in more than a quarter of them (a broadband input) is left as measured.
 """
@@ -31,6 +32,7 @@ import math
 
 import numpy as np
 from scipy import stats
+from scipy.fft import next_fast_len
 from scipy.optimize import minimize_scalar
 
 from ._data import Measurement
@@ -104,9 +106,11 @@ def input_lines_only(measurement: Measurement, *, alpha: float
 def lines(values: np.ndarray, dt: float, *, alpha: float
            ) -> tuple[np.ndarray | None, list[float]]:
     """(mean + significant sinusoids fitted by least squares, their frequencies in Hz),
-    found one at a time at the strongest peak of the remaining periodogram (8× zero-padded)
-    while that peak exceeds the noise floor at level ``alpha`` (Bonferroni over the 8×
-    padded bins, as the peak is sought on them);
+    found one at a time at the strongest peak of the remaining periodogram (zero-padded at
+    least 8×, to a length the FFT is fast at: a record of 2 × a prime samples padded 8×
+    took 100 ms an FFT, 5 ms padded to the next fast length) while that peak exceeds the
+    noise floor at level ``alpha`` (Bonferroni over the padded bins, as the peak is sought
+    on them);
     each new frequency, and at the end each in turn, refined within a bin by least squares.
     ``None`` where no line is significant, more than a quarter of the bins are, or more than
     :data:`MAX_LINES` lines (or a quarter of the bins) would be needed (a broadband input)."""
@@ -135,10 +139,14 @@ def lines(values: np.ndarray, dt: float, *, alpha: float
         rest = values - q @ (q.T @ values)
 
         def error(f):
+            # |rest|² less what the line's columns, q projected out, explain: rest ⊥ q, so
+            # their product with rest is the columns' own; their Gram matrix is
+            # CᵀC − (qᵀC)ᵀ(qᵀC) (one pass over the samples, not three)
             columns = pair(f)
-            columns = columns - q @ (q.T @ columns)
-            coefficients = np.linalg.lstsq(columns, rest, rcond=None)[0]
-            return float(np.sum((rest - columns @ coefficients) ** 2))
+            inner = q.T @ columns
+            gram = columns.T @ columns - inner.T @ inner
+            product = columns.T @ rest
+            return float(rest @ rest - product @ np.linalg.lstsq(gram, product, rcond=None)[0])
         low = max(frequency - step, step / 8)
         return float(minimize_scalar(error, method="bounded", bounds=(low, frequency + step),
                                      options={"xatol": 1e-3 * step}).x)
@@ -147,6 +155,8 @@ def lines(values: np.ndarray, dt: float, *, alpha: float
     threshold = math.log(bins / alpha) / math.log(2.0)  # × the median periodogram
     if np.count_nonzero(power > threshold * np.median(power)) > bins // 4:
         return None, []  # broadband: more significant bins than lines may hold
+    padding = next_fast_len(8 * n, real=True)
+    searched = bins * padding // n  # padded bins up to the last DFT bin tested
     frequencies: list[float] = []
     q = basis([])  # the mean and the lines found so far
     fitted = np.full(n, np.mean(values))
@@ -155,14 +165,14 @@ def lines(values: np.ndarray, dt: float, *, alpha: float
         if np.std(remaining) <= 1e-9 * np.std(values):  # exact lines: nothing left to find
             break
         density = float(np.median(_periodogram(remaining))) / math.log(2.0)
-        padded = np.abs(np.fft.rfft(remaining, n=8 * n)) ** 2
-        padded[:8] = 0.0  # DC and its leakage
-        peak = int(np.argmax(padded[: 8 * bins]))
-        if density <= 0 or padded[peak] <= density * math.log(8 * bins / alpha):
+        padded = np.abs(np.fft.rfft(remaining, n=padding)) ** 2
+        padded[:-(-padding // n)] = 0.0  # DC and its leakage (one DFT bin)
+        peak = int(np.argmax(padded[:searched]))
+        if density <= 0 or padded[peak] <= density * math.log(searched / alpha):
             break
         if len(frequencies) >= min(bins // 8, MAX_LINES):  # 2 columns per line
             return None, []
-        frequencies.append(refine(q, peak * step / 8))
+        frequencies.append(refine(q, peak / (padding * dt)))
         q = extended(q, frequencies[-1])
         fitted = q @ (q.T @ values)
     if not frequencies:

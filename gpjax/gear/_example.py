@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Callable
 
 import numpy as np
-from scipy.integrate import solve_ivp
 
 from .._data import Measurement
 
@@ -104,6 +103,8 @@ def generate_gear_example(*, seed: int = 0, noise_phi: float = 2e-5, noise_torqu
     j, k1, k2 = truth["J"], truth["K1"], truth["K2"]
     n = int(round(revolutions * sample_rate / torque.shaft_hz)) + 1
     time = t0 + np.arange(n) / sample_rate
+
+    from scipy.integrate import solve_ivp  # not at import: the demo reads the bundled CSV
 
     def field(t, y):
         extra = 0.0 if extra_force is None else extra_force(t, y[0], y[1])
