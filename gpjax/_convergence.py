@@ -19,8 +19,9 @@ of the model against the data. Otherwise the step count grows and the model is r
   integrate beside it grow without bound. So a check also needs h·ρ ≤ RK4_STABILITY, ρ
   the largest rate of the model's linearisation where its response dwells.
 * **Window**: records longer than :data:`CHECK_SAMPLES` are checked on their first
-  :data:`CHECK_SAMPLES` samples: the reference solve costs ~50–80 µs a sample on 2
-  cores (linear in the samples), and the ODE a model names is the same on any stretch of
+  :data:`CHECK_SAMPLES` samples: the reference solve costs ~40–60 µs a sample on 2
+  cores with held or linear inputs and ~200 µs with band-limited ones, whose steps end on
+  the spline's knots (linear in the samples), and the ODE a model names is the same on any stretch of
   the record.
 * **Growth** (:func:`needed_substeps`): RK4's global error falls as h⁴, so a measured
   ratio r at s substeps needs s·(r / (tolerance/2))^(1/4) — half the tolerance as margin
