@@ -21,7 +21,7 @@ from __future__ import annotations
 import dataclasses
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from ._data import Measurement
 from ._errors import UserInputError
@@ -116,4 +116,4 @@ def _draws(correlation: np.ndarray, dof: np.ndarray, count: int,
     eigenvalues, vectors = np.linalg.eigh(np.nan_to_num(correlation))
     root = vectors * np.sqrt(np.clip(eigenvalues, 0.0, None))
     scores = rng.standard_normal((count, correlation.shape[0])) @ root.T
-    return stats.t.ppf(stats.norm.cdf(scores), np.maximum(dof, 1.0))
+    return special.stdtrit(np.maximum(dof, 1.0), special.ndtr(scores))

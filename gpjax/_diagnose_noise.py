@@ -31,7 +31,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
+from scipy import special
 from scipy.fft import next_fast_len
 from scipy.optimize import minimize_scalar
 
@@ -67,7 +67,7 @@ def noise_floor(residual: np.ndarray, dt: float, band_hz: float) -> dict | None:
     density = float(np.median(outside)) / math.log(2.0)
     sigma = math.sqrt(density / residual.size)
     rms = float(np.sqrt(np.mean((residual - np.mean(residual)) ** 2)))
-    p = float(stats.gamma.sf(np.sum(inside) / density, inside.size)) if density > 0 else 0.0
+    p = float(special.gammaincc(inside.size, np.sum(inside) / density)) if density > 0 else 0.0
     return {"sigma": sigma, "rms": rms, "ratio": rms / sigma if sigma > 0 else math.inf,
             "band_hz": float(band_hz), "p_excess": p}
 

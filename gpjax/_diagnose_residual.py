@@ -24,7 +24,7 @@ from __future__ import annotations
 
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from ._diagnose_acceptance import long_run_variance
 from ._diagnose_noise import lines
@@ -94,7 +94,7 @@ def _binned(residual: np.ndarray, keys: list[np.ndarray], n_eff: float) -> dict:
 def _f_p(eta2: float, df1: float, df2: float) -> float:
     if df1 <= 0 or df2 <= 0 or eta2 >= 1:
         return 0.0 if eta2 >= 1 else 1.0
-    return float(stats.f.sf((eta2 / df1) / ((1 - eta2) / df2), df1, df2))
+    return float(special.fdtrc(df1, df2, max((eta2 / df1) / ((1 - eta2) / df2), 0.0)))
 
 
 def _incremental_p(small: dict, large: dict, n_eff: float) -> float:
@@ -103,7 +103,7 @@ def _incremental_p(small: dict, large: dict, n_eff: float) -> float:
     gain = large["eta2"] - small["eta2"]
     if df1 <= 0 or df2 <= 0 or gain <= 0:
         return 1.0
-    return float(stats.f.sf((gain / df1) / ((1 - large["eta2"]) / df2), df1, df2))
+    return float(special.fdtrc(df1, df2, max((gain / df1) / ((1 - large["eta2"]) / df2), 0.0)))
 
 
 def _suggestions(d: dict, alpha: float) -> list[str]:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from scipy import stats
+from scipy import special
 
 from ._data import Measurement
 from ._diagnose_acceptance import long_run_variance
@@ -35,7 +35,7 @@ def better_fit_p(simple, full, dropped: int, resolution: float) -> float:
         gamma0 = float(np.mean(f ** 2))
         effective = f.size * gamma0 / max(long_run_variance(f)[0], gamma0 / f.size)
         ratio += effective * math.log(float(np.mean(s ** 2)) / gamma0)
-    return float(stats.chi2.sf(ratio, max(dropped, 1)))
+    return float(special.chdtrc(max(dropped, 1), max(ratio, 0.0)))
 
 
 def scaled_residual(fit: SystemFit, measurement: Measurement) -> np.ndarray:
@@ -71,7 +71,7 @@ def without_insignificant(key, fit: SystemFit, alpha: float):
         value = float(uncertainty.values[uncertainty.names.index(name)])
         dof = float(uncertainty.dof[uncertainty.names.index(name)])
         # an infinite error: the record does not determine the constant at all (p = 1)
-        p = 2.0 * float(stats.t.sf(abs(value) / se, dof)) if math.isfinite(se) else 1.0
+        p = 2.0 * float(special.stdtr(dof, -abs(value) / se)) if math.isfinite(se) else 1.0
         if p >= largest:
             worst, largest = (i, part == "forcing", terms[str(feature)]), p
     if worst is None:

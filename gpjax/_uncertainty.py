@@ -55,7 +55,7 @@ import math
 
 import numpy as np
 
-from scipy import stats
+from scipy import special
 
 #: |correlation| from which two constants are reported as correlated.
 HIGH_CORRELATION = 0.9
@@ -384,7 +384,7 @@ def _profiles(refiner, population, fixed_forcing, held_inner, sensitivity, names
 def t_quantile(dof: float) -> float:
     """t₀.₉₇₅ with ``dof`` degrees of freedom (at least 1): half a 95 % interval in
     standard errors."""
-    return float(stats.t.ppf(0.975, max(float(dof), 1.0)))
+    return float(special.stdtrit(max(float(dof), 1.0), 0.975))
 
 
 def _weighted_rows(values: np.ndarray, weights: np.ndarray) -> np.ndarray:
