@@ -336,6 +336,7 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
     current = None
     steps, rankings, fits = [], [], []
     for round_number in range(max_steps + 1):
+        _progress.stage(f"diagnosis: step {round_number + 1}: ranking the effects")
         context = problem.context(structure, lines)
         taken = {c.effect.name for c in chosen}  # an effect enters once
         ranked = rank_effects(problem.weak, structure, context,
@@ -350,11 +351,9 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         candidates = [structure.plus(c.terms) for c in shortlisted]
         pairs = (rank_pairs(problem.weak, context, structure, ranked, shortlist)
                  if chosen_mode == "equation_error" and shortlisted else [])
-        also = f" and {len(pairs)} pair(s)" if pairs else ""
-        _progress.stage(f"diagnosis: step {round_number + 1}: fitting {len(candidates)} "
-                        f"candidate effect(s){also} ({chosen_mode} mode)")
         while chosen_mode == "simulation" and automatic:  # integrate the current model
-            _progress.stage(f"diagnosis: convergence check at {substeps} substeps")
+            _progress.stage(f"diagnosis: step {round_number + 1}: convergence check at "
+                            f"{substeps} substeps")
             probe = current or problem.fit_equation_error([structure])[0]  # converged
             check = _integration(probe, problem, convergence_tolerance)
             if check.converged or substeps >= MAX_SUBSTEPS or not math.isfinite(check.ratio):
@@ -365,6 +364,9 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             problem.pool_lhs, problem.pool_forcing = pools
             if current is not None:  # the last accepted structure, refitted
                 current = fits[-1] = fit_structures(problem, chosen_mode, [structure])[0]
+        also = f" and {len(pairs)} pair(s)" if pairs else ""
+        _progress.stage(f"diagnosis: step {round_number + 1}: fitting {len(candidates)} "
+                        f"candidate effect(s){also} ({chosen_mode} mode) and testing them")
         if current is None:
             results = fit_structures(problem, chosen_mode, [structure] + candidates)
             current, results = results[0], results[1:]
@@ -442,6 +444,9 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
                            refits=refits, frequencies=lines, n_train=problem.n_train,
                            measurement=measurement, symbols=symbols,
                            settings=settings | {"substeps": substeps})
+        _progress.stage("diagnosis: the refits' residuals, "
+                        + ("convergence check and " if chosen_mode == "simulation" else "")
+                        + "uncertainty")
         result.noise = _noise(result, problem)
         result.unexplained = _unexplained(result, problem, alpha)
         if chosen_mode != "simulation":

@@ -7,6 +7,9 @@ unless logging is configured (e.g. ``logging.basicConfig(level=logging.INFO)``);
 command line writes them to stderr, each flushed, where stderr is not a terminal (a log
 file, CI, ``nohup``, a cluster job: where tqdm hides its bar) and nowhere on a terminal,
 which shows the bar (:func:`lines_on_stderr`). Nothing goes to stdout.
+
+A :func:`stage_clock` times the stages that start while it is open, so a command can say
+where the seconds of a stage-logged part (the diagnosis) went, parts that add up to it.
 """
 
 from __future__ import annotations
@@ -14,13 +17,48 @@ from __future__ import annotations
 import contextlib
 import logging
 import sys
+import time
 
 LOGGER = logging.getLogger("gpjax")
+#: The open stage clocks' marks: (time.perf_counter(), message) per stage started.
+_CLOCKS: list[list[tuple[float, str]]] = []
 
 
 def stage(message: str) -> None:
-    """Log the start of a stage of a run."""
+    """Log the start of a stage of a run (and mark it on every open :func:`stage_clock`)."""
+    now = time.perf_counter()
+    for marks in _CLOCKS:
+        marks.append((now, message))
     LOGGER.info(message)
+
+
+@contextlib.contextmanager
+def stage_clock(first: str):
+    """While open, the stages started are timed. Yields a list that holds, once closed,
+    (message, seconds) of each stage in order: ``first`` for the time before the first
+    stage, then each stage until the next one or the close; the seconds add up to the
+    time the clock was open."""
+    marks = [(time.perf_counter(), first)]
+    durations: list[tuple[str, float]] = []
+    _CLOCKS.append(marks)
+    try:
+        yield durations
+    finally:
+        _CLOCKS.remove(marks)
+        ends = [t for t, _ in marks[1:]] + [time.perf_counter()]
+        durations.extend((message, end - began) for (began, message), end in zip(marks, ends))
+
+
+def stage_summary(what: str, durations: list[tuple[str, float]]) -> str:
+    """One line: ``what``'s seconds in all and per stage of :func:`stage_clock`, each
+    stage's message without the prefix that names ``what`` ("diagnosis: ",
+    "diagnosis of the system: ")."""
+    def label(message: str) -> str:
+        named = message.lower().startswith(what.lower()) and ": " in message
+        return message.split(": ", 1)[1] if named else message
+
+    parts = "; ".join(f"{label(m)} {s:.1f} s" for m, s in durations)
+    return f"{what}: {sum(s for _, s in durations):.1f} s in all: {parts}."
 
 
 def generation(number: int, total: int, best: float, seconds: float) -> None:

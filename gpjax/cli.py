@@ -284,7 +284,17 @@ def _fit(args) -> int:
     if identifier.stopped_by == "interrupted":
         return 130
     if args.diagnose:
-        _run_diagnosis(args, measurement, identifier.model_, Path(args.out) / "diagnosis")
+        import time
+
+        import psutil
+
+        fitted = time.time()
+        diagnosis = _run_diagnosis(args, measurement, identifier.model_,
+                                   Path(args.out) / "diagnosis")
+        now = time.time()
+        print(f"Whole process {now - psutil.Process().create_time():.1f} s: the fit as above, "
+              f"then {now - fitted:.1f} s for the diagnosis ({diagnosis:.1f} s as above, "
+              f"the rest printing).")
     return 0
 
 
@@ -339,18 +349,21 @@ def _check_system_diagnosis(args) -> None:
                              "several coordinates cannot hold yet; drop it")
 
 
-def _run_diagnosis(args, measurement, model, out: Path) -> None:
+def _run_diagnosis(args, measurement, model, out: Path) -> float:
+    """Diagnose ``model``, write the report to ``out`` and print its summary; returns
+    the diagnosis's seconds (its stages, report included)."""
     if model.n_coordinates > 1:
         return _run_system_diagnosis(args, measurement, model, out)
     from ._convergence import check_line
     from ._diagnose import diagnose
     from ._diagnose_report import sign_cautions, write_report
 
-    result = diagnose(measurement, model, frequencies=tuple(args.frequencies),
-                      holdout=args.holdout, max_steps=args.max_steps, alpha=args.alpha,
-                      input_interpolation=args.input_interpolation)
-    _progress.stage(f"diagnosis: writing the report to {out}/")
-    write_report(result, out)
+    with _progress.stage_clock("the inputs' spectral lines and the weak form") as stages:
+        result = diagnose(measurement, model, frequencies=tuple(args.frequencies),
+                          holdout=args.holdout, max_steps=args.max_steps, alpha=args.alpha,
+                          input_interpolation=args.input_interpolation)
+        _progress.stage(f"diagnosis: writing the report to {out}/")
+        write_report(result, out)
     before, after = result.before.metrics, result.after.metrics
     print(f"Diagnosis ({result.mode}): effects added: {', '.join(result.effects_added) or 'none'}")
     model = result.model()
@@ -370,18 +383,21 @@ def _run_diagnosis(args, measurement, model, out: Path) -> None:
     for caution in sign_cautions(result):
         print(f"  caution: {caution}")
     print(f"Report in {out}/ (report.md, report.json, model.json, figures)")
+    print(_progress.stage_summary("Diagnosis", stages))
+    return sum(seconds for _, seconds in stages)
 
 
-def _run_system_diagnosis(args, measurement, model, out: Path) -> None:
+def _run_system_diagnosis(args, measurement, model, out: Path) -> float:
     from ._convergence import check_line
     from ._system_diagnose import summary_line
     from ._system_effects import diagnose_system
 
-    result = diagnose_system(measurement, model, holdout=args.holdout,
-                             max_steps=args.max_steps, alpha=args.alpha,
-                             input_interpolation=args.input_interpolation)
-    _progress.stage(f"diagnosis: writing the report to {out}/")
-    result.write(out)
+    with _progress.stage_clock("setting up") as stages:
+        result = diagnose_system(measurement, model, holdout=args.holdout,
+                                 max_steps=args.max_steps, alpha=args.alpha,
+                                 input_interpolation=args.input_interpolation)
+        _progress.stage(f"diagnosis: writing the report to {out}/")
+        result.write(out)
     print(f"Diagnosis (simulation, {model.n_coordinates} coordinates): effects added: "
           f"{', '.join(result.effects_added) or 'none'}")
     final = result.model()
@@ -394,6 +410,8 @@ def _run_system_diagnosis(args, measurement, model, out: Path) -> None:
     c = result.after.checks[-1].to_json()
     print(f"  {check_line(c)}")
     print(f"Report in {out}/ (report.md, report.json, model.json)")
+    print(_progress.stage_summary("Diagnosis", stages))
+    return sum(seconds for _, seconds in stages)
 
 
 def _simulate(args) -> int:

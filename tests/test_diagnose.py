@@ -2,6 +2,7 @@
 first and closes the residual to the noise; a control adds nothing; drift; CLI; model file."""
 
 import json
+import re
 import subprocess
 import sys
 
@@ -243,6 +244,12 @@ def test_cli_diagnose_writes_the_report(tmp_path):
     run = _cli("diagnose", "data.csv", "--model", "model.json", "--time", "t", "--response",
                "x", "--input", "u", "--out", "report", cwd=tmp_path)
     assert run.returncode == 0, run.stderr
+    # the last line says where the diagnosis's seconds went: parts that add up to the whole
+    summary = re.fullmatch(r"Diagnosis: ([\d.]+) s in all: (.*)\.", run.stdout.splitlines()[-1])
+    parts = [float(p.rsplit(" ", 2)[-2]) for p in summary.group(2).split("; ")]
+    assert summary.group(2).startswith("the inputs' spectral lines and the weak form ")
+    assert "writing the report to report/" in summary.group(2)
+    assert sum(parts) == pytest.approx(float(summary.group(1)), abs=0.05 * len(parts))
     report = json.loads((tmp_path / "report" / "report.json").read_text())
     assert report["effects_added"][0] == "coulomb_friction"
     for key in ("rms", "objective"):

@@ -60,3 +60,19 @@ def test_lines_only_where_stderr_is_not_a_terminal(monkeypatch):
     assert terminal.getvalue() == ""
     assert LINE.match(piped.getvalue()).group(1) == "writing"
     assert piped.getvalue().count("\n") == 1
+
+
+def test_a_stage_clock_splits_its_time_into_the_stages_started_while_open(monkeypatch):
+    clock = iter([10.0, 10.5, 12.0, 12.25, 13.0, 99.0])  # perf_counter's readings in turn
+    monkeypatch.setattr(_progress.time, "perf_counter", lambda: next(clock))
+    with _progress.stage_clock("setting up") as durations:
+        _progress.stage("diagnosis: step 1: ranking the effects")
+        _progress.stage("diagnosis of the system: step 1: fitting 2 candidate effect(s)")
+        _progress.stage("writing")
+    _progress.stage("after")  # the clock is closed: not timed
+    assert durations == [("setting up", 0.5), ("diagnosis: step 1: ranking the effects", 1.5),
+                         ("diagnosis of the system: step 1: fitting 2 candidate effect(s)",
+                          0.25), ("writing", 0.75)]
+    assert _progress.stage_summary("Diagnosis", durations) == (
+        "Diagnosis: 3.0 s in all: setting up 0.5 s; step 1: ranking the effects 1.5 s; "
+        "step 1: fitting 2 candidate effect(s) 0.2 s; writing 0.8 s.")

@@ -94,6 +94,8 @@ def test_friction_on_mass_two_is_named_on_equation_two_through_the_cli(tmp_path,
                  "--out", str(tmp_path / "d")]) == 0
     out = capsys.readouterr().out
     assert "effects added: coulomb_friction on x2 (equation 2)" in out
+    assert out.splitlines()[-1].startswith("Diagnosis: ")  # its seconds, stage by stage
+    assert "step 1: fitting" in out.splitlines()[-1]
     report = json.loads((tmp_path / "d" / "report.json").read_text())
     assert [(s["effect"], s["equations"]) for s in report["steps"]] == [("coulomb_friction",
                                                                          [2])]
