@@ -333,8 +333,13 @@ def silverbox() -> str:
                  f"{hand['arrow_no_extrapolation']:g}", f"{hand['multisine']:g}", "–"])
     cost = ""
     if data.get("peak_rss_mb") is not None:
+        base = data.get("baseline")
+        than = (f" ({base['ratio_seconds']:.2f}× the {base['seconds']:.0f} s and "
+                f"{base['peak_rss_mb'] / 1024:.1f} GB of {base['revision']}, run after it in the "
+                f"same benchmark, {'the same' if base['same_models'] else 'other'} models)"
+                if base else "")
         cost = (f"The whole `gpjax fit --diagnose` process took {data['seconds']:.0f} s at a peak "
-                f"RSS of {data['peak_rss_mb'] / 1024:.1f} GB.\n\n")
+                f"RSS of {data['peak_rss_mb'] / 1024:.1f} GB{than}.\n\n")
     return (_table(["model", "arrow full (mV)", "arrow, no extrapolation (mV)", "multisine (mV)",
                     "RK4 steps per sample"], rows, "lrrrr") + "\n\n" + cost + _stamp(data))
 

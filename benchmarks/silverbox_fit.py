@@ -1,7 +1,7 @@
 """Silverbox through the front door: ``gpjax fit --diagnose`` scored by an independent solver.
 
 Usage: python benchmarks/silverbox_fit.py SILVERBOX_DIR [--out FILE.json] [--work DIR]
-       [--input-interpolation {linear,bandlimited,hold}] [--reuse]
+       [--input-interpolation {linear,bandlimited,hold}] [--reuse] [--baseline REV]
 
 Writes the estimation segment [40650:105712] as CSV, runs ``gpjax fit est.csv --time t
 --response V2 --input V1 --diagnose --input-interpolation bandlimited`` as a separate
@@ -11,15 +11,20 @@ DOP853 (rtol 1e-10, atol 1e-13, at most one sample interval per step; the input 
 continuous-time function gpjax uses), which shares no code with gpjax's integrators. The
 initial state comes from the first 50 samples of each segment; the RMS is taken over the
 samples after them. Prints a table beside the published results and writes JSON.
+
+``--baseline REV`` runs the same command with the code of git revision ``REV`` (a temporary
+worktree, its own empty compilation cache folder, as this tree's run has where
+``GPJAX_CACHE_DIR`` names an empty one) right after this tree's, and records its seconds,
+peak RSS, the ratio and whether both found the same models.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import resource
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -33,6 +38,7 @@ from gpjax._weak_form import estimate_initial_conditions
 from gpjax._silverbox import SEGMENTS, WARMUP, silverbox_segments
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _baseline import baseline_tree, in_tree  # noqa: E402
 from _provenance import provenance  # noqa: E402
 
 #: Published test RMS in mV (multisine, arrow full, arrow no extrapolation), from the data's
@@ -80,6 +86,17 @@ def _csv_names(segment: Measurement) -> Measurement:
                        inputs={"V1": segment.inputs["u"]}, time_name="t", response_name="V2")
 
 
+def timed_fit(command: list[str], tree: Path | None = None, **variables: str) -> tuple[float, float]:
+    """Run ``command`` (the code at ``tree``, default this one) as one process: its wall
+    seconds and peak RSS (MB, ``/usr/bin/time``)."""
+    with tempfile.NamedTemporaryFile(suffix=".txt") as peak:
+        began = time.perf_counter()
+        subprocess.run(["/usr/bin/time", "-o", peak.name, "-f", "%M", *command], check=True,
+                       **in_tree(tree, **variables))
+        seconds = time.perf_counter() - began
+        return seconds, float(Path(peak.name).read_text().split()[-1]) / 1024
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("directory")
@@ -87,8 +104,9 @@ def main() -> None:
     parser.add_argument("--work", default="silverbox-run", help="folder for the CSV and the run")
     parser.add_argument("--input-interpolation", default="bandlimited", dest="interpolation")
     parser.add_argument("--reuse", action="store_true", help="score an existing run in --work")
+    parser.add_argument("--baseline", help="git revision timed in the same run")
     args = parser.parse_args()
-    work = Path(args.work)
+    work = Path(args.work).resolve()
     work.mkdir(parents=True, exist_ok=True)
     segments = silverbox_segments(args.directory)
     run = work / "run"
@@ -101,10 +119,18 @@ def main() -> None:
         np.savetxt(work / "estimation.csv", np.column_stack(
             [estimation.time, estimation.inputs["u"], estimation.response]), delimiter=",",
             header="t,V1,V2", comments="", fmt="%.10g")
-        began = time.perf_counter()
-        subprocess.run(command, check=True)
-        seconds = time.perf_counter() - began
-        peak_rss_mb = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss / 1024
+        seconds, peak_rss_mb = timed_fit(command)
+    baseline = None
+    if args.baseline:
+        before = work / "baseline-run"
+        with baseline_tree(args.baseline) as tree, tempfile.TemporaryDirectory() as cache:
+            baseline_s, baseline_mb = timed_fit(command[:-1] + [str(before)], tree,
+                                                GPJAX_CACHE_DIR=cache)
+        same = all(Model.load(run / name).sympy() == Model.load(before / name).sympy()
+                   for name in ("model.json", "diagnosis/model.json"))
+        baseline = {"revision": args.baseline, "seconds": baseline_s,
+                    "peak_rss_mb": baseline_mb, "same_models": same,
+                    "ratio_seconds": seconds / baseline_s if seconds else None}
     rows = []
     for label, path in (("gpjax fit (GP)", run / "model.json"),
                         ("gpjax fit --diagnose (final)", run / "diagnosis" / "model.json")):
@@ -116,7 +142,7 @@ def main() -> None:
                      "estimation_rms_reference_mV": 1e3 * check.get("rms_reference", np.nan),
                      **{f"{name}_rms_mV": rms[name] for name in TESTS}})
     report = {**provenance(), "fit_command": " ".join(command[1:]), "seconds": seconds,
-              "peak_rss_mb": peak_rss_mb,
+              "peak_rss_mb": peak_rss_mb, "baseline": baseline,
               "input_interpolation": args.interpolation, "segments": SEGMENTS,
               "scorer": "scipy solve_ivp DOP853, rtol 1e-10, atol 1e-13, max_step = dt",
               "table": rows, "published_mV_multisine_arrowfull_arrownoextrap": PUBLISHED,
@@ -134,6 +160,10 @@ def main() -> None:
           f"{HAND_FIT['arrow_no_extrapolation']} | {HAND_FIT['multisine']} |")
     if seconds is not None:
         print(f"gpjax fit --diagnose took {seconds:.0f} s, peak RSS {peak_rss_mb:.0f} MB")
+    if baseline:
+        print(f"{args.baseline}: {baseline['seconds']:.0f} s, peak RSS "
+              f"{baseline['peak_rss_mb']:.0f} MB; ratio {baseline['ratio_seconds']:.2f}, "
+              f"{'the same' if baseline['same_models'] else 'other'} models")
 
 
 if __name__ == "__main__":

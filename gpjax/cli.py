@@ -293,8 +293,8 @@ def _fit(args) -> int:
                                    Path(args.out) / "diagnosis")
         now = time.time()
         print(f"Whole process {now - psutil.Process().create_time():.1f} s: the fit as above, "
-              f"then {now - fitted:.1f} s for the diagnosis ({diagnosis:.1f} s as above, "
-              f"the rest printing).")
+              f"then {now - fitted:.1f} s: the diagnosis as above ({diagnosis:.1f} s) and "
+              "printing.")
     return 0
 
 
