@@ -68,7 +68,8 @@ def main() -> None:
                "rk4_difference_rms_over_spread": float(np.sqrt(np.mean((x - x_rk4) ** 2))
                                                        / np.std(x))}
         rows.append(row)
-        print(f"| {interpolation} | {n} | {reference_s:.2f} | {row['us_per_sample']:.1f} | {rk4_s:.3f} | "
+        print(f"| {interpolation} | {n} | {reference_s:.2f} | {row['us_per_sample']:.1f} | "
+              f"{rk4_s:.3f} | "
               f"{row['ratio_to_rk4']:.0f} |", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(

@@ -86,7 +86,8 @@ def _csv_names(segment: Measurement) -> Measurement:
                        inputs={"V1": segment.inputs["u"]}, time_name="t", response_name="V2")
 
 
-def timed_fit(command: list[str], tree: Path | None = None, **variables: str) -> tuple[float, float]:
+def timed_fit(command: list[str], tree: Path | None = None,
+              **variables: str) -> tuple[float, float]:
     """Run ``command`` (the code at ``tree``, default this one) as one process: its wall
     seconds and peak RSS (MB, ``/usr/bin/time``)."""
     with tempfile.NamedTemporaryFile(suffix=".txt") as peak:

@@ -164,8 +164,8 @@ def score_test(residual: np.ndarray, base: np.ndarray, extra: np.ndarray,
     score = z.T @ r
     k = int(np.linalg.matrix_rank(covariance))
     statistic = float(score @ np.linalg.pinv(covariance) @ score) if k else 0.0
-    return {"statistic": statistic, "p_value": float(special.chdtrc(max(k, 1), max(statistic, 0.0))),
-            "dof": k, "bandwidth": int(bandwidth)}
+    p_value = float(special.chdtrc(max(k, 1), max(statistic, 0.0)))
+    return {"statistic": statistic, "p_value": p_value, "dof": k, "bandwidth": int(bandwidth)}
 
 
 def accepted(current: np.ndarray, candidates: list[np.ndarray], *, alpha: float,
