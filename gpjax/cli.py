@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import shutil
 import sys
+import time
 from pathlib import Path
 
 from . import _progress
@@ -223,16 +224,19 @@ def _demo(args) -> int:
     return 0
 
 
+def _process_started() -> float:
+    """When this process started (s since the epoch, as ``time.time()``)."""
+    import psutil
+
+    return psutil.Process().create_time()
+
+
 def _timings(identifier, out) -> None:
     """Print where the whole process's seconds went: parts that add up to the whole, from
     the process's start (start-up: Python, imports, reading the data) to this line."""
-    import time
-
-    import psutil
-
     t = identifier.timings_
     now = time.time()
-    started = psutil.Process().create_time()
+    started = _process_started()
     seconds = [row["seconds"] for row in identifier.history_]
     later = (f", then {sum(seconds[1:]) / len(seconds[1:]):.2f} s a generation"
              if len(seconds) > 1 else "")
@@ -284,15 +288,11 @@ def _fit(args) -> int:
     if identifier.stopped_by == "interrupted":
         return 130
     if args.diagnose:
-        import time
-
-        import psutil
-
         fitted = time.time()
         diagnosis = _run_diagnosis(args, measurement, identifier.model_,
                                    Path(args.out) / "diagnosis")
         now = time.time()
-        print(f"Whole process {now - psutil.Process().create_time():.1f} s: the fit as above, "
+        print(f"Whole process {now - _process_started():.1f} s: the fit as above, "
               f"then {now - fitted:.1f} s: the diagnosis as above ({diagnosis:.1f} s) and "
               "printing.")
     return 0
