@@ -21,8 +21,10 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import warnings
 from functools import lru_cache
 
+import numpy as np
 import sympy as sp
 
 from ._trees import UNARY_NODES, Tree, is_function
@@ -172,6 +174,11 @@ def _expanded(tree: Tree, symbols: Symbols, constants: tuple):
     return ring.ground_new(sp.RR(value))  # ring(value) would build a new mpmath context
 
 
+#: Unary nodes whose value of a constant is checked in float64 first (:func:`_unary`).
+FLOAT64_FUNCTIONS = {"sin": np.sin, "cos": np.cos, "tanh": np.tanh, "exp": np.exp,
+                     "sinh": np.sinh, "cosh": np.cosh}
+
+
 def _unary(name: str, a: sp.Expr) -> sp.Expr:
     """A unary function node applied to an expanded argument, expanded (``exp(a + b)``
     becomes ``e^b·exp(a)``); sqrt and log act on |a| and log 0 is 0 (protected)."""
@@ -180,10 +187,18 @@ def _unary(name: str, a: sp.Expr) -> sp.Expr:
     function = {"sin": sp.sin, "cos": sp.cos, "tanh": sp.tanh, "exp": sp.exp, "sinh": sp.sinh,
                 "cosh": sp.cosh, "abs": sp.Abs,
                 "sign": sp.sign, "sqrt": lambda z: sp.sqrt(sp.Abs(z))}[name]
-    if name in ("sin", "cos") and a.is_Number and not math.isfinite(float(a)):
-        # beyond float64 (sin(exp(exp(N1))) from GP): reducing it by π needs π to as many
-        # digits as its exponent has — hours — and float64 has no such number anyway
-        return sp.zoo
+    if a.is_Number and name in FLOAT64_FUNCTIONS:
+        # a constant whose argument or value is beyond float64 (sin(exp(exp(N1))),
+        # exp(exp(N1)) from GP): sympy evaluates it to as many digits as its exponent has
+        # (π or ln 2 to millions of digits: hours), and float64 has no such number anyway
+        try:
+            argument = float(a)
+        except OverflowError:
+            return sp.zoo
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            if not math.isfinite(FLOAT64_FUNCTIONS[name](np.float64(argument))):
+                return sp.zoo
     try:
         out = sp.expand(function(a))
     except OverflowError:  # a constant beyond mpmath's range: exp(exp(exp(977))) from GP

@@ -125,3 +125,17 @@ def test_a_periodic_function_of_a_constant_beyond_float64_is_invalid_at_once():
                                   bank=True)):
         assert not check.valid and "not finite" in check.reason
     assert time.perf_counter() - started < 10
+
+
+def test_an_exponential_of_a_constant_beyond_float64_is_invalid_at_once():
+    """exp(exp(exp(N1))) with N1 = 7 (exp(exp(7)) ≈ 10^476 overflows float64): sympy
+    evaluated the outer exp by computing ln 2 to as many digits (a fresh clone's fast tier
+    hung there for 18 minutes in the hypothesis test above). The check rejects it instead."""
+    import time
+
+    tree = ("add", ("mul", ("k", "k1", 2.0), ("x_ddot",)),
+            ("mul", ("exp", ("exp", ("exp", ("c", "N1")))), ("x",)))
+    started = time.perf_counter()
+    check = check_tree(tree, S, {"N1": 7.0}, max_degree=3, bank=True)
+    assert not check.valid and "not finite" in check.reason
+    assert time.perf_counter() - started < 10
