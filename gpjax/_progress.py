@@ -52,13 +52,18 @@ def stage_clock(first: str):
 def stage_summary(what: str, durations: list[tuple[str, float]]) -> str:
     """One line: ``what``'s seconds in all and per stage of :func:`stage_clock`, each
     stage's message without the prefix that names ``what`` ("diagnosis: ",
-    "diagnosis of the system: ")."""
-    def label(message: str) -> str:
+    "diagnosis of the system: "). A stage that does not name ``what`` (a fit's own stage,
+    logged once per candidate inside a diagnosis step) counts towards the part it runs in,
+    so a step is one part however many fits it makes."""
+    parts: list[list] = []
+    for k, (message, seconds) in enumerate(durations):
         named = message.lower().startswith(what.lower()) and ": " in message
-        return message.split(": ", 1)[1] if named else message
-
-    parts = "; ".join(f"{label(m)} {s:.1f} s" for m, s in durations)
-    return f"{what}: {sum(s for _, s in durations):.1f} s in all: {parts}."
+        if k and parts and not named:
+            parts[-1][1] += seconds
+        else:
+            parts.append([message.split(": ", 1)[1] if named else message, seconds])
+    listed = "; ".join(f"{label} {s:.1f} s" for label, s in parts)
+    return f"{what}: {sum(s for _, s in durations):.1f} s in all: {listed}."
 
 
 def generation(number: int, total: int, best: float, seconds: float) -> None:

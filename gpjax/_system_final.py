@@ -1,5 +1,6 @@
 """The reported system at converged integration: a term its fit does not demonstrate is
-dropped (:func:`without_insignificant`, :func:`better_fit_p`), and the smoothed sign's width
+dropped (:func:`without_insignificant`, :func:`better_fit_p`; :func:`added_terms_p` tests a
+diagnosis's candidate the same way), and the smoothed sign's width
 is checked (:func:`width_check`; :mod:`gpjax._system_bank`) and narrowed where the
 constants carry the smoothing (:func:`sharpened`)."""
 
@@ -82,6 +83,36 @@ def without_insignificant(key, fit: SystemFit, alpha: float):
     if not (part[0] or part[1]):
         return None
     return key[:i] + (part,) + key[i + 1:]
+
+
+def added_terms_p(fit: SystemFit, added: dict[int, tuple[tuple, tuple]]) -> float:
+    """p-value of the Wald test that the constants of the ``added`` terms (equation index
+    -> (state features, forcing features)) are all zero at ``fit``, on the sandwich
+    covariance of :mod:`gpjax._uncertainty` that the reported intervals use: W = cᵀΣ⁻¹c
+    over those constants, W/k against F(k, ν), k the rank of Σ (a pair tied by the third
+    law counts once), ν the fewest degrees of freedom among them (k = 1: the two-sided t
+    test of :func:`without_insignificant`). 1 where the fit has no uncertainty or an added
+    constant has no finite standard error (the record does not determine it)."""
+    uncertainty = fit.uncertainty
+    if uncertainty is None:
+        return 1.0
+    wanted = {(i, part, str(f)) for i, (state, forcing) in added.items()
+              for part, features in (("state", state), ("forcing", forcing)) for f in features}
+    index = [uncertainty.names.index(name)
+             for name, (i, part, feature) in fit.model.constant_names().items()
+             if (i, part, str(feature)) in wanted and name in uncertainty.names]
+    if not index:
+        return 1.0
+    values = uncertainty.values[index]
+    covariance = uncertainty.covariance[np.ix_(index, index)]
+    if not (np.all(np.isfinite(covariance)) and np.all(np.diag(covariance) > 0)):
+        return 1.0
+    k = int(np.linalg.matrix_rank(covariance))
+    statistic = float(values @ np.linalg.pinv(covariance) @ values)
+    dof = float(np.min(uncertainty.dof[index]))
+    if not math.isfinite(dof):
+        return float(special.chdtrc(k, statistic))
+    return float(special.fdtrc(k, dof, statistic / k))
 
 
 def sharpened(equations, names: tuple[str, ...], factor: float) -> list:

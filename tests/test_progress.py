@@ -63,16 +63,19 @@ def test_lines_only_where_stderr_is_not_a_terminal(monkeypatch):
 
 
 def test_a_stage_clock_splits_its_time_into_the_stages_started_while_open(monkeypatch):
-    clock = iter([10.0, 10.5, 12.0, 12.25, 13.0, 99.0])  # perf_counter's readings in turn
+    clock = iter([10.0, 10.5, 12.0, 12.5, 13.0, 13.5, 14.5, 99.0])  # readings in turn
     monkeypatch.setattr(_progress.time, "perf_counter", lambda: next(clock))
+    fit = "fitting the system's constants at 2 substeps"
     with _progress.stage_clock("setting up") as durations:
         _progress.stage("diagnosis: step 1: ranking the effects")
         _progress.stage("diagnosis of the system: step 1: fitting 2 candidate effect(s)")
-        _progress.stage("writing")
+        _progress.stage(fit)  # a fit's own stage, once per candidate
+        _progress.stage(fit)
+        _progress.stage("diagnosis: writing the report")
     _progress.stage("after")  # the clock is closed: not timed
     assert durations == [("setting up", 0.5), ("diagnosis: step 1: ranking the effects", 1.5),
                          ("diagnosis of the system: step 1: fitting 2 candidate effect(s)",
-                          0.25), ("writing", 0.75)]
+                          0.5), (fit, 0.5), (fit, 0.5), ("diagnosis: writing the report", 1.0)]
     assert _progress.stage_summary("Diagnosis", durations) == (
-        "Diagnosis: 3.0 s in all: setting up 0.5 s; step 1: ranking the effects 1.5 s; "
-        "step 1: fitting 2 candidate effect(s) 0.2 s; writing 0.8 s.")
+        "Diagnosis: 4.5 s in all: setting up 0.5 s; step 1: ranking the effects 1.5 s; "
+        "step 1: fitting 2 candidate effect(s) 1.5 s; writing the report 1.0 s.")

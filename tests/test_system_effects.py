@@ -130,3 +130,35 @@ def test_a_constant_the_record_does_not_determine_is_dropped_first():
     assert without_insignificant(key, fit, 0.05) == (((V1, X1), (U,)), ((V2,), ()))
     uncertainty.standard_errors["x1.g1"] = 1e-5  # now determined and significant
     assert without_insignificant(key, fit, 0.05) is None  # every term demonstrated
+
+
+def test_a_candidates_terms_are_tested_by_the_wald_test_of_the_reported_intervals():
+    """The diagnosis accepts a candidate's terms only where its estimation-part fit's
+    sandwich covariance (the intervals the report prints) tells them from 0: the
+    likelihood ratio with a Newey–West sample size gave p = 1e-7 for an x1³ whose constant
+    was -0.34 ± 0.59 on the whole record (chain2, seed 8)."""
+    from types import SimpleNamespace
+
+    from scipy import special
+
+    from gpjax._system_final import added_terms_p
+
+    cubic, relative = X1 ** 3, X1 - X2
+    names = {"x1.k1": (0, "state", str(X1)), "x1.k2": (0, "state", str(cubic)),
+             "x1.k3": (0, "state", str(relative)), "x2.k1": (1, "state", str(-relative))}
+    covariance = np.diag([0.01, 0.09, 0.04, 0.04])
+    covariance[2, 3] = covariance[3, 2] = -0.04  # a pair tied by the third law
+    uncertainty = SimpleNamespace(names=tuple(names), values=np.array([30.0, -0.34, 0.5, -0.5]),
+                                  covariance=covariance, dof=np.array([40.0] * 4))
+    fit = SimpleNamespace(uncertainty=uncertainty,
+                          model=SimpleNamespace(constant_names=lambda: names))
+    alone = added_terms_p(fit, {0: ((cubic,), ())})
+    assert alone == pytest.approx(2 * special.stdtr(40.0, -0.34 / 0.3))  # the t test
+    assert alone > 0.05
+    tied = added_terms_p(fit, {0: ((relative,), ()), 1: ((-relative,), ())})
+    assert tied == pytest.approx(2 * special.stdtr(40.0, -0.5 / 0.2))  # counted once
+    assert tied < 0.05
+    assert added_terms_p(fit, {0: ((), (sp.Integer(1),))}) == 1.0  # no such constant
+    covariance[1, 1] = np.inf  # the record does not determine it
+    assert added_terms_p(fit, {0: ((cubic,), ())}) == 1.0
+    assert added_terms_p(SimpleNamespace(uncertainty=None), {0: ((cubic,), ())}) == 1.0
