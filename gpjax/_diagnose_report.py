@@ -195,8 +195,10 @@ def _unexplained_lines(d: Diagnosis) -> list[str]:
     if u["suggestions"]:
         out += ["Suggested:", ""] + [f"- {s}" for s in u["suggestions"]]
     else:
-        out += ["No structure is significant: the excess looks like noise the floor does not "
-                "see (input noise, coloured sensor noise)."]
+        out += ["No structure is significant. The excess is either noise the floor does not "
+                "see (input noise, coloured sensor noise) or a force outside the model class, "
+                "such as one in which position and velocity multiply (a damping that grows "
+                "with the displacement, x²·x'; see Known limitations)."]
     return out
 
 
