@@ -130,7 +130,8 @@ class Program:
 
         name = fingerprint(self._name, self._key, signature, jax.__version__,
                            jaxlib.__version__, [(d.platform, d.device_kind)
-                                                for d in jax.devices()], source_digest())
+                                                for d in jax.devices()], source_digest(),
+                           os.environ.get("XLA_FLAGS", ""))  # options compiled in
         kept = (str(cache_folder()), name)  # the folder too: each folder gets its file
         executable = _KEPT.pop(kept, None)
         if executable is None:

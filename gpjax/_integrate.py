@@ -14,6 +14,7 @@ when it is imported, and turns on the persistent compilation cache
 from __future__ import annotations
 
 import functools
+import os
 from typing import Callable, ClassVar
 
 import jax
@@ -31,8 +32,27 @@ def enable_float64() -> None:
     creates afterwards too (see the README, "Precision").
     """
     enable_compilation_cache()
+    schedule_solves_apart()
     if not jax.config.jax_enable_x64:
         jax.config.update("jax_enable_x64", True)
+
+
+#: XLA's CPU option that keeps independent LAPACK solves from running at once.
+SERIAL_SOLVES = "--xla_cpu_enable_concurrency_optimized_scheduler=false"
+
+
+def schedule_solves_apart() -> None:
+    """Add :data:`SERIAL_SOLVES` to ``XLA_FLAGS`` (unless the user's flags set that option):
+    jaxlib's batched LAPACK kernels (LU, Cholesky) split a large batch over XLA's intra-op
+    thread pool and wait for the parts, and XLA's concurrency-optimised schedule runs two
+    independent solves at once; on a pool of two threads (a 2-core machine) both then wait
+    and neither part runs. A 3-mass chain's refinement (26 free constants, 8 systems a
+    call) hung so in every run of one record, and 512 batched 8 × 8 solves twice in one
+    program hang alike; with the option neither does. It takes effect only if XLA's CPU
+    backend has not started yet (gpjax computes first in a process)."""
+    flags = os.environ.get("XLA_FLAGS", "")
+    if "xla_cpu_enable_concurrency_optimized_scheduler" not in flags:
+        os.environ["XLA_FLAGS"] = f"{flags} {SERIAL_SOLVES}".strip()
 
 
 @functools.cache
