@@ -25,8 +25,9 @@ from ._jaxcache import enable_compilation_cache
 
 
 def enable_float64() -> None:
-    """Switch JAX to float64 (``jax_enable_x64``) for the rest of the process, and turn
-    on gpjax's persistent compilation cache (:func:`gpjax._jaxcache.enable_compilation_cache`).
+    """Switch JAX to float64 (``jax_enable_x64``) for the rest of the process, turn on
+    gpjax's persistent compilation cache (:func:`gpjax._jaxcache.enable_compilation_cache`)
+    and keep XLA from running two batched solves at once (:func:`schedule_solves_apart`).
 
     Called by gpjax's constructors that compute; it affects arrays a user's own JAX code
     creates afterwards too (see the README, "Precision").
