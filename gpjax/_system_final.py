@@ -48,6 +48,20 @@ def scaled_residual(fit: SystemFit, measurement: Measurement) -> np.ndarray:
     return ((simulated - measured) / measured.std(axis=0)).T
 
 
+def _term_constants(fit: SystemFit, terms: dict[int, tuple[tuple, tuple]]) -> dict:
+    """Name -> (equation, whether forcing, the term) of each constant of ``fit``'s model
+    that multiplies one of ``terms`` (equation index -> (state features, forcing
+    features)); the model names its features as text."""
+    out = {}
+    for name, (i, part, feature) in fit.model.constant_names().items():
+        if part not in ("state", "forcing") or i not in terms:
+            continue
+        by_text = {str(f): f for f in terms[i][part == "forcing"]}
+        if str(feature) in by_text:
+            out[name] = (i, part == "forcing", by_text[str(feature)])
+    return out
+
+
 def without_insignificant(key, fit: SystemFit, alpha: float):
     """``key`` without its least significant term where the converged output-error fit's
     Wald test (t = c/se with the interval's degrees of freedom, :mod:`gpjax._uncertainty`)
@@ -62,10 +76,7 @@ def without_insignificant(key, fit: SystemFit, alpha: float):
         return None
     errors = uncertainty.standard_errors
     worst, largest = None, alpha
-    for name, (i, part, feature) in fit.model.constant_names().items():
-        terms = {str(f): f for f in key[i][part == "forcing"]}  # the model's names are text
-        if part not in ("state", "forcing") or str(feature) not in terms:
-            continue
+    for name, term in _term_constants(fit, dict(enumerate(key))).items():
         se = errors.get(name)
         if se is None or not se > 0:  # held (no error) or not computed
             continue
@@ -74,7 +85,7 @@ def without_insignificant(key, fit: SystemFit, alpha: float):
         # an infinite error: the record does not determine the constant at all (p = 1)
         p = 2.0 * float(special.stdtr(dof, -abs(value) / se)) if math.isfinite(se) else 1.0
         if p >= largest:
-            worst, largest = (i, part == "forcing", terms[str(feature)]), p
+            worst, largest = term, p
     if worst is None:
         return None
     i, forcing, feature = worst
@@ -96,11 +107,8 @@ def added_terms_p(fit: SystemFit, added: dict[int, tuple[tuple, tuple]]) -> floa
     uncertainty = fit.uncertainty
     if uncertainty is None:
         return 1.0
-    wanted = {(i, part, str(f)) for i, (state, forcing) in added.items()
-              for part, features in (("state", state), ("forcing", forcing)) for f in features}
-    index = [uncertainty.names.index(name)
-             for name, (i, part, feature) in fit.model.constant_names().items()
-             if (i, part, str(feature)) in wanted and name in uncertainty.names]
+    index = [uncertainty.names.index(name) for name in _term_constants(fit, added)
+             if name in uncertainty.names]
     if not index:
         return 1.0
     values = uncertainty.values[index]
