@@ -1,6 +1,7 @@
 """The reported system at converged integration: a term its fit does not demonstrate is
-dropped (:func:`without_insignificant`, :func:`better_fit_p`; :func:`added_terms_p` tests a
-diagnosis's candidate the same way), and the smoothed sign's width
+dropped where the fit is at its noise floor (:func:`without_insignificant`,
+:func:`flagged`; :func:`added_terms_p` tests a diagnosis's candidate the same way; the
+selection's removal guard is :func:`better_fit_p`), and the smoothed sign's width
 is checked (:func:`width_check`; :mod:`gpjax._system_bank`) and narrowed where the
 constants carry the smoothing (:func:`sharpened`)."""
 
@@ -17,6 +18,7 @@ from ._features import SIGN_WIDTH
 from ._model import Model
 from ._sign_width import NARROWING
 from ._system_bank import sharpened_features
+from ._system_diagnose import residual_statistics
 from ._system_fit import SystemFit
 
 
@@ -39,13 +41,12 @@ def better_fit_p(simple, full, dropped: int, resolution: float) -> float:
     return float(special.chdtrc(max(dropped, 1), max(ratio, 0.0)))
 
 
-def scaled_residual(fit: SystemFit, measurement: Measurement) -> np.ndarray:
-    """(D, N) residuals of a fitted system's reference solve, each over its response's
-    standard deviation."""
-    measured = measurement.responses
-    simulated = np.reshape(fit.model.simulate(
-        measurement, initial_conditions=fit.model.initial_states), measured.shape)
-    return ((simulated - measured) / measured.std(axis=0)).T
+def flagged(fit: SystemFit, measurement: Measurement) -> bool:
+    """Whether the report flags ``fit``: a coordinate's residual far above its noise floor
+    with a significant in-band excess, or the model diverging on its record
+    (:func:`gpjax._system_diagnose.residual_statistics`)."""
+    statistics = residual_statistics(fit.model, measurement).values()
+    return any(s["rms"] is None or s["unexplained"] is not None for s in statistics)
 
 
 def _term_constants(fit: SystemFit, terms: dict[int, tuple[tuple, tuple]]) -> dict:

@@ -162,3 +162,19 @@ def test_a_candidates_terms_are_tested_by_the_wald_test_of_the_reported_interval
     covariance[1, 1] = np.inf  # the record does not determine it
     assert added_terms_p(fit, {0: ((cubic,), ())}) == 1.0
     assert added_terms_p(SimpleNamespace(uncertainty=None), {0: ((cubic,), ())}) == 1.0
+
+
+@pytest.mark.slow
+def test_the_wald_pruning_runs_only_where_the_report_finds_every_residual_at_its_noise():
+    """:func:`gpjax._system_final.flagged` is the report's flag: the true chain is at its
+    noise floor, the chain without its cubic coupling is far above it (the Wald intervals
+    of such a fit count the missing force as noise and do not show a term spurious)."""
+    from gpjax._system_final import flagged
+    from gpjax.engine import fit_system
+
+    measurement = _record("chain2", 0, duration=10.0)
+    truth = (((V1, X1, X1 - X2, (X1 - X2) ** 3), {U: 1.0}),
+             ((V2, X2, X2 - X1, (X2 - X1) ** 3), {}))
+    assert not flagged(fit_system(measurement, truth), measurement)
+    linear = tuple(((state[:3], forcing) for state, forcing in truth))
+    assert flagged(fit_system(measurement, linear), measurement)
