@@ -295,11 +295,20 @@ def _first_replacing(fitness: Fitness, simpler: list[Record], rest, current: Rec
 
 def _simulates_better(fitness: Fitness, current: Record, simpler: Record, alpha: float) -> bool:
     """Whether ``current``'s simulated response fits the measured one significantly better
-    than ``simpler``'s at level ``alpha`` (the same one-sided test, on the two refined
+    than ``simpler``'s at level ``alpha`` (:func:`simulates_better` on the two refined
     models' simulated residuals over the whole record; module docstring)."""
     responses, _ = fitness.evaluator.simulate(fitness.population([simpler, current]))
     measured = fitness.measurement.response
-    return predictive_test(responses[0] - measured, responses[1] - measured)["p_value"] < alpha
+    return simulates_better(responses[0] - measured, responses[1] - measured, alpha)
+
+
+def simulates_better(simpler: np.ndarray, current: np.ndarray, alpha: float) -> bool:
+    """The selection's guard: whether the residual ``current`` (a simulated response's,
+    over the whole record) has a significantly lower mean square than ``simpler`` at level
+    ``alpha``, by the held-out test's Diebold–Mariano test
+    (:func:`gpjax._diagnose_acceptance.predictive_test`; batch means, so a residual's
+    autocorrelation, the measured input's noise ringing through the dynamics, counts)."""
+    return predictive_test(simpler, current)["p_value"] < alpha
 
 
 def _replaces(record: Record, residual: np.ndarray, current: Record, base: np.ndarray,

@@ -1,7 +1,7 @@
 """The reported system at converged integration: a term its fit does not demonstrate is
 dropped where the fit is at its noise floor (:func:`without_insignificant`,
-:func:`flagged`; :func:`added_terms_p` tests a diagnosis's candidate the same way; the
-selection's removal guard is :func:`better_fit_p`), and the smoothed sign's width
+:func:`flagged`; :func:`added_terms_p` tests a diagnosis's candidate the same way), and
+the smoothed sign's width
 is checked (:func:`width_check`; :mod:`gpjax._system_bank`) and narrowed where the
 constants carry the smoothing (:func:`sharpened`)."""
 
@@ -13,32 +13,12 @@ import numpy as np
 from scipy import special
 
 from ._data import Measurement
-from ._diagnose_acceptance import long_run_variance
 from ._features import SIGN_WIDTH
 from ._model import Model
 from ._sign_width import NARROWING
 from ._system_bank import sharpened_features
 from ._system_diagnose import residual_statistics
 from ._system_fit import SystemFit
-
-
-def better_fit_p(simple, full, dropped: int, resolution: float) -> float:
-    """p-value that the (D, N) scaled residuals ``full`` fit significantly better than
-    ``simple``'s, which has ``dropped`` terms fewer (:meth:`SystemScorer.simulates_better`'s
-    likelihood-ratio test); 1 where ``full`` is not finite or worsens the mean square by
-    at most ``resolution``, 0 where only ``simple`` is not finite."""
-    if not np.all(np.isfinite(full)):
-        return 1.0
-    if not np.all(np.isfinite(simple)):
-        return 0.0
-    if np.mean(simple ** 2) <= (1 + resolution) * np.mean(full ** 2):
-        return 1.0
-    ratio = 0.0
-    for s, f in zip(simple, full):
-        gamma0 = float(np.mean(f ** 2))
-        effective = f.size * gamma0 / max(long_run_variance(f)[0], gamma0 / f.size)
-        ratio += effective * math.log(float(np.mean(s ** 2)) / gamma0)
-    return float(special.chdtrc(max(dropped, 1), max(ratio, 0.0)))
 
 
 def flagged(fit: SystemFit, measurement: Measurement) -> bool:

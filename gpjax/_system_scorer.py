@@ -21,9 +21,9 @@ from ._canonical import feature_name
 from ._coefficients import Coefficients, from_system_population, to_system_population
 from ._evaluator import PENALTY, PopulationEvaluator
 from ._refine import Refiner
+from ._select import simulates_better
 from ._system_couplings import (couple, coupled_least_squares, coupled_residual,
                                 fixed_columns, held_structure, tie_columns)
-from ._system_final import better_fit_p
 from ._system_fit import SystemWeakForm
 from ._system_grammar import Equations
 
@@ -77,18 +77,13 @@ class SystemScorer:
 
     def simulates_better(self, current, simpler, alpha: float, resolution: float) -> bool:
         """Whether ``current``'s simulated responses fit the measured ones significantly
-        better than ``simpler``'s at level ``alpha``, both refined: a likelihood-ratio test,
-        χ² with one degree of freedom per dropped term, each coordinate's Gaussian
-        log-likelihood counted with its residual's effective sample size
-        n·γ₀/LRV (Newey–West, :func:`gpjax._diagnose_acceptance.long_run_variance`; a
-        simulated residual is strongly autocorrelated). Not the held-out test's
-        Diebold–Mariano: the two systems are nested and fitted to the same samples, so
-        their loss differential is positive by construction and that test's null does not
-        hold (a 2-mass chain kept two quartic terms that improved its objective by 0.14 %).
-        The guard exists because the equation error is blind where the states' smoothing
-        blurs a weak term's effect: a gear's mesh damping at 5 % of critical, whose removal
-        moves the fitted inertia by 80 %. A worsening of the simulated mean square by less
-        than ``resolution`` (the run's ``convergence_tolerance``: the accuracy to which the
+        better than ``simpler``'s at level ``alpha``, both refined: one coordinate's guard
+        (:func:`gpjax._select.simulates_better`) on the root sum of squares over the
+        coordinates of each residual scaled by its response's standard deviation. The guard
+        exists because the equation error is blind where the states' smoothing blurs a weak
+        term's effect: a gear's mesh damping at 5 % of critical, whose removal moves the
+        fitted inertia by 80 %. A worsening of the simulated mean square by less than
+        ``resolution`` (the run's ``convergence_tolerance``: the accuracy to which the
         fixed-step objective is claimed, :mod:`gpjax._convergence`) is not evidence
         either."""
         trees = [as_trees(k, self.equations) for k in (simpler, current)]
@@ -96,10 +91,11 @@ class SystemScorer:
         responses, _ = self.evaluator.simulate(to_system_population(
             [self.coefficients(k) for k in (simpler, current)], self.evaluator))
         measured = self.evaluator.measurement.responses.T
-        residual = (responses - measured) / measured.std(axis=1, keepdims=True)  # (2, D, N)
-        dropped = sum(len(a) + len(b) for a, b in current) - sum(
-            len(a) + len(b) for a, b in simpler)
-        return better_fit_p(residual[0], residual[1], dropped, resolution) < alpha
+        scaled = (responses - measured) / measured.std(axis=1, keepdims=True)  # (2, D, N)
+        simple, full = np.sqrt(np.sum(scaled ** 2, axis=1))
+        if np.mean(simple ** 2) <= (1 + resolution) * np.mean(full ** 2):
+            return False
+        return simulates_better(simple, full, alpha)
 
     def coefficients(self, key) -> list[Coefficients]:
         if key in self.refined:
@@ -152,7 +148,7 @@ class SystemScorer:
         free = max(sum(1 + len(s) + len(f) + 2 for s, f in structure)
                    for structure, _ in coupled)
         # Few distinct Jacobian widths and batches: few compiles. A generation refines
-        # ``batch`` systems in one call, the selection's likelihood-ratio guard one: the
+        # ``batch`` systems in one call, the selection's simulated-response guard one: the
         # cost of a call grows with its padded batch (a 3-mass chain of 8,000 samples:
         # 6 s for one system alone, 12 s padded to 4, 15 s for 5).
         width = -(-free // 8) * 8

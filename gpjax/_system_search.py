@@ -41,10 +41,12 @@ sin(x1 − x2) standing in for a linear spring, goes unless the held-out windows
 it. Where the held-out test cannot tell the two apart either way (the
 equation error has little power where the states' smoothing blurs a term's effect: a
 gear's mesh damping), the removal must also not simulate significantly worse
-(:meth:`SystemScorer.simulates_better`: a likelihood-ratio test on the refined systems' simulated
-residuals). That guard is in-sample, and a term that fits the measured input's noise as it
-rings through the dynamics passes it; so a removal that predicts the held-out windows
-significantly better is taken without it. The chosen system is refitted at converged
+(:meth:`SystemScorer.simulates_better`: one coordinate's guard,
+:func:`gpjax._select.simulates_better`, on the refined systems' simulated residuals).
+That guard is in-sample and nested, so it leans towards the larger system, and a term that
+fits the measured input's noise as it rings through the dynamics passes it; so a removal
+that predicts the held-out windows significantly better is taken without it, and the Wald
+pruning below removes what the converged fit does not demonstrate. The chosen system is refitted at converged
 integration (:func:`gpjax._system_fit.fit_system`), and a term whose constant that fit
 cannot tell from 0 (a Wald test at ``selection_alpha`` with the interval's standard error)
 is dropped and the rest refitted, one at a time (:func:`without_insignificant`). The Wald
@@ -52,10 +54,10 @@ test reads the residual as noise, so it runs only on a fit whose every coordinat
 noise floor (:func:`gpjax._system_final.flagged`, the report's flag): a model that misses
 physics leaves signal in its residual, which the sandwich counts as noise, and its wide
 intervals do not show a term to be spurious. A removal whose refit raises a residual far
-above its noise is undone, and the pruning ends. No in-sample likelihood ratio vetoes a
-removal here: with the residual coloured by the measured input's noise and the input's
-interpolation, it found a term "needed" whose constant was −0.12 ± 0.23 (chain2 seed 4,
-p = 5e-9).
+above its noise is undone, and the pruning ends. No in-sample test vetoes a removal
+here: a likelihood ratio with a Newey–West sample count (used before, here and in the
+guard) found a term needed whose constant was −0.12 ± 0.23 (chain2 seed 4, p = 5e-9), the
+guard's test p = 0.012.
 
 With Newton's third law (``GPConfig.third_law``, :mod:`gpjax._system_couplings`) the
 relative coordinates d_ij are terminals of equation min(i, j) only; each coupling term
