@@ -46,9 +46,9 @@ gear's mesh damping), the removal must also not simulate significantly worse
 That guard is in-sample and nested, so it leans towards the larger system, and a term that
 fits the measured input's noise as it rings through the dynamics passes it; so a removal
 that predicts the held-out windows significantly better is taken without it, and the Wald
-pruning below removes what the converged fit does not demonstrate. The chosen system is refitted at converged
-integration (:func:`gpjax._system_fit.fit_system`), and a term whose constant that fit
-cannot tell from 0 (a Wald test at ``selection_alpha`` with the interval's standard error)
+pruning below removes what the converged fit does not demonstrate. The chosen system is
+refitted at converged integration (:func:`gpjax._system_fit.fit_system`), and a term whose
+constant that fit cannot tell from 0 (a Wald test at ``selection_alpha`` with the interval's standard error)
 is dropped and the rest refitted, one at a time (:func:`without_insignificant`). The Wald
 test reads the residual as noise, so it runs only on a fit whose every coordinate is at its
 noise floor (:func:`gpjax._system_final.flagged`, the report's flag): a model that misses

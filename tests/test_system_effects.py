@@ -178,3 +178,22 @@ def test_the_wald_pruning_runs_only_where_the_report_finds_every_residual_at_its
     assert not flagged(fit_system(measurement, truth), measurement)
     linear = tuple(((state[:3], forcing) for state, forcing in truth))
     assert flagged(fit_system(measurement, linear), measurement)
+
+
+@pytest.mark.slow
+def test_the_selection_guard_keeps_a_coupling_the_simulated_responses_need():
+    """:meth:`SystemScorer.simulates_better` (one coordinate's guard on the coordinates'
+    combined residuals): chain2 without its cubic coupling spring simulates significantly
+    worse than the truth; the truth does not simulate worse than itself."""
+    from gpjax import GPConfig
+    from gpjax._system_search import SystemEvolution
+
+    measurement = _record("chain2", 0, duration=10.0)
+    scorer = SystemEvolution(measurement, GPConfig()).scorer
+    truth = tuple((tuple(sorted(state, key=str)), tuple(sorted(forcing, key=str)))
+                  for state, forcing in _chain_key())
+    linear = tuple((tuple(f for f in state if not (f.is_Pow and f.exp == 3)), forcing)
+                   for state, forcing in truth)
+    assert linear != truth
+    assert scorer.simulates_better(truth, linear, 0.05, 0.01)
+    assert not scorer.simulates_better(truth, truth, 0.05, 0.01)
