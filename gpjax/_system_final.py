@@ -1,5 +1,5 @@
 """The reported system at converged integration: a term its fit does not demonstrate is
-dropped where the fit is at its noise floor (:func:`without_insignificant`,
+dropped where the fit is at its noise floor (:func:`insignificant_removals`,
 :func:`flagged`; :func:`added_terms_p` tests a diagnosis's candidate the same way), and
 the smoothed sign's width
 is checked (:func:`width_check`; :mod:`gpjax._system_bank`) and narrowed where the
@@ -43,20 +43,20 @@ def _term_constants(fit: SystemFit, terms: dict[int, tuple[tuple, tuple]]) -> di
     return out
 
 
-def without_insignificant(key, fit: SystemFit, alpha: float):
-    """``key`` without its least significant term where the converged output-error fit's
-    Wald test (t = c/se with the interval's degrees of freedom, :mod:`gpjax._uncertainty`)
-    cannot tell its constant from 0 at level ``alpha`` (an infinite standard error: the
-    record does not determine it, p = 1), else ``None``. Reason: the
-    selection before it runs at the search's step count, whose discretisation error a
-    spurious term can absorb (a stiff smoothed sign wants a damping term beside it at one
-    RK4 step per sample); only the converged fit says what the record demonstrates.
-    A removal that would empty an equation is not made."""
+def insignificant_removals(key, fit: SystemFit, alpha: float) -> list:
+    """``key`` without one term, for each term whose constant the converged output-error
+    fit's Wald test (t = c/se with the interval's degrees of freedom,
+    :mod:`gpjax._uncertainty`) cannot tell from 0 at level ``alpha`` (an infinite standard
+    error: the record does not determine it, p = 1), least significant first (ties in the
+    model's order). Reason: the selection before it runs at the search's step count,
+    whose discretisation error a spurious term can absorb (a stiff smoothed sign wants a
+    damping term beside it at one RK4 step per sample); only the converged fit says what
+    the record demonstrates. A removal that would empty an equation is not offered."""
     uncertainty = fit.uncertainty
     if uncertainty is None:
-        return None
+        return []
     errors = uncertainty.standard_errors
-    worst, largest = None, alpha
+    tested = []
     for name, term in _term_constants(fit, dict(enumerate(key))).items():
         se = errors.get(name)
         if se is None or not se > 0:  # held (no error) or not computed
@@ -65,16 +65,15 @@ def without_insignificant(key, fit: SystemFit, alpha: float):
         dof = float(uncertainty.dof[uncertainty.names.index(name)])
         # an infinite error: the record does not determine the constant at all (p = 1)
         p = 2.0 * float(special.stdtr(dof, -abs(value) / se)) if math.isfinite(se) else 1.0
-        if p >= largest:
-            worst, largest = term, p
-    if worst is None:
-        return None
-    i, forcing, feature = worst
-    part = tuple(tuple(f for f in key[i][k] if not (k == forcing and f == feature))
-                 for k in (0, 1))
-    if not (part[0] or part[1]):
-        return None
-    return key[:i] + (part,) + key[i + 1:]
+        if p >= alpha:
+            tested.append((p, term))
+    out = []
+    for _, (i, forcing, feature) in sorted(tested, key=lambda pair: -pair[0]):
+        part = tuple(tuple(f for f in key[i][k] if not (k == forcing and f == feature))
+                     for k in (0, 1))
+        if part[0] or part[1]:
+            out.append(key[:i] + (part,) + key[i + 1:])
+    return out
 
 
 def added_terms_p(fit: SystemFit, added: dict[int, tuple[tuple, tuple]]) -> float:
@@ -83,7 +82,7 @@ def added_terms_p(fit: SystemFit, added: dict[int, tuple[tuple, tuple]]) -> floa
     covariance of :mod:`gpjax._uncertainty` that the reported intervals use: W = cᵀΣ⁻¹c
     over those constants, W/k against F(k, ν), k the rank of Σ (a pair tied by the third
     law counts once), ν the fewest degrees of freedom among them (k = 1: the two-sided t
-    test of :func:`without_insignificant`). 1 where the fit has no uncertainty or an added
+    test of :func:`insignificant_removals`). 1 where the fit has no uncertainty or an added
     constant has no finite standard error (the record does not determine it)."""
     uncertainty = fit.uncertainty
     if uncertainty is None:

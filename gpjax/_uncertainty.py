@@ -59,8 +59,9 @@ from scipy import special
 
 #: |correlation| from which two constants are reported as correlated.
 HIGH_CORRELATION = 0.9
-#: Reciprocal condition of the column-normalised A below which the constants are not
-#: identifiable from the record (their standard errors are reported as infinite).
+#: Eigenvalue of the column-normalised A, relative to its largest, below which a
+#: combination of the constants is not identifiable from the record (the constants that
+#: make it up get infinite standard errors).
 RANK_TOLERANCE = 1e-12
 #: A frequency bin's leverage within this of 1 in some direction (rounding: I − H_f is
 #: singular) fits that direction alone: its residual there is 0 whatever the noise. In the
@@ -238,9 +239,19 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
     if not np.all(norm > 0):
         return np.diag(np.where(norm > 0, np.nan, np.inf)), np.ones(k)
     unit = bread / np.outer(norm, norm)
-    if 1.0 / np.linalg.cond(unit) < RANK_TOLERANCE:
+    # Directions of the constants the record does not determine (eigenvalues of the
+    # column-normalised A below RANK_TOLERANCE of the largest) are left out of the inverse;
+    # the constants that make up such a combination (a share of it at least 1/k of the
+    # largest share) have no interval, the others keep theirs (two inputs whose measured
+    # records are nearly proportional leave a gear's masses and stiffness determined).
+    eigenvalues, basis = np.linalg.eigh(unit)
+    null = eigenvalues < RANK_TOLERANCE * eigenvalues[-1]
+    if null.all():
         return np.diag(np.full(k, np.inf)), np.ones(k)
-    inverse = np.linalg.inv(unit) / np.outer(norm, norm)
+    shares = basis[:, null] ** 2
+    undetermined = np.any(shares >= shares.max(axis=0, initial=0.0) / k, axis=1) & null.any()
+    inverse = ((basis[:, ~null] / eigenvalues[~null]) @ basis[:, ~null].T
+               / np.outer(norm, norm))
     # Each bin's leverage H_f = X_f A⁻¹ X_fᵀ; its residual inflated by (I − H_f)⁻¹ (CR3).
     # A direction with leverage 1 is fitted by that bin alone (a static offset by the zero
     # bin): its residual is 0 and the jackknife cannot estimate its variance there; in the
@@ -258,7 +269,7 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
     interior = saturated.copy()
     interior[0] &= near.size == 0  # with no neighbour the zero bin has no estimate either
     loading = np.abs(np.einsum("fmk,fmn->fnk", x, vectors) @ inverse)[interior]  # (S, k)
-    unknown = np.any(loading > LOADING * np.sqrt(np.diag(inverse)), axis=0)
+    unknown = np.any(loading > LOADING * np.sqrt(np.diag(inverse)), axis=0) | undetermined
     covariance = per_bin.T @ per_bin
     # Satterthwaite: a constant's variance is Σ_f a_f, a_f the square of one normal
     # combination of bin f (a scaled χ²₁), so its degrees of freedom are

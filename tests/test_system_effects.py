@@ -110,12 +110,13 @@ def test_friction_on_mass_two_is_named_on_equation_two_through_the_cli(tmp_path,
 
 def test_a_constant_the_record_does_not_determine_is_dropped_first():
     """An infinite standard error (a held-out seed of a 2-mass chain kept a constant force
-    in equation 1 with ± inf) is p = 1: the least significant term, removed first."""
+    in equation 1 with ± inf) is p = 1: the least significant term, offered first; the
+    other undemonstrated terms follow by p, and none that would empty an equation."""
     from types import SimpleNamespace
 
     import numpy as np
 
-    from gpjax._system_final import without_insignificant
+    from gpjax._system_final import insignificant_removals
 
     one = sp.Integer(1)
     key = (((V1, X1), (U, one)), ((V2,), ()))
@@ -127,9 +128,12 @@ def test_a_constant_the_record_does_not_determine_is_dropped_first():
         standard_errors={"x1.c1": 0.01, "x1.k1": 0.05, "x1.g1": float("inf"), "x2.c1": 0.3})
     fit = SimpleNamespace(uncertainty=uncertainty,
                           model=SimpleNamespace(constant_names=lambda: names))
-    assert without_insignificant(key, fit, 0.05) == (((V1, X1), (U,)), ((V2,), ()))
-    uncertainty.standard_errors["x1.g1"] = 1e-5  # now determined and significant
-    assert without_insignificant(key, fit, 0.05) is None  # every term demonstrated
+    assert insignificant_removals(key, fit, 0.05) == [(((V1, X1), (U,)), ((V2,), ()))]
+    uncertainty.standard_errors |= {"x1.c1": 1.0, "x2.c1": 10.0}  # p 0.55; x2.c1 is alone
+    assert insignificant_removals(key, fit, 0.05) == [(((V1, X1), (U,)), ((V2,), ())),
+                                                      (((X1,), (U, one)), ((V2,), ()))]
+    uncertainty.standard_errors |= {"x1.c1": 0.01, "x1.g1": 1e-5}  # now demonstrated
+    assert insignificant_removals(key, fit, 0.05) == []
 
 
 def test_a_candidates_terms_are_tested_by_the_wald_test_of_the_reported_intervals():

@@ -231,3 +231,18 @@ def test_a_constant_force_fitted_by_the_zero_bin_alone_still_gets_its_interval()
         ratios.append(math.sqrt(covariance[0, 0] / np.linalg.inv(x.T @ x)[0, 0]))
     assert np.all(np.isfinite(ratios)) and 0.9 <= np.median(ratios) <= 1.1
     assert 0.91 <= np.mean(covered) <= 0.99
+
+
+def test_only_the_constants_of_an_undetermined_combination_lose_their_interval():
+    """Two nearly proportional columns (a gear's two input torques, seed 0 of
+    ``benchmarks/gear_front_door.py``) get no interval; the third constant keeps its own
+    (before, one undetermined combination made every interval infinite)."""
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 1.0, 400)
+    third = np.sin(7 * t)
+    pair = np.column_stack([np.ones_like(t), np.ones_like(t) * (1 + 1e-9 * t)])
+    residual = 0.01 * rng.standard_normal(t.size)
+    covariance, dof = sandwich_covariance(residual, np.column_stack([pair, third]))
+    assert np.all(np.isinf(np.diag(covariance)[:2]))
+    assert np.isfinite(covariance[2, 2]) and covariance[2, 2] > 0
+    assert np.all(covariance[2, :2] == 0) and dof[2] > 1
