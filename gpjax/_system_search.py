@@ -311,9 +311,12 @@ class SystemEvolution:
             smaller = removals.pop(0)
             _progress.stage(f"dropping a term its converged fit does not demonstrate (Wald "
                             f"test at level {config.selection_alpha}), then fitting again")
-            trial = fit_system(measurement, scorer.normalised(smaller),
-                               start=scorer.coefficients(smaller),
-                               first_substeps=fit.model.substeps, **settings)
+            try:
+                trial = fit_system(measurement, scorer.normalised(smaller),
+                                   start=scorer.coefficients(smaller),
+                                   first_substeps=fit.model.substeps, **settings)
+            except ValueError:  # the refit without it diverged: the term stays
+                continue
             if not flagged(trial, measurement):  # else the term stays: try the next
                 best, fit = smaller, trial
                 removals = insignificant_removals(best, fit, config.selection_alpha)
