@@ -249,7 +249,7 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
     if null.all():
         return np.diag(np.full(k, np.inf)), np.ones(k)
     shares = basis[:, null] ** 2
-    undetermined = np.any(shares >= shares.max(axis=0, initial=0.0) / k, axis=1) & null.any()
+    undetermined = np.any(shares >= shares.max(axis=0, initial=0.0) / k, axis=1)
     inverse = ((basis[:, ~null] / eigenvalues[~null]) @ basis[:, ~null].T
                / np.outer(norm, norm))
     # Each bin's leverage H_f = X_f A⁻¹ X_fᵀ; its residual inflated by (I − H_f)⁻¹ (CR3).
