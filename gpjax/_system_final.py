@@ -43,7 +43,7 @@ def _term_constants(fit: SystemFit, terms: dict[int, tuple[tuple, tuple]]) -> di
     return out
 
 
-def insignificant_removals(key, fit: SystemFit, alpha: float) -> list:
+def insignificant_removals(key, fit: SystemFit, alpha: float, candidates=None) -> list:
     """``key`` without one term, for each term whose constant the converged output-error
     fit's Wald test (t = c/se with the interval's degrees of freedom,
     :mod:`gpjax._uncertainty`) cannot tell from 0 at level ``alpha`` (an infinite standard
@@ -51,7 +51,10 @@ def insignificant_removals(key, fit: SystemFit, alpha: float) -> list:
     model's order). Reason: the selection before it runs at the search's step count,
     whose discretisation error a spurious term can absorb (a stiff smoothed sign wants a
     damping term beside it at one RK4 step per sample); only the converged fit says what
-    the record demonstrates. A removal that would empty an equation is not offered."""
+    the record demonstrates. A removal that would empty an equation is not offered.
+    ``candidates``: per equation, how many features the search chose its terms from; a
+    term of equation i is then tested at ``alpha`` / candidates[i] (Bonferroni: the term
+    was selected from them after seeing the data, so its test is post-selection)."""
     uncertainty = fit.uncertainty
     if uncertainty is None:
         return []
@@ -65,7 +68,8 @@ def insignificant_removals(key, fit: SystemFit, alpha: float) -> list:
         dof = float(uncertainty.dof[uncertainty.names.index(name)])
         # an infinite error: the record does not determine the constant at all (p = 1)
         p = 2.0 * float(special.stdtr(dof, -abs(value) / se)) if math.isfinite(se) else 1.0
-        if p >= alpha:
+        level = alpha / (candidates[term[0]] if candidates else 1)
+        if p >= level:
             tested.append((p, term))
     out = []
     for _, (i, forcing, feature) in sorted(tested, key=lambda pair: -pair[0]):

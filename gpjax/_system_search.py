@@ -48,8 +48,9 @@ fits the measured input's noise as it rings through the dynamics passes it; so a
 that predicts the held-out windows significantly better is taken without it, and the Wald
 pruning below removes what the converged fit does not demonstrate. The chosen system is
 refitted at converged integration (:func:`gpjax._system_fit.fit_system`), and a term whose
-constant that fit cannot tell from 0 (a Wald test at ``selection_alpha`` with the interval's standard error)
-is dropped and the rest refitted, one at a time, least significant first
+constant that fit cannot tell from 0 (a Wald test with the interval's standard error, at
+``selection_alpha`` over the number of features its equation chose from: Bonferroni, the
+test is post-selection) is dropped and the rest refitted, one at a time, least significant first
 (:func:`gpjax._system_final.insignificant_removals`). The Wald test reads the residual as
 noise, so it runs only on a fit whose every coordinate is at its noise floor
 (:func:`gpjax._system_final.flagged`, the report's flag): a model that misses physics
@@ -305,7 +306,9 @@ class SystemEvolution:
                         tolerance=config.convergence_tolerance)
         fit = fit_system(measurement, scorer.normalised(best), start=scorer.coefficients(best),
                          **settings)
-        removals = (insignificant_removals(best, fit, config.selection_alpha)
+        candidates = [sum(map(len, scorer.equations.basis(i)))
+                      for i in range(len(scorer.equations.names))]
+        removals = (insignificant_removals(best, fit, config.selection_alpha, candidates)
                     if not flagged(fit, measurement) else [])
         while removals:
             smaller = removals.pop(0)
@@ -319,7 +322,8 @@ class SystemEvolution:
                 continue
             if not flagged(trial, measurement):  # else the term stays: try the next
                 best, fit = smaller, trial
-                removals = insignificant_removals(best, fit, config.selection_alpha)
+                removals = insignificant_removals(best, fit, config.selection_alpha,
+                                                  candidates)
         fit, width = _narrowed(fit, scorer.normalised(best), measurement, settings)
         programs = self._programs()
         return SearchResult(fit, [dataclasses.asdict(h) for h in state.history], {

@@ -108,15 +108,12 @@ def test_friction_on_mass_two_is_named_on_equation_two_through_the_cli(tmp_path,
     assert (tmp_path / "d" / "report.md").read_text().startswith("# Diagnosis of a system")
 
 
-def test_a_constant_the_record_does_not_determine_is_dropped_first():
-    """An infinite standard error (a held-out seed of a 2-mass chain kept a constant force
-    in equation 1 with ± inf) is p = 1: the least significant term, offered first; the
-    other undemonstrated terms follow by p, and none that would empty an equation."""
+def _two_mass_fit(standard_errors):
+    """A converged 2-mass fit's key and intervals: x1'' = c1 v1 + k1 x1 + u + g1,
+    x2'' = c1 v2; the constants 0.6, 40, 7e-4, 0.8 with ``standard_errors``."""
     from types import SimpleNamespace
 
     import numpy as np
-
-    from gpjax._system_final import insignificant_removals
 
     one = sp.Integer(1)
     key = (((V1, X1), (U, one)), ((V2,), ()))
@@ -124,16 +121,41 @@ def test_a_constant_the_record_does_not_determine_is_dropped_first():
              "x1.g1": (0, "forcing", one), "x2.c1": (1, "state", V2)}
     uncertainty = SimpleNamespace(
         names=list(names), values=np.array([0.6, 40.0, 7e-4, 0.8]),
-        dof=np.array([900.0, 900.0, 1.0, 900.0]),
-        standard_errors={"x1.c1": 0.01, "x1.k1": 0.05, "x1.g1": float("inf"), "x2.c1": 0.3})
-    fit = SimpleNamespace(uncertainty=uncertainty,
-                          model=SimpleNamespace(constant_names=lambda: names))
+        dof=np.array([900.0, 900.0, 1.0, 900.0]), standard_errors=dict(standard_errors))
+    return key, SimpleNamespace(uncertainty=uncertainty,
+                                model=SimpleNamespace(constant_names=lambda: names))
+
+
+def test_a_constant_the_record_does_not_determine_is_dropped_first():
+    """An infinite standard error (a held-out seed of a 2-mass chain kept a constant force
+    in equation 1 with ± inf) is p = 1: the least significant term, offered first; the
+    other undemonstrated terms follow by p, and none that would empty an equation."""
+    from gpjax._system_final import insignificant_removals
+
+    key, fit = _two_mass_fit({"x1.c1": 0.01, "x1.k1": 0.05, "x1.g1": float("inf"),
+                              "x2.c1": 0.3})
+    uncertainty = fit.uncertainty
     assert insignificant_removals(key, fit, 0.05) == [(((V1, X1), (U,)), ((V2,), ()))]
     uncertainty.standard_errors |= {"x1.c1": 1.0, "x2.c1": 10.0}  # p 0.55; x2.c1 is alone
     assert insignificant_removals(key, fit, 0.05) == [(((V1, X1), (U,)), ((V2,), ())),
-                                                      (((X1,), (U, one)), ((V2,), ()))]
+                                                      (((X1,), (U, sp.Integer(1))), ((V2,), ()))]
     uncertainty.standard_errors |= {"x1.c1": 0.01, "x1.g1": 1e-5}  # now demonstrated
     assert insignificant_removals(key, fit, 0.05) == []
+
+
+def test_a_selected_term_is_tested_at_the_level_over_its_equations_candidates():
+    """The search chose each term from its equation's candidates after seeing the record,
+    so a term of equation i is tested at alpha / candidates[i] (Bonferroni): k1 at
+    t = 2.58 (p = 0.01) stands at 0.05 alone, not among 10 candidates."""
+    from gpjax._system_final import insignificant_removals
+
+    key, fit = _two_mass_fit({"x1.c1": 0.01, "x1.k1": 40.0 / 2.58, "x1.g1": 1e-7,
+                              "x2.c1": 0.3})
+    without_k1 = (((V1,), (U, sp.Integer(1))), ((V2,), ()))
+    assert insignificant_removals(key, fit, 0.05) == []
+    assert insignificant_removals(key, fit, 0.05, [1, 10]) == []
+    assert insignificant_removals(key, fit, 0.05, [10, 1]) == [without_k1]
+    assert insignificant_removals(key, fit, 0.002, [4, 1]) == [without_k1]  # 0.0005 < p
 
 
 def test_a_candidates_terms_are_tested_by_the_wald_test_of_the_reported_intervals():
