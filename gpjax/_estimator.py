@@ -33,7 +33,8 @@ from ._objective import stop_objective
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
 from ._select import pareto_front, select
 from ._uncertainty import fitted_uncertainty
-from ._sign_width import MAX_NARROWINGS, NARROWING, check_width, narrowed, narrowed_steps
+from ._sign_width import (MAX_NARROWINGS, NARROWING, check_width, narrowed, narrowed_steps,
+                          sharpened)
 
 CHECKPOINT = "checkpoint.json"
 #: Columns of history.csv and equations.csv that hold text, not numbers.
@@ -264,8 +265,8 @@ class Identifier:
                 # shortened.
                 most = int(min(MAX_NARROWINGS - narrowings, max(1, width.narrowings_needed)))
                 for jump in range(most, 0, -1):
-                    steps = narrowed_steps(self.model_, fitness, tolerance=tolerance,
-                                           factor=NARROWING ** jump)
+                    steps = narrowed_steps(sharpened(self.model_, fitness, NARROWING ** jump),
+                                           fitness.measurement, tolerance=tolerance)
                     if steps is not None:
                         break
                 else:

@@ -167,18 +167,18 @@ def sharpened(model: Model, fitness: Fitness, factor: float) -> Model | None:
                                    substeps=model.substeps)
 
 
-def narrowed_steps(model: Model, fitness: Fitness, *, tolerance: float,
-                   factor: float = NARROWING) -> int | None:
-    """RK4 steps per sample for ``model`` with its signs ``factor`` times narrower:
-    its own step count if the step check (:func:`gpjax._convergence.check_model`) passes
-    there, else the count that check asks for — measured, not assumed to grow with the
-    sign's steepness; ``None`` where no count up to the cap keeps RK4 stable on it."""
-    sharper = sharpened(model, fitness, factor)
-    check, reference = check_model(sharper, fitness.measurement, tolerance=tolerance)
+def narrowed_steps(sharper: Model, measurement, *, tolerance: float) -> int | None:
+    """RK4 steps per sample for ``sharper``, a model with its signs narrowed at the step
+    count of the model it came from (:func:`sharpened`; a system's
+    :func:`gpjax._system_final.sharpened_model`): that count if the step check
+    (:func:`gpjax._convergence.check_model`) passes there, else the count that check asks
+    for — measured, not assumed to grow with the sign's steepness; ``None`` where no count
+    up to the cap keeps RK4 stable on it."""
+    check, reference = check_model(sharper, measurement, tolerance=tolerance)
     if check.stable_substeps > MAX_SUBSTEPS:
         return None
-    return (model.substeps if check.converged else
-            needed_substeps(sharper, fitness.measurement, check, reference))
+    return (sharper.substeps if check.converged else
+            needed_substeps(sharper, measurement, check, reference))
 
 
 def check_width(model: Model, reference: np.ndarray, rms_reference: float,

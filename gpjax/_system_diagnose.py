@@ -19,6 +19,7 @@ import math
 import numpy as np
 
 from ._config import WIDE_FUNCTIONS
+from ._convergence import MAX_SUBSTEPS
 from ._data import Measurement
 from ._diagnose_evidence import input_lines
 from ._diagnose_noise import noise_floor
@@ -104,6 +105,9 @@ def width_line(check: dict) -> str:
     """One line of a system's smoothed-sign width check
     (:func:`gpjax._system_final.width_check`)."""
     verdict = ("converged: the constants do not carry the smoothing" if check["converged"]
+               else "NOT converged: the constants carry some of the smoothing; narrower "
+               f"signs would need more than {MAX_SUBSTEPS} RK4 steps per sample to integrate "
+               "stably" if check.get("stopped") == "unstable sign"
                else "NOT converged within the narrowing cap: the constants carry some of "
                "the smoothing")
     if not math.isfinite(check["ratio"]):

@@ -118,6 +118,17 @@ def sharpened(equations, names: tuple[str, ...], factor: float) -> list:
     return out
 
 
+def sharpened_model(model: Model, factor: float) -> Model | None:
+    """``model`` with every smoothed sign ``factor`` times narrower, its constants and step
+    count unchanged; ``None`` without a sign."""
+    sharper = sharpened(model.system, model.coordinates, factor)
+    if all(s.state == c.state for s, c in zip(sharper, model.system)):
+        return None
+    return Model.from_equations(model.coordinates, model.time, model.inputs, sharper,
+                                input_interpolation=model.input_interpolation,
+                                substeps=model.substeps)
+
+
 def width_check(fit: SystemFit, measurement: Measurement, tolerance: float, *,
                 width: float = SIGN_WIDTH) -> dict | None:
     """Whether the reported system depends on its smoothed signs' width (module docstring of
@@ -126,12 +137,9 @@ def width_check(fit: SystemFit, measurement: Measurement, tolerance: float, *,
     over its scaled RMS residual; ``converged`` when below ``tolerance``; ``width`` the
     fraction of RMS z the signs were fitted at. ``None`` without a sign."""
     model = fit.model
-    sharper = sharpened(model.system, model.coordinates, NARROWING)
-    if all(s.state == c.state for s, c in zip(sharper, model.system)):
+    narrowed = sharpened_model(model, NARROWING)
+    if narrowed is None:
         return None
-    narrowed = Model.from_equations(model.coordinates, model.time, model.inputs, sharper,
-                                    input_interpolation=model.input_interpolation,
-                                    substeps=model.substeps)
     scale = measurement.responses.std(axis=0)
     base, sharp = (np.reshape(m.simulate(measurement, initial_conditions=model.initial_states),
                               measurement.responses.shape) for m in (model, narrowed))

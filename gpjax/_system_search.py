@@ -95,9 +95,10 @@ from ._expressions import parse_expression
 from ._features import SIGN_WIDTH
 from ._objective import stop_objective
 from ._operators import crossover, initial_population, mutation, perturbation
-from ._sign_width import MAX_NARROWINGS, NARROWING
+from ._sign_width import MAX_NARROWINGS, NARROWING, narrowed_steps
 from ._system_bank import kinds_for, sign_scales
-from ._system_final import flagged, insignificant_removals, sharpened, width_check
+from ._system_final import (flagged, insignificant_removals, sharpened, sharpened_model,
+                            width_check)
 from ._system_fit import SystemFit, SystemWeakForm, fit_system
 from ._system_grammar import Equations
 from ._system_scorer import SystemScorer, as_trees, key_text
@@ -336,15 +337,23 @@ class SystemEvolution:
 def _narrowed(fit: SystemFit, structure, measurement: Measurement, settings: dict):
     """(fit, its width check): where the reported system depends on its smoothed signs'
     width, refitted with every sign :data:`gpjax._sign_width.NARROWING` times narrower,
-    from the constants of the last fit, until the check converges or after
+    from the constants of the last fit and at the steps per sample the narrower signs need
+    by the step check, until the check converges or after
     :data:`gpjax._sign_width.MAX_NARROWINGS` narrowings (one coordinate's rule,
-    :mod:`gpjax._sign_width`), or where the check cannot be made (the reference solver
-    fails on the narrower signs: a ratio of inf) or the narrower refit diverges (the last
-    fit and its check are kept)."""
+    :mod:`gpjax._sign_width`). It stops, keeping the last fit and its check, where no step
+    count up to the cap integrates the narrower signs stably (the check's ``stopped``:
+    "unstable sign"; a fit there would report an unconverged model whose sensitivities are
+    the RK4 instability's), where the check cannot be made (the reference solver fails on
+    the narrower signs: a ratio of inf) or where the narrower refit diverges."""
     width = SIGN_WIDTH
     check = width_check(fit, measurement, settings["tolerance"], width=width)
     for _ in range(MAX_NARROWINGS):
         if check is None or check["converged"] or not math.isfinite(check["ratio"]):
+            break
+        steps = narrowed_steps(sharpened_model(fit.model, NARROWING), measurement,
+                               tolerance=settings["tolerance"])
+        if steps is None:
+            check["stopped"] = "unstable sign"
             break
         width /= NARROWING
         _progress.stage(f"refitting the system with its smoothed signs {NARROWING}× narrower "
@@ -352,8 +361,8 @@ def _narrowed(fit: SystemFit, structure, measurement: Measurement, settings: dic
         start = sharpened(fit.model.system, measurement.response_names, NARROWING)
         structure = tuple((tuple(c.state), forcing) for c, (_, forcing) in zip(start, structure))
         try:
-            fit = fit_system(measurement, structure, start=start,
-                             first_substeps=fit.model.substeps, **settings)
+            fit = fit_system(measurement, structure, start=start, first_substeps=steps,
+                             **settings)
         except ValueError:  # the narrower refit diverged: the last fit and check stand
             break
         check = width_check(fit, measurement, settings["tolerance"], width=width)

@@ -253,15 +253,21 @@ def test_width_line_says_when_the_narrower_check_cannot_be_made():
     assert "converged" in width_line(dict(check, ratio=0.003, converged=True))
 
 
-def test_a_diverged_narrower_refit_keeps_the_last_fit_and_its_check(monkeypatch):
+def _narrowing(monkeypatch, steps):
+    """``_narrowed`` on a stand-in fit whose width check never converges, the narrower
+    signs needing ``steps`` per sample and every refit diverging: (fit, check, the
+    refits' keyword arguments)."""
     from types import SimpleNamespace
 
     import gpjax._system_search as search
 
     calls = []
     monkeypatch.setattr(search, "width_check", lambda fit, measurement, tolerance, width: {
-        "converged": False, "ratio": 0.05, "width": width})
+        "converged": False, "ratio": 0.05, "width": width, "narrowing": 4,
+        "tolerance": tolerance})
     monkeypatch.setattr(search, "sharpened", lambda equations, names, factor: list(equations))
+    monkeypatch.setattr(search, "sharpened_model", lambda model, factor: model)
+    monkeypatch.setattr(search, "narrowed_steps", lambda sharper, measurement, tolerance: steps)
 
     def diverged(*args, **kwargs):
         calls.append(kwargs)
@@ -271,8 +277,26 @@ def test_a_diverged_narrower_refit_keeps_the_last_fit_and_its_check(monkeypatch)
     fit = SimpleNamespace(model=SimpleNamespace(system=[], substeps=2))
     out, check = search._narrowed(fit, (), SimpleNamespace(response_names=("x1", "x2")),
                                   {"tolerance": 0.01})
-    assert len(calls) == 1 and calls[0]["first_substeps"] == 2
-    assert out is fit and check["width"] == 0.01 and not check["converged"]
+    assert out is fit
+    return check, calls
+
+
+def test_a_diverged_narrower_refit_keeps_the_last_fit_and_its_check(monkeypatch):
+    """The narrower refit starts at the steps the narrower signs need by the step check."""
+    check, calls = _narrowing(monkeypatch, 6)
+    assert len(calls) == 1 and calls[0]["first_substeps"] == 6
+    assert check["width"] == 0.01 and not check["converged"] and "stopped" not in check
+
+
+def test_no_narrowing_to_a_sign_no_step_count_integrates_stably(monkeypatch):
+    """One coordinate's rule (:func:`gpjax._sign_width.narrowed_steps`): where no step
+    count up to the cap integrates the narrower signs stably, the last fit stands and the
+    report says why, instead of an unconverged fit at the narrower signs."""
+    from gpjax._system_diagnose import width_line
+
+    check, calls = _narrowing(monkeypatch, None)
+    assert calls == [] and check["stopped"] == "unstable sign"
+    assert "more than 64 RK4 steps per sample" in width_line(check)
 
 
 def test_the_selection_offers_each_bank_term_its_polynomial_stand_in():
