@@ -98,7 +98,9 @@ class GPConfig:
             model (:mod:`gpjax._select`): a simpler neighbour (fewer fitted constants)
             replaces the current model unless the current one predicts the held-out
             windows of the equation error (blocked cross-validation) better at this
-            level. Lower keeps fewer constants.
+            level. Lower keeps fewer constants. Several coordinates also test each
+            term of the converged fit against 0 at this level over the number of
+            features its equation chose from (:mod:`gpjax._system_search`).
         local_search: best distinct structures per generation whose one-term extensions
             (a power of x or x', a constant, an input) are built as trees and compete for
             the next generation; 0 gives the paper's pure GP. In tree mode an added state

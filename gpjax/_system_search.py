@@ -50,8 +50,8 @@ pruning below removes what the converged fit does not demonstrate. The chosen sy
 refitted at converged integration (:func:`gpjax._system_fit.fit_system`), and a term whose
 constant that fit cannot tell from 0 (a Wald test with the interval's standard error, at
 ``selection_alpha`` over the number of features its equation chose from: Bonferroni, the
-test is post-selection) is dropped and the rest refitted, one at a time, least significant first
-(:func:`gpjax._system_final.insignificant_removals`). The Wald test reads the residual as
+test is post-selection) is dropped and the rest refitted, one at a time, least
+significant first (:func:`gpjax._system_final.insignificant_removals`). The Wald test reads the residual as
 noise, so it runs only on a fit whose every coordinate is at its noise floor
 (:func:`gpjax._system_final.flagged`, the report's flag): a model that misses physics
 leaves signal in its residual, which the sandwich counts as noise, and its wide intervals
