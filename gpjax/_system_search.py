@@ -314,7 +314,8 @@ class SystemEvolution:
         while removals:
             smaller = removals.pop(0)
             _progress.stage(f"dropping a term its converged fit does not demonstrate (Wald "
-                            f"test at level {config.selection_alpha}), then fitting again")
+                            f"test at level {config.selection_alpha} over its equation's "
+                            "candidates), then fitting again")
             try:
                 trial = fit_system(measurement, scorer.normalised(smaller),
                                    start=scorer.coefficients(smaller),

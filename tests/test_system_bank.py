@@ -198,10 +198,12 @@ def test_search_finds_dry_friction_between_two_masses(tmp_path):
     assert second.state[X2 - X1] == pytest.approx(c["kc"] / c["m2"], rel=0.03)
     width = gpjax.Model.load(tmp_path / "run" / "model.json").metrics["sign_width"]
     # narrowed from 1 % (the truth's sign is ~0.1 % of RMS z wide); the check at 1 % and
-    # at each width but the last did not converge and could be made
+    # at each width but the last did not converge and could be made; the narrowing stops
+    # at the cap, where the check cannot be made, or where RK4 could not integrate the
+    # narrower sign stably within the step cap
     assert width["narrowing"] == 4 and width["width"] < 0.01
     assert width["converged"] or width["width"] == pytest.approx(0.01 / 4 ** 3) or (
-        width["ratio"] == np.inf)
+        width["ratio"] == np.inf) or width.get("stopped") == "unstable sign"
 
 
 def test_a_diverged_coordinate_gets_a_hint():
