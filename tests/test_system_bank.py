@@ -257,8 +257,8 @@ def test_width_line_says_when_the_narrower_check_cannot_be_made():
 
 def _narrowing(monkeypatch, steps):
     """``_narrowed`` on a stand-in fit whose width check never converges, the narrower
-    signs needing ``steps`` per sample and every refit diverging: (fit, check, the
-    refits' keyword arguments)."""
+    signs needing ``steps`` per sample and every refit diverging: (its check, the
+    refits' keyword arguments); the last fit stands."""
     from types import SimpleNamespace
 
     import gpjax._system_search as search
