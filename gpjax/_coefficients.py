@@ -329,9 +329,12 @@ class FlatLayout:
                           inner=inner)
 
 
-#: Padding rows a smaller compiled call must save to be worth one more call (per-call
-#: overhead in rows; the cost of a call is about linear in its rows).
-CALL_OVERHEAD_ROWS = 8
+#: Padding rows a smaller compiled call must save to be worth one more call: a call costs
+#: about a + b·rows, and a/b, its fixed cost in rows, was 34 (sin x models) and 45 (a cubic
+#: spring) for the population evaluator on 8,000 samples, 2 cores
+#: (``benchmarks/bench_call_cost.py``; at 8, 64 models ran as four calls of 16 in 0.40 s
+#: instead of one of 128 in 0.27 s).
+CALL_OVERHEAD_ROWS = 40
 
 
 def chunk_sizes(count: int, sizes: Sequence[int]) -> list[int]:

@@ -137,9 +137,15 @@ def neighbours(fitness, record) -> list[Move]:
     moves += _drop_taylor_pairs(fitness, state, forcing, move)
     moves += _tie_exp_pairs(fitness, state, forcing, move)
     moves += _complete_stribeck(fitness, state, forcing, move, slots)
-    unique = {}
+    unique, names = {}, {}
+
+    def name(feature) -> str:  # a few features recur in every move: print each once
+        if feature not in names:
+            names[feature] = str(feature)
+        return names[feature]
+
     for m in moves:
-        unique.setdefault((tuple(map(str, m.state)), tuple(map(str, m.forcing)), m.held), m)
+        unique.setdefault((tuple(map(name, m.state)), tuple(map(name, m.forcing)), m.held), m)
     return list(unique.values())
 
 

@@ -158,19 +158,26 @@ def test_unknown_jacobian_is_refused(refiner):
         Refiner(refiner.evaluator, jacobian="finite differences")
 
 
-def test_one_program_serves_every_call_size_and_count_of_free_constants(refiner):
-    """A call of one model, and models with fewer free constants (k2 absent), run the
-    same compiled program: a width or batch of its own would compile again."""
+def test_two_programs_serve_every_call_size_and_count_of_free_constants(refiner):
+    """Calls of up to SMALL_BATCH models run one program, larger ones the other, and
+    models with fewer free constants (k2 absent) run the same ones: a width or batch of
+    their own would compile again."""
+    from gpjax._refine import SMALL_BATCH
+
     evaluator = refiner.evaluator
+    assert refiner.batch_sizes == (SMALL_BATCH, refiner.batch)
     fixed = np.full(4, evaluator.forcing_index(S.u[0]))
     full = _models(evaluator, np.full(4, 0.05), np.random.default_rng(3))
     refiner.refine(full, fixed)
+    refiner.refine(full.rows([0]), fixed[:1])
     before = refiner.compile_count
-    fewer = full.rows([0])
+    fewer = full.rows([0, 1, 2])
     fewer.state[:, 1] = 0.0
-    out = refiner.refine(fewer, fixed[:1]).population
+    out = refiner.refine(fewer, fixed[:3]).population
+    one = refiner.refine(fewer.rows([0]), fixed[:1]).population
     assert refiner.compile_count == before
-    assert out.state[0, 1] == 0.0 and len(out) == 1
+    assert np.all(out.state[:, 1] == 0.0) and len(out) == 3 and len(one) == 1
+    assert np.allclose(one.state, out.state[:1], rtol=1e-9)
 
 
 #: Refines four models of this file's problem with the augmented solve split over two
