@@ -683,6 +683,17 @@ def new_record() -> str:
                     "same structure"], rows, "lrrrrrl") + "\n\n" + _stamp(data))
 
 
+def call_cost() -> str:
+    """benchmarks/call_cost.json: one compiled call's seconds by its padded size, and the
+    fitted fixed cost in rows."""
+    data = _load("benchmarks/call_cost.json")
+    rows = [[name, ", ".join(f"{size}: {s:.3f}" for size, s in c["seconds"].items()),
+             f"{c['a_s']:.3f}", f"{1e3 * c['b_s_per_row']:.2f}", f"{c['overhead_rows']:.0f}"]
+            for name, c in data["calls"].items()]
+    return (_table(["call", "size: best s", "a (s)", "b (ms per row)", "a/b (rows)"], rows,
+                   "lrrrr") + "\n\n" + _stamp(data))
+
+
 TABLES = {
     "coverage": coverage_table,
     "band-coverage": band_coverage,
@@ -720,6 +731,7 @@ TABLES = {
     "reference-cost": reference_cost,
     "many-fits": many_fits,
     "select-cost": select_cost,
+    "call-cost": call_cost,
     "new-record": new_record,
 }
 

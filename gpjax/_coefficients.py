@@ -330,11 +330,13 @@ class FlatLayout:
 
 
 #: Padding rows a smaller compiled call must save to be worth one more call: a call costs
-#: about a + b·rows, and a/b, its fixed cost in rows, was 34 (sin x models) and 45 (a cubic
-#: spring) for the population evaluator on 8,000 samples, 2 cores
-#: (``benchmarks/bench_call_cost.py``; at 8, 64 models ran as four calls of 16 in 0.40 s
-#: instead of one of 128 in 0.27 s).
-CALL_OVERHEAD_ROWS = 40
+#: about a + b·rows, and a/b, its fixed cost in rows, is what the population evaluator
+#: measured on 8,000 samples, 2 cores, with and without a family
+#: (``benchmarks/bench_call_cost.py``, ``benchmarks/call_cost.json``; at 8, 64 models ran
+#: as four calls of 16 in 0.40 s instead of one of 128 in 0.27 s). The refiner's own is
+#: smaller (1–2 rows), but with its sizes 2 and 8 only a call of 3–6 models would go
+#: otherwise.
+CALL_OVERHEAD_ROWS = 36
 
 
 def chunk_sizes(count: int, sizes: Sequence[int]) -> list[int]:
