@@ -52,8 +52,8 @@ JACOBIANS = ("variational", "autodiff")
 #: Default models per compiled refinement call and free constants per model.
 BATCH, MAX_FREE = 8, 8
 #: The smaller batch a refiner also compiles (on first use): the final selection refines
-#: neighbours one or two at a time, and a call padded to 8 models cost 0.75 s against 0.36 s
-#: at 2 (8,000 samples, the wide function set, 2 cores).
+#: neighbours one or two at a time, and a call padded to 8 models costs 2–3× one of 2
+#: (``benchmarks/call_cost.json``: 8,000 samples, the wide function set, 2 cores).
 SMALL_BATCH = 2
 
 
