@@ -45,6 +45,21 @@ PROGRAMS = "programs"
 KEPT = 32
 
 _KEPT: collections.OrderedDict = collections.OrderedDict()
+#: Seconds and executables that every :class:`Program` of this process compiled or loaded.
+_LEDGER = [0.0, 0]
+
+
+def compile_ledger() -> tuple[float, int]:
+    """(seconds, executables) compiled or loaded by every :class:`Program` of this process
+    so far (the population evaluator, refiner, sensitivity and reference programs alike):
+    a run's figures are the difference across it."""
+    return _LEDGER[0], _LEDGER[1]
+
+
+def compiled_since(mark: tuple[float, int]) -> dict:
+    """``compile_s`` and ``compiles`` of this process since :func:`compile_ledger` gave
+    ``mark``."""
+    return {"compile_s": _LEDGER[0] - mark[0], "compiles": _LEDGER[1] - mark[1]}
 
 
 @lru_cache(maxsize=1)
@@ -120,7 +135,10 @@ class Program:
             began = time.perf_counter()
             executable = self._executables[signature] = self._executable(tree, leaves,
                                                                         signature)
-            self.compile_seconds += time.perf_counter() - began
+            elapsed = time.perf_counter() - began
+            self.compile_seconds += elapsed
+            _LEDGER[0] += elapsed
+            _LEDGER[1] += 1
         return executable(*leaves)
 
     def _executable(self, tree, leaves, signature) -> Callable:

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from . import _progress
+from ._aot import compile_ledger, compiled_since
 from ._config import GPConfig
 from ._convergence import (MAX_SUBSTEPS, Convergence, check_line, check_model,
                            needed_substeps)
@@ -112,7 +113,7 @@ class Identifier:
             return fit_islands(self, measurement, seed=seed, out=out, resume=resume,
                                islands=islands, scheduler=scheduler, migration=migration,
                                progress=progress)
-        began = time.perf_counter()
+        began, compiled = time.perf_counter(), compile_ledger()
         out = Path(out) if out is not None else None
         evolution = evolution_for(measurement, self.config)
         fingerprint = measurement.fingerprint()
@@ -145,24 +146,28 @@ class Identifier:
                     bar.set_postfix(best=f"{state.history[-1].best_objective:.4g}")
             finally:
                 bar.close()
-        return self._conclude(evolution, seed, state, began=began, out=out,
-                              interrupted=stop.requested)
+        return self._conclude(evolution, seed, state, began=began, compiled=compiled,
+                              out=out, interrupted=stop.requested)
 
     def _conclude(self, evolution, seed: int, state: RunState, *, began: float,
-                  out: Path | None, interrupted: bool) -> "Identifier":
+                  compiled: tuple[float, int], out: Path | None,
+                  interrupted: bool) -> "Identifier":
         """The reported model of a finished search by ``evolution`` (one coordinate:
-        :meth:`_finish`; several: :func:`gpjax._estimator_systems.finish_system`)."""
+        :meth:`_finish`; several: :func:`gpjax._estimator_systems.finish_system`); the run
+        began at ``began`` (``time.perf_counter``) with ``compiled``
+        (:func:`gpjax._aot.compile_ledger`) behind it."""
         if isinstance(evolution, Evolution):
-            return self._finish(evolution.fitness, seed, state, began=began, out=out,
-                                interrupted=interrupted)
+            return self._finish(evolution.fitness, seed, state, began=began,
+                                compiled=compiled, out=out, interrupted=interrupted)
         from ._estimator_systems import finish_system
 
-        finish_system(self, evolution, seed, state, began=began, out=out,
+        finish_system(self, evolution, seed, state, began=began, compiled=compiled, out=out,
                       interrupted=interrupted)
         return self
 
     def _finish(self, fitness: Fitness, seed: int, state: RunState, *, began: float,
-                out: Path | None, interrupted: bool) -> "Identifier":
+                compiled: tuple[float, int], out: Path | None,
+                interrupted: bool) -> "Identifier":
         """Select, convergence-check and write the reported model of a finished search
         (``fitness`` holds every scored record; shared by one-process and island runs)."""
         last = state.history[-1]
@@ -173,8 +178,7 @@ class Identifier:
         selecting = time.perf_counter()
         self._select(fitness, seed, state)
         converging = time.perf_counter()
-        fits = [fitness]  # the search's, then each refit's (every one compiles its own)
-        fitness = self._converge(fitness, seed, state, fits)
+        fitness = self._converge(fitness, seed, state)
         self._set_uncertainty(fitness)
         self._set_residuals()
         writing = time.perf_counter()
@@ -186,11 +190,7 @@ class Identifier:
                          "search_s": selecting - began,
                          "selection_s": converging - selecting,
                          "convergence_s": writing - converging,  # uncertainty, residuals
-                         "writing_s": ended - writing,
-                         "compile_s": sum(f.evaluator.compile_seconds + f.refiner.compile_seconds
-                                          for f in fits),
-                         "compiles": sum(f.evaluator.compile_count + f.refiner.compile_count
-                                         for f in fits),
+                         "writing_s": ended - writing, **compiled_since(compiled),
                          "generations": state.generation, "finished_at": time.time()}
         return self
 
@@ -215,8 +215,7 @@ class Identifier:
             raise UserInputError(f"{out / CHECKPOINT} is damaged ({err}); start the run afresh "
                                  "without --resume") from None
 
-    def _converge(self, fitness: Fitness, seed: int, state: RunState,
-                  fits: list[Fitness]) -> Fitness:
+    def _converge(self, fitness: Fitness, seed: int, state: RunState) -> Fitness:
         """Check the reported model's integration against the reference solve, and its
         smoothed signs' width (:mod:`gpjax._sign_width`); with ``substeps="auto"``, refit
         the Pareto front and the reported model at more RK4 steps, or at a narrower sign,
@@ -228,8 +227,7 @@ class Identifier:
         a stable RK4 step (:func:`gpjax._convergence.stable_substeps`). Once the sign is narrowed, only the reported model is refitted
         (a sign's width changes the constants of the models that have one, not the
         ranking; refitting the front at every width cost a Coulomb fit of 8,000 samples
-        13 minutes); the front's other rows keep their fit. Appends each refit's fitness
-        to ``fits``; returns the fitness in use."""
+        13 minutes); the front's other rows keep their fit. Returns the fitness in use."""
         tolerance = self.config.convergence_tolerance
         auto = self.config.substeps == "auto"
         refits, narrowings, stopped, front_too = 0, 0, "converged", True
@@ -283,7 +281,6 @@ class Identifier:
                             f" at {refit['substeps']} substeps, smoothed-sign width "
                             f"{refit['sign_width']:.3g}")
             new = Fitness(self.measurement_, self.config, **refit, single=not front_too)
-            fits.append(new)
             carried = {r.key: narrowed(r, fitness, new)
                        for r in (self._front if front_too else []) + [self._chosen]}
             adopted = {r.key: r for r in new.adopt(list(carried.values()))}

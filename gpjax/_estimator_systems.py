@@ -21,16 +21,17 @@ from pathlib import Path
 import numpy as np
 
 from . import _progress
+from ._aot import compiled_since
 from ._data import Measurement
 from ._report import history_csv, write_bytes_atomic, write_text_atomic
 
 
 def finish_system(identifier, evolution, seed: int, state, *, began: float,
-                  out: Path | None, interrupted: bool) -> None:
+                  compiled: tuple[float, int], out: Path | None, interrupted: bool) -> None:
     """Report the system of a finished search into ``identifier`` (module docstring):
     ``evolution`` the :class:`gpjax._system_search.SystemEvolution` holding its scores,
-    ``state`` its last generation, ``began`` the run's start; ``out``: the run folder or
-    ``None``."""
+    ``state`` its last generation, ``began`` the run's start and ``compiled`` the
+    :func:`gpjax._aot.compile_ledger` then; ``out``: the run folder or ``None``."""
     from ._system_diagnose import residual_statistics
 
     config, measurement = identifier.config, evolution.measurement
@@ -72,8 +73,8 @@ def finish_system(identifier, evolution, seed: int, state, *, began: float,
         "total_s": ended - began, "search_s": selecting - began,
         "selection_s": timings["selection_s"],
         "convergence_s": writing - selecting - timings["selection_s"],  # and the residuals
-        "writing_s": ended - writing, "compile_s": timings["compile_s"],
-        "compiles": timings["compiles"], "generations": history[-1]["generation"],
+        "writing_s": ended - writing, **compiled_since(compiled),
+        "generations": history[-1]["generation"],
         "finished_at": time.time()}
 
 

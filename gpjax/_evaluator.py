@@ -234,7 +234,8 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         #: unpadded where the spectrum is an rfft (:mod:`gpjax._record`).
         self.n_padded = padded_length(n) if pad_to_bucket and dft.shape[0] > 1 else n
         #: DFT bins the programs hold (the record's :attr:`n_bins`, zero-padded).
-        self.n_bins_padded = min(padded_bins(self.n_bins), self.n_padded // 2 + 1)
+        self.n_bins_padded = min(padded_bins(self.n_bins, self.n_padded),
+                                 self.n_padded // 2 + 1)
         n_stage = self.stage_rows(self.n_padded)
         batch = max(1, min(batch, STAGE_ELEMENTS_PER_CALL // n_stage))
         self.batch = -(-batch // len(self.devices)) * len(self.devices)

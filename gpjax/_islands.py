@@ -34,6 +34,7 @@ from pathlib import Path
 import numpy as np
 
 from . import _progress
+from ._aot import compile_ledger
 from ._cluster import dask_client, worker_address
 from ._config import GPConfig
 from ._data import Measurement
@@ -190,7 +191,7 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
     out = Path(out) if out is not None else None
     fingerprint = measurement.fingerprint()
     threshold = stop_objective(measurement, config)
-    began = time.perf_counter()
+    began, compiled = time.perf_counter(), compile_ledger()
     settings = {"migration": dataclasses.asdict(migration)}
     if resume:
         epoch, seed, states = _load(out, config, fingerprint, islands, settings)
@@ -244,7 +245,7 @@ def fit_islands(identifier, measurement: Measurement, *, seed: int, out, resume:
     state = evolution.load_state(merged_state(states))
     identifier.measurement_ = measurement
     identifier._provenance = {"islands": islands} | settings
-    identifier._conclude(evolution, seed, state, began=began, out=out,
+    identifier._conclude(evolution, seed, state, began=began, compiled=compiled, out=out,
                          interrupted=stop.requested)
     identifier.timings_ |= {"epochs": epoch, "island_tasks": tasks, "epoch_timings": epochs,
                             "worker_compile_s": sum(t["compile_s"] for t in tasks)}

@@ -32,7 +32,7 @@ from ._evaluator import PopulationEvaluator, split_state_features
 from ._expressions import parse_expression
 from ._objective import default_n_bins
 from ._reference import reference_response
-from ._system_bank import bank_of
+from ._system_bank import KINDS, bank_of
 from ._uncertainty import Uncertainty
 from ._weak_form import estimate_initial_conditions
 
@@ -350,7 +350,9 @@ class Model:
     def evaluator(self, measurement: Measurement, *,
                   substeps: int | None = None, **options) -> PopulationEvaluator:
         """An RK4 evaluator on ``measurement`` whose basis holds this model's features
-        (``substeps`` default: the model's; ``options``: :class:`PopulationEvaluator`'s)."""
+        (``substeps`` default: the model's; ``options``: :class:`PopulationEvaluator`'s; for
+        a system, ``kinds`` are bank kinds it holds beside the model's own: a search's,
+        so that refits of its structures share the compiled programs)."""
         settings = dict(substeps=substeps or self.substeps,
                         input_interpolation=self.input_interpolation)
         if self.n_coordinates == 1:
@@ -360,6 +362,7 @@ class Model:
                               extra_state_features=extra, families=families,
                               **settings, **options)
         kinds, scales = bank_of(self.coordinates, [list(c.state) for c in self.system])
+        kinds = tuple(k for k in KINDS if k in {*kinds, *options.pop("kinds", ())})
         return PopulationEvaluator(measurement, self.symbols_of(0), kinds=kinds,
                                    sign_scales=scales,
                                    **{"max_degree": self.max_power(), **settings, **options})

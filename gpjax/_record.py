@@ -19,12 +19,17 @@ power of two (:func:`padded_bins`). The bins a record needs follow its band, not
 (eq. 9's 99 % energy rule), so records of one length differ in them: on issue 43's four
 records, 7,601–7,991 samples, they ranged over 136–203 bins, three buckets at four per
 octave (160, 192, 224), and two of the three records after the first compiled their
-population programs again (~16 s each); at one bucket per octave all four hold 256. The
-price is up to twice the rows of the product: at 8,192 samples, 256 bins take 75 ms per 500
-models on 2 cores (the cost is proportional to the rows), against 4.4–4.8 s a generation of
-a wide-set fit; at the paper's 1,334 samples 58 bins hold 64 either way. (A chirp-z
-transform, whose cost does not grow with the bins, ran 2–3× slower than the product at both
-sizes on XLA's CPU FFT.) Records too long for a DFT matrix (the rfft path of
+population programs again (~16 s each); at one bucket per octave all four hold 256. An
+octave still splits records whose bins straddle a power of two: 2,001-sample records of
+one system and band held 26–40 bins, 32 or 64, and half of them compiled again. So the
+programs hold at least the bins below f_s/32 (:func:`band_floor`; at 2,048 samples 64):
+every record sampled 32 times faster than the band of its energy shares one program per
+length bucket. The price is rows of the product: at 8,192 samples, 256 bins take 75 ms per
+500 models on 2 cores (the cost is proportional to the rows), against 4.4–4.8 s a
+generation of a wide-set fit; at the paper's 1,334 samples 58 bins hold 64 either way. The
+floor stops where the DFT matrix would pass :data:`gpjax._objective.DFT_MATRIX_LIMIT`. (A
+chirp-z transform, whose cost does not grow with the bins, ran 2–3× slower than the
+product at both sizes on XLA's CPU FFT.) Records too long for a DFT matrix (the rfft path of
 :mod:`gpjax._objective`) are not padded: their programs serve records of the same length.
 """
 
@@ -36,10 +41,14 @@ import dataclasses
 import jax
 import numpy as np
 
+from ._objective import DFT_MATRIX_LIMIT
+
 #: Lengths per octave that records are padded to (see the module docstring).
 BUCKETS_PER_OCTAVE = 4
 #: Shortest padded length.
 SMALLEST_BUCKET = 16
+#: The programs hold at least the bins below f_s / BAND_FRACTION (see the module docstring).
+BAND_FRACTION = 32
 
 
 def padded_length(n: int) -> int:
@@ -51,10 +60,19 @@ def padded_length(n: int) -> int:
     return -(-n // step) * step
 
 
-def padded_bins(n_bins: int) -> int:
-    """The bins the programs hold for a record's ``n_bins``: the next power of two, at least
-    :data:`SMALLEST_BUCKET` (the module docstring says why one bucket per octave)."""
-    return 1 << (max(int(n_bins), SMALLEST_BUCKET) - 1).bit_length()
+def padded_bins(n_bins: int, n_padded: int = 0) -> int:
+    """The bins the programs hold for a record's ``n_bins`` at ``n_padded`` samples: the
+    next power of two of at least ``n_bins``, :data:`SMALLEST_BUCKET` and
+    :func:`band_floor` (the module docstring says why)."""
+    wanted = max(int(n_bins), SMALLEST_BUCKET, band_floor(n_padded))
+    return 1 << (wanted - 1).bit_length()
+
+
+def band_floor(n_padded: int) -> int:
+    """The fewest bins the programs hold at ``n_padded`` samples: those up to
+    f_s/:data:`BAND_FRACTION`, while the DFT matrix stays within
+    :data:`gpjax._objective.DFT_MATRIX_LIMIT` elements."""
+    return min(int(n_padded) // BAND_FRACTION, DFT_MATRIX_LIMIT // max(1, 2 * int(n_padded)))
 
 
 def padded_rows(array: np.ndarray, rows: int) -> np.ndarray:

@@ -57,6 +57,14 @@ BATCH, MAX_FREE = 8, 8
 SMALL_BATCH = 2
 
 
+def free_width(free: int) -> int:
+    """The Jacobian width a refiner is compiled for to fit ``free`` constants: the next
+    multiple of :data:`MAX_FREE`, so the structures a search and its final fits meet
+    share a few programs instead of compiling one per count (the columns past ``free``
+    are padding whose moves are 0)."""
+    return -(-int(free) // MAX_FREE) * MAX_FREE
+
+
 @dataclasses.dataclass(frozen=True)
 class Refinement:
     """Refined models and, per model, whether the solver reported success."""
@@ -109,9 +117,9 @@ class Refiner(CompileFigures):
             :data:`gpjax._evaluator.STAGE_ELEMENTS_PER_CALL` numbers (on a 10⁶-sample
             record one model per call: 2.2 GB peak instead of 5.5 GB for eight).
         max_free: free constants per model, the Jacobian's columns (further ones stay at
-            their start values). A refiner of one model per call sizes the Jacobian to
-            the model's free constants instead (rounded up to even): a refitted model
-            keeps its structure, so that is one program too.
+            their start values). A refit of one model sizes it to that model's free
+            constants by :func:`free_width`, so refits of different structures share
+            programs.
         horizons: increasing fractions of the record fitted in turn, each for up to
             ``iterations`` steps; the last should be 1.
         jacobian: ``"variational"`` (default: the variational equations in the scan, see
@@ -154,10 +162,12 @@ class Refiner(CompileFigures):
         responses = evaluator.measurement.responses
         self._state_scale = np.stack([np.std(responses, axis=0), np.std(np.diff(
             responses, axis=0), axis=0) / evaluator.measurement.dt], axis=1).ravel() + 1e-300
+        # The Jacobian's width and the batch are the arguments' shapes, which key each
+        # executable: refiners of different ``max_free`` share the calls of one width.
         self._run = Program(jax.vmap(self._refine_one, in_axes=(0, 0, None, None, None)),
                             name="refine",
                             key=fingerprint(evaluator.time_key, iterations, self.horizon_samples,
-                                            self.batch, max_free, jacobian))
+                                            jacobian))
 
     def refine(self, population: Population, fixed_forcing: np.ndarray,
                held_inner: np.ndarray | None = None, *, ties=None) -> Refinement:
@@ -233,7 +243,7 @@ class Refiner(CompileFigures):
         scale = np.where(scale > 0, scale, 1.0)
         # Only free parameters are differentiated: index (P, width), padded with scale 0.
         most = int(free.sum(axis=1).max())
-        width = self.max_free if self.batch > 1 else min(self.max_free, most + most % 2)
+        width = self.max_free if self.batch > 1 else min(self.max_free, free_width(most))
         index = np.zeros((count, width), dtype=np.int32)
         index_scale = np.zeros((count, width))
         for i, row in enumerate(free):

@@ -74,7 +74,7 @@ from ._diagnose_evidence import projected_share
 from ._effects import Context, Effect, Terms, effects
 from ._errors import UserInputError
 from ._model import Model
-from ._system_bank import bank_feature, match_bank, sign_scales, system_variables
+from ._system_bank import KINDS, bank_feature, match_bank, sign_scales, system_variables
 from ._system_couplings import held_structure
 from ._report import write_text_atomic
 from ._system_diagnose import residual_statistics, summary_line
@@ -197,8 +197,10 @@ def diagnose_system(measurement: Measurement, model: Model, *,
     train = measurement.segment(0, n_train)
     scale = train.responses.std(axis=0)
     weak = SystemWeakForm(train)
+    # Every bank kind in every fit's evaluator: the candidates' refits share its programs.
     settings = dict(third_law=model.third_law, max_degree=_max_degree(model),
-                    input_interpolation=input_interpolation or model.input_interpolation)
+                    input_interpolation=input_interpolation or model.input_interpolation,
+                    kinds=KINDS)
 
     inputs = tuple(sp.Symbol(u) for u in measurement.input_names)
 

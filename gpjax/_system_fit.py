@@ -33,7 +33,7 @@ from ._data import Measurement
 from ._diagnose_fits import blocked_cv_residual
 from ._evaluator import Scores
 from ._model import Model
-from ._refine import Refiner
+from ._refine import Refiner, free_width
 from ._uncertainty import Uncertainty, model_names, uncertainty_of
 from ._system_couplings import couple, coupled_least_squares, fixed_columns, tie_columns
 from ._weak_form import WeakForm, smoothed_derivatives
@@ -189,28 +189,26 @@ class SystemFit:
     """:func:`fit_system`'s result: the model, its scores at the fitted step count, every
     convergence check made (the last one passed unless ``substeps`` hit the cap), and the
     constants' standard errors and 95 % intervals (:mod:`gpjax._uncertainty`; names as the
-    model's constants, ``"x2.c1"``, ``"x2.m"``, and ``"x2(0)"``), and the seconds and
-    count of the evaluator and refiner programs its refits compiled or loaded."""
+    model's constants, ``"x2.c1"``, ``"x2.m"``, and ``"x2(0)"``)."""
 
     model: Model
     scores: Scores
     checks: tuple
     uncertainty: Uncertainty | None = None
-    compile_s: float = 0.0
-    compiles: int = 0
 
 
 def fit_system(measurement: Measurement, structure: Structure, *, max_degree: int = 3,
                input_interpolation: str = "linear", iterations: int = 30,
                start: list[Coefficients] | None = None, tolerance: float = 0.01,
                substeps: int | None = None, third_law: bool = False,
-               first_substeps: int | None = None) -> SystemFit:
+               first_substeps: int | None = None, kinds: tuple[str, ...] = ()) -> SystemFit:
     """Constants and initial states of a system ``structure`` on ``measurement``
     (module docstring): weak-form start (or ``start``), Levenberg–Marquardt on all
     coordinates at once, repeated at a finer step until the RK4 and reference responses
     differ by less than ``tolerance`` of the RMS residual (``substeps`` given: that step
     count, checked once; ``first_substeps``: the step count the ladder starts from, e.g. a
-    similar system's converged one). ``third_law``: every coupling feature (a power of x_i − x_j or
+    similar system's converged one; ``kinds``: the bank kinds its evaluators hold beside
+    the structure's own, a search's, so its refits share one set of programs). ``third_law``: every coupling feature (a power of x_i − x_j or
     x_i' − x_j') is one force acting on both coordinates, its mirror added to equation j
     and its constants tied (:mod:`gpjax._system_couplings`; then only one forcing value or
     mass per coupled group is held).
@@ -222,15 +220,14 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
     if third_law:
         structure, ties = couple(structure, measurement.response_names)
     start = start or weak_form_start(measurement, structure, ties)
-    last, refiners = {}, []
+    last = {}
 
     def fit_at(steps: int, previous: Model | None) -> Model:
         _progress.stage(f"fitting the system's constants at {steps} substeps, then its "
                         "convergence check")
         model, last["scores"], last["refit"] = _refit(
             measurement, structure, list(previous.system) if previous else start, steps,
-            max_degree, input_interpolation, iterations, ties)
-        refiners.append(last["refit"][0])
+            max_degree, input_interpolation, iterations, ties, kinds)
         return model
 
     model, checks = fit_converged(fit_at, measurement, substeps=substeps, tolerance=tolerance,
@@ -238,26 +235,24 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
     refiner, population, fixed, tied = last["refit"]
     uncertainty = uncertainty_of(refiner, population, fixed, ties=tied, names=lambda s: model_names(
         s, model, refiner.evaluator))
-    return SystemFit(model, last["scores"], tuple(checks), uncertainty,
-                     compile_s=sum(r.compile_seconds + r.evaluator.compile_seconds
-                                   for r in refiners),
-                     compiles=sum(r.compile_count + r.evaluator.compile_count for r in refiners))
+    return SystemFit(model, last["scores"], tuple(checks), uncertainty)
 
 
-def _refit(measurement, structure, start, steps, max_degree, interpolation, iterations, ties):
+def _refit(measurement, structure, start, steps, max_degree, interpolation, iterations, ties,
+           kinds):
     def model_of(equations) -> Model:
         return Model.from_equations(measurement.response_names, measurement.time_name,
                                     measurement.input_names, equations,
                                     input_interpolation=interpolation, substeps=steps,
                                     third_law=bool(ties))
 
-    evaluator = model_of(start).evaluator(measurement, max_degree=max_degree)
+    evaluator = model_of(start).evaluator(measurement, max_degree=max_degree, kinds=kinds)
     population = to_system_population([start], evaluator)
     fixed = np.array([fixed_columns(structure, ties, evaluator.forcing_index)])
     if not np.all(np.isfinite(evaluator.layout.pack(population))):
         raise ValueError("the least-squares start of the system is not finite")
     free = sum(1 + len(s) + len(f) + 2 for s, f in structure)
-    refiner = Refiner(evaluator, iterations=iterations, max_free=free + free % 2, batch=1)
+    refiner = Refiner(evaluator, iterations=iterations, max_free=free_width(free), batch=1)
     tied = [tie_columns(ties, evaluator)]
     refined = refiner.refine(population, fixed, ties=tied).population
     equations = from_system_population(refined, evaluator, [start])[0]

@@ -20,7 +20,7 @@ from . import _trees
 from ._canonical import feature_name
 from ._coefficients import Coefficients, from_system_population, to_system_population
 from ._evaluator import PENALTY, PopulationEvaluator
-from ._refine import Refiner
+from ._refine import Refiner, free_width
 from ._select import simulates_better
 from ._system_couplings import (couple, coupled_least_squares, coupled_residual,
                                 fixed_columns, held_structure, tie_columns)
@@ -151,7 +151,7 @@ class SystemScorer:
         # ``batch`` systems in one call, the selection's simulated-response guard one: the
         # cost of a call grows with its padded batch (a 3-mass chain of 8,000 samples:
         # 6 s for one system alone, 12 s padded to 4, 15 s for 5).
-        width = -(-free // 8) * 8
+        width = free_width(free)
         batch = 1 if len(chosen) == 1 else self.batch
         if (width, batch) not in self._refiners:
             self._refiners[width, batch] = Refiner(self.evaluator, iterations=20,

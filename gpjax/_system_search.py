@@ -110,8 +110,7 @@ class SearchResult:
     :class:`gpjax._evolve.GenerationStats` as a dict; its smoothed signs' width check
     (:func:`gpjax._system_final.width_check`, ``None`` without a sign); and the seconds of
     the stages (``search_s``, ``selection_s``, ``convergence_s``: the final fit at converged
-    integration and its uncertainty) and the seconds and count of the programs compiled or
-    loaded (``compile_s``, ``compiles``)."""
+    integration and its uncertainty)."""
 
     fit: SystemFit
     history: list[dict]
@@ -278,10 +277,7 @@ class SystemEvolution:
     @property
     def compile_seconds(self) -> float:
         """Seconds spent compiling or loading this engine's programs so far."""
-        return sum(p.compile_seconds for p in self._programs())
-
-    def _programs(self) -> list:
-        return [self.scorer.evaluator, *self.scorer.refiners()]
+        return sum(p.compile_seconds for p in [self.scorer.evaluator, *self.scorer.refiners()])
 
     # --- the reported system -------------------------------------------------------------
     def finish(self, state: RunState) -> SearchResult:
@@ -304,7 +300,8 @@ class SystemEvolution:
         fitting = time.perf_counter()
         settings = dict(max_degree=config.max_degree, third_law=config.third_law,
                         input_interpolation=config.input_interpolation,
-                        tolerance=config.convergence_tolerance)
+                        tolerance=config.convergence_tolerance,
+                        kinds=kinds_for(config.functions))
         fit = fit_system(measurement, scorer.normalised(best), start=scorer.coefficients(best),
                          **settings)
         candidates = [sum(map(len, scorer.equations.basis(i)))
@@ -327,12 +324,9 @@ class SystemEvolution:
                 removals = insignificant_removals(best, fit, config.selection_alpha,
                                                   candidates)
         fit, width = _narrowed(fit, scorer.normalised(best), measurement, settings)
-        programs = self._programs()
         return SearchResult(fit, [dataclasses.asdict(h) for h in state.history], {
             "selection_s": fitting - selecting,
-            "convergence_s": time.perf_counter() - fitting,
-            "compile_s": fit.compile_s + sum(p.compile_seconds for p in programs),
-            "compiles": fit.compiles + sum(p.compile_count for p in programs)}, width)
+            "convergence_s": time.perf_counter() - fitting}, width)
 
 
 def _narrowed(fit: SystemFit, structure, measurement: Measurement, settings: dict):

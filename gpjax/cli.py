@@ -251,7 +251,7 @@ def _timings(identifier, out) -> None:
           f"{now - started:.1f} s in all: "
           + "; ".join(f"{name} {value:.1f} s" for name, value in parts)
           + f". Of these, {t['compile_s']:.1f} s compiling or loading {t['compiles']} "
-          f"population evaluator/refiner programs. Results in {out}/")
+          f"programs (evaluators, refiners, reference solves). Results in {out}/")
 
 
 def _fit(args) -> int:

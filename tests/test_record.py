@@ -11,7 +11,8 @@ import sympy as sp
 from gpjax import Measurement, Symbols
 from gpjax._coefficients import Coefficients, to_population
 from gpjax._evaluator import PopulationEvaluator
-from gpjax._record import BUCKETS_PER_OCTAVE, padded_bins, padded_length
+from gpjax._objective import DFT_MATRIX_LIMIT
+from gpjax._record import BUCKETS_PER_OCTAVE, band_floor, padded_bins, padded_length
 from gpjax._refine import Refiner
 
 S = Symbols("x", "t", ("u",))
@@ -32,6 +33,17 @@ def test_records_of_one_length_whose_bins_differ_within_an_octave_share_the_prog
     assert padded_bins(136) == padded_bins(203) == 256 and padded_bins(257) == 512
     record = _record(0, 2000)
     keys = {PopulationEvaluator(record, S, max_degree=3, n_bins=bins).key for bins in (136, 203)}
+    assert len(keys) == 1
+
+
+def test_records_whose_bins_straddle_a_power_of_two_share_the_programs_above_the_band_floor():
+    """2,001-sample records of one system held 26–40 bins (32 or 64 by the octave alone):
+    the floor of f_s/32 holds 64 for all, so one key; the floor stops at the DFT-matrix
+    limit."""
+    assert band_floor(2048) == 64 and padded_bins(26, 2048) == padded_bins(40, 2048) == 64
+    assert 2 * band_floor(1 << 15) * (1 << 15) <= DFT_MATRIX_LIMIT
+    record = _record(0, 2001)
+    keys = {PopulationEvaluator(record, S, max_degree=3, n_bins=bins).key for bins in (26, 40)}
     assert len(keys) == 1
 
 

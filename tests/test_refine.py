@@ -180,6 +180,26 @@ def test_two_programs_serve_every_call_size_and_count_of_free_constants(refiner)
     assert np.allclose(one.state, out.state[:1], rtol=1e-9)
 
 
+def test_refits_of_one_model_share_a_program_across_counts_of_free_constants(refiner):
+    """A refiner of one model per call (a final fit) sizes its Jacobian by free_width, and
+    a second refiner of another max_free on the same evaluator reuses the executable: the
+    structures a final selection refits compile one program, not one per count."""
+    from gpjax import _aot
+    from gpjax._refine import MAX_FREE, Refiner, free_width
+
+    assert [free_width(n) for n in (1, 8, 9, 15, 16, 17)] == [8, 8, 16, 16, 16, 24]
+    evaluator = refiner.evaluator
+    fixed = np.full(1, evaluator.forcing_index(S.u[0]))
+    model = _models(evaluator, np.full(4, 0.05), np.random.default_rng(5)).rows([0])
+    Refiner(evaluator, iterations=5, batch=1, max_free=MAX_FREE).refine(model, fixed)
+    fewer = model.rows([0])
+    fewer.state[:, 1] = 0.0
+    kept, count = set(_aot._KEPT), _aot.compile_ledger()[1]
+    Refiner(evaluator, iterations=5, batch=1, max_free=2 * MAX_FREE).refine(fewer, fixed)
+    assert set(_aot._KEPT) == kept  # the executable in memory served it: no new key
+    assert _aot.compile_ledger()[1] == count + 1  # the ledger counts the new Program's one
+
+
 #: Refines four models of this file's problem with the augmented solve split over two
 #: host devices and on one device; prints the largest relative difference.
 SPLIT_PROBE = """
