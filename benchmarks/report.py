@@ -438,23 +438,28 @@ def systems_speed() -> str:
                     "D = 3 CPU ratio"], rows, "lrrrrrrr") + "\n\n" + _stamp(data))
 
 
-def systems_refine_ab() -> str:
-    """benchmarks/systems_refine_ab.json: whole `gpjax fit` processes of this revision and
-    of its ``--baseline`` on the same records, in one run."""
-    data = _load("benchmarks/systems_refine_ab.json")
+def systems_ab(path: str):
+    """The renderer of ``path``, written by ``systems_front_door.py --baseline``: whole
+    `gpjax fit` processes of a revision and of its baseline on the same records, in one
+    run, each tree with its own program cache (cold for the run's first record only)."""
+    return lambda: _systems_ab(path)
+
+
+def _systems_ab(path: str) -> str:
+    data = _load(path)
     rows = []
-    for r in data["rows"]:
+    for i, r in enumerate(data["rows"]):
         b = r["baseline"]
-        rows.append([f"`{r['system']}` seed {r['seed']}", "first (cold)" if r["seed"] == 0
+        rows.append([f"`{r['system']}` seed {r['seed']}", "first (cold)" if i == 0
                      else "later (warm)", f"{b['seconds']:.0f}", f"{r['seconds']:.0f}",
                      f"{r['seconds'] / b['seconds']:.2f}×",
-                     *(f"{b[k]:.0f} → {r[k]:.0f}" for k in ("search_s", "selection_s",
-                                                           "compile_s")),
+                     *(f"{b[k]:.0f} → {r[k]:.0f}" if b.get(k) is not None else "–"
+                       for k in ("search_s", "selection_s", "convergence_s", "compile_s")),
                      "yes" if b["same_equations"] else "NO"])
     revision = data["rows"][0]["baseline"]["revision"] if data["rows"] else "–"
     return (_table(["record", "program cache", f"s at {revision}", "s now", "ratio",
-                    "search s", "selection s", "compiling s", "same equations"], rows,
-                   "llrrrrrrl") + "\n\n" + _stamp(data))
+                    "search s", "selection s", "convergence s", "compiling s",
+                    "same equations"], rows, "llrrrrrrrl") + "\n\n" + _stamp(data))
 
 
 # ---------------------------------------------------------------- islands, many records, cache
@@ -717,7 +722,8 @@ TABLES = {
     "systems-gear": systems_gear,
     "gear-front-door": gear_front_door,
     "systems-speed": systems_speed,
-    "systems-refine-ab": systems_refine_ab,
+    "systems-refine-ab": systems_ab("benchmarks/systems_refine_ab.json"),
+    "systems-programs-ab": systems_ab("benchmarks/systems_programs_ab.json"),
     "islands-compare": islands_compare,
     "islands-hard": islands_hard,
     "islands-model": islands_model,
