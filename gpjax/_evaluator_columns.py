@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import jax
+import jax.numpy as jnp
 import numpy as np
 import sympy as sp
 
@@ -121,14 +123,26 @@ class Columns:
             values = self.forcing_values(feature, self.stage_times, self._stage_inputs)
             if not np.all(np.isfinite(values)):
                 raise ValueError(f"forcing feature {feature} is not finite on the data")
-            self._forcing_index[feature] = len(self._forcing_features)
+            column = self._forcing_index[feature] = len(self._forcing_features)
             self._forcing_features.append(feature)
-            self._forcing_columns.append(values)
-            capacity = _capacity(len(self._forcing_features), self.stage_times.size)
-            basis = np.zeros((self.stage_times.size, capacity))
-            basis[:, :len(self._forcing_columns)] = np.stack(self._forcing_columns, axis=1)
-            self._forcing_basis = basis
+            capacity = _capacity(column + 1, self.stage_times.size)
+            if capacity > self.forcing_capacity:  # a wider basis: the old columns copied once
+                basis = np.zeros((self.stage_times.size, capacity))
+                basis[:, :column] = self._forcing_basis[:, :column]
+                self._forcing_basis = basis
+            # A column no model in flight uses (its coefficients are 0) is written in place:
+            # a record of 10⁶ stage rows is not copied for every feature added.
+            self._forcing_basis[:, column] = values
+            self._device_basis = None
         return self._forcing_index[feature]
+
+    @property
+    def device_forcing_basis(self) -> jax.Array:
+        """:attr:`forcing_basis` as the programs' argument, converted once per change of
+        the basis, not at every call (tens of MB on a long record)."""
+        if self._device_basis is None:
+            self._device_basis = jnp.asarray(self._forcing_basis)
+        return self._device_basis
 
     @property
     def forcing_capacity(self) -> int:
