@@ -111,12 +111,19 @@ def test_tree_mode_recovers_eq14_from_an_interval_that_excludes_the_truth():
     # The interval is 0.3–0.6 times the true K1 and K2, so it cannot hold the answer: the
     # structure comes from the search, the constants from refinement, which leaves the
     # interval. On this short record a wrong structure can reach f <= epsilon, so the run
-    # goes all ten generations (epsilon = 0). Seeds 0 and 2 of 0–2 recover eq. 14 this way;
-    # before every tree-mode candidate was refined, all runs stalled at phi'' = 0.
+    # goes all ten generations (epsilon = 0). A run's outcome is a draw: seeds 1, 2, 4 and 5
+    # of 0–5 recover eq. 14 with numpy 2.4 and scipy 1.17 (0 and 2 of 0–2 with the
+    # versions before), so the test asks for one of seeds 0–2 (a 4/6 rate misses all three
+    # with probability 0.04); before every tree-mode candidate was refined, all runs
+    # stalled at phi'' = 0.
     config = GPConfig.paper(coefficients="tree", population=200, generations=10, epsilon=0.0,
                             interval_constants=_intervals(0.3, 0.6))
-    found = Identifier(config).fit(EXAMPLE.measurement, seed=0)
-    assert _recovered(found.model_), str(found)
+    found = []
+    for seed in range(3):
+        found.append(Identifier(config).fit(EXAMPLE.measurement, seed=seed))
+        if _recovered(found[-1].model_):
+            return
+    pytest.fail("no seed of 0–2 recovered eq. 14:\n" + "\n".join(map(str, found)))
 
 
 @pytest.mark.slow
