@@ -354,7 +354,7 @@ class _Simulator:
         directions = np.zeros((rows, p.size))
         directions[np.arange(len(columns)), columns] = 1.0
         jacobian = self._jacobian(jnp.asarray(p), jnp.asarray(directions),
-                                  ev.device_forcing_basis)
+                                  jnp.asarray(ev.forcing_basis))
         return np.asarray(jacobian)[: ev.measurement.n_samples, : len(columns)]
 
 

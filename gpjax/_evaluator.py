@@ -260,7 +260,6 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         self._forcing_index: dict[sp.Expr, int] = {}
         self._finite: dict[sp.Expr, bool] = {}  # forcing_finite's verdicts
         self._forcing_basis = np.zeros((self.stage_times.size, 0))
-        self._device_basis = None  # device_forcing_basis, converted on first use
         self._n_extra = len(extra_state_features)
         self._extra_jets = _jets(extra_state_features, symbols)
         #: The record as the programs' argument (:class:`~gpjax._record.RecordArrays`).
@@ -360,8 +359,8 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
 
     def _call(self, mass, state, forcing, y0, inner):
         return jax.block_until_ready(self._run(
-            *map(jnp.asarray, (mass, state, forcing, y0, inner)),
-            self.device_forcing_basis, self.record_arrays))
+            *map(jnp.asarray, (mass, state, forcing, y0, inner, self._forcing_basis)),
+            self.record_arrays))
 
     def _simulate_and_score(self, mass, state, forcing, y0, inner, forcing_basis, record):
         with self.tracing(record):

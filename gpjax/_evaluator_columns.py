@@ -7,8 +7,6 @@ from __future__ import annotations
 
 import dataclasses
 
-import jax
-import jax.numpy as jnp
 import numpy as np
 import sympy as sp
 
@@ -133,16 +131,7 @@ class Columns:
             # A column no model in flight uses (its coefficients are 0) is written in place:
             # a record of 10⁶ stage rows is not copied for every feature added.
             self._forcing_basis[:, column] = values
-            self._device_basis = None
         return self._forcing_index[feature]
-
-    @property
-    def device_forcing_basis(self) -> jax.Array:
-        """:attr:`forcing_basis` as the programs' argument, converted once per change of
-        the basis, not at every call (tens of MB on a long record)."""
-        if self._device_basis is None:
-            self._device_basis = jnp.asarray(self._forcing_basis)
-        return self._device_basis
 
     @property
     def forcing_capacity(self) -> int:

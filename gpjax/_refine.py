@@ -267,7 +267,7 @@ class Refiner(CompileFigures):
         ev = self.evaluator
         layout, start, moves = self._moves(population, fixed_forcing, plain, held_inner, ties)
         outputs = []
-        basis = ev.device_forcing_basis
+        basis = jnp.asarray(ev.forcing_basis)
         for size, chunk in padded_chunks((start, *moves), self.batch_sizes):
             out = jax.block_until_ready(self._run(chunk[0], tuple(chunk[1:]), basis,
                                                   ev.time_record, self.horizon_limits))
@@ -311,7 +311,7 @@ class Refiner(CompileFigures):
                 ev.time_key, self.horizon_samples[-1]))
         x, jacobian = jax.block_until_ready(self._sensitivity(
             start[0], tuple(m[0] for m in moves),
-            ev.device_forcing_basis if forcing_basis is None else jnp.asarray(forcing_basis),
+            jnp.asarray(ev.forcing_basis if forcing_basis is None else forcing_basis),
             ev.time_record))
         n = ev.measurement.n_samples
         used = moves[1][0] != 0
