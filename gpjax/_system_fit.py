@@ -208,10 +208,11 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
     differ by less than ``tolerance`` of the RMS residual (``substeps`` given: that step
     count, checked once; ``first_substeps``: the step count the ladder starts from, e.g. a
     similar system's converged one; ``kinds``: the bank kinds its evaluators hold beside
-    the structure's own, a search's, so its refits share one set of programs). ``third_law``: every coupling feature (a power of x_i − x_j or
-    x_i' − x_j') is one force acting on both coordinates, its mirror added to equation j
-    and its constants tied (:mod:`gpjax._system_couplings`; then only one forcing value or
-    mass per coupled group is held).
+    the structure's own, a search's, so its refits share one set of programs).
+    ``third_law``: every coupling feature (a power of x_i − x_j or x_i' − x_j') is one
+    force acting on both coordinates, its mirror added to equation j and its constants
+    tied (:mod:`gpjax._system_couplings`; then only one forcing value or mass per coupled
+    group is held).
 
     Raises:
         ValueError: a feature outside an equation's basis (raise ``max_degree``).
