@@ -132,11 +132,6 @@ class Evolution:
         """Forget every scored record (a reused island engine)."""
         self.fitness.records.clear()
 
-    @property
-    def compile_seconds(self) -> float:
-        """Seconds spent compiling or loading this engine's programs so far."""
-        return self.fitness.evaluator.compile_seconds + self.fitness.refiner.compile_seconds
-
     def start(self, seed: int) -> RunState:
         """Generation 0: a ramped half-and-half population with the linear model in place
         of its last tree (least-squares coefficients; :meth:`_linear_tree`), scored and

@@ -89,7 +89,7 @@ def run_epoch(measurement: Measurement, config: GPConfig, island: int, seed: int
     """
     began = time.perf_counter()
     evolution, built = _engine(measurement, config, island, state)
-    compiled = evolution.compile_seconds
+    compiled = compile_ledger()[0]  # this worker process's programs
     run = evolution.start(seed) if state is None else evolution.load_state(state)
     first = run.generation if state is not None else -1
     while run.generation < until and not run.done:
@@ -97,7 +97,7 @@ def run_epoch(measurement: Measurement, config: GPConfig, island: int, seed: int
     return {"state": evolution.state_json(run), "emigrants": evolution.emigrants(run, migrants),
             "worker": worker_address(), "built": built,
             "generations": run.generation - first, "seconds": time.perf_counter() - began,
-            "compile_s": evolution.compile_seconds - compiled}
+            "compile_s": compile_ledger()[0] - compiled}
 
 
 # --- client side ----------------------------------------------------------------------

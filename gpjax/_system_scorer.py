@@ -125,10 +125,6 @@ class SystemScorer:
                     self.objective[k] = float(value)
         return np.array([PENALTY if k is None else self.objective[k] for k in keys])
 
-    def refiners(self) -> list:
-        """The refiners compiled so far (one per Jacobian width and batch)."""
-        return list(self._refiners.values())
-
     def refine_best(self, systems, scores, top: int) -> None:
         """Levenberg–Marquardt on the best ``top`` distinct systems not refined yet."""
         chosen = []

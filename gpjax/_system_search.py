@@ -274,11 +274,6 @@ class SystemEvolution:
         """Forget every scored structure (a reused island engine)."""
         self.scorer.clear()
 
-    @property
-    def compile_seconds(self) -> float:
-        """Seconds spent compiling or loading this engine's programs so far."""
-        return sum(p.compile_seconds for p in [self.scorer.evaluator, *self.scorer.refiners()])
-
     # --- the reported system -------------------------------------------------------------
     def finish(self, state: RunState) -> SearchResult:
         """The reported system of a finished search: the population's best, simplified by

@@ -12,6 +12,7 @@ every command writes its progress there, one line per generation and per stage
 from __future__ import annotations
 
 import argparse
+import os
 import shutil
 import sys
 import time
@@ -228,8 +229,6 @@ def _process_started() -> float:
     """When this process started (s since the epoch, as ``time.time()``): on Linux from its
     start in clock ticks since boot (``/proc/self/stat``) and the boot-time clock, to a
     tick; psutil's ``create_time`` adds the boot time in whole seconds, up to 1 s off."""
-    import os
-
     try:
         with open("/proc/self/stat", encoding="ascii") as stat:
             ticks = int(stat.read().rsplit(")", 1)[1].split()[19])  # field 22, starttime
