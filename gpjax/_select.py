@@ -107,16 +107,28 @@ tell from the truth at 0.173). The guard is one-sided by design: in-sample, and 
 the measured input's noise ringing through the simulation, it favours the more complex
 model, so it can only keep the best's end, never add a term; where both tests let a
 simpler end through, it replaces the best's end. The walks share the scored and refined
-records; a member on an earlier walk's path starts none (its walk would retrace it), and
-the other walks refine only neighbours within :data:`REFINE_WITHIN` of the best member's objective
-(a neighbour of a free oscillator, say, that fits five times worse than the best model
-found competes with no end).
+records, and the other walks refine only neighbours within :data:`REFINE_WITHIN` of the
+best member's objective (a neighbour of a free oscillator, say, that fits five times worse
+than the best model found competes with no end).
+
+**The walks run in lockstep.** Every compiled call of the selection costs a fixed ~0.05 s
+on an 8,000-sample record (a scan of 16,000 RK4 stages; ``benchmarks/call_cost.json``)
+beside ~1.4 ms per model, and a walk's steps are sequential: scoring a step's neighbours,
+then refining them a complexity at a time, each refinement followed by a scoring of the
+refined constants. Walked one after another, the front's walks made 47 scoring calls and
+16 refinements on a pendulum record, most of them carrying one or two models. So the
+walks advance together (:func:`_lockstep`): each is a generator that yields what it needs
+scored or refined next, and one tick serves every live walk's requests as one scoring
+batch and one refinement. The ranks stay: a walk whose path meets an earlier-ranked walk's
+path (the best member's first) stops without an end — from the shared model on it would
+retrace the other — where walked in turn a member on an earlier walk's path started none.
 
 A difference from the paper, which reports the best tree as found.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -159,11 +171,92 @@ def selection_weak_form(fitness: Fitness, reference: Record) -> WeakForm:
                     fitness.weak_form.half_width)
 
 
-def _neighbour_records(fitness: Fitness, current: Record, simpler: bool) -> list[Record]:
+@dataclasses.dataclass(frozen=True)
+class _Score:
+    """A walk's request: score these forms at their least-squares start
+    (:meth:`Fitness.score_forms`'s arguments)."""
+
+    forms: dict
+    held: dict
+    kept: dict
+
+
+@dataclasses.dataclass(frozen=True)
+class _Refine:
+    """A walk's request: refine these records one round, or to convergence."""
+
+    records: list
+    to_convergence: bool = False
+
+
+def _serve(fitness: Fitness, requests: list) -> None:
+    """Serve one tick's requests of every live walk together: one scoring batch of the
+    forms not yet scored, one refinement round, one refinement to convergence."""
+    forms, held, kept, rounds, converge = {}, {}, {}, {}, {}
+    for request in requests:
+        if isinstance(request, _Score):
+            for key, form in request.forms.items():
+                if key not in fitness.records and key not in forms:
+                    forms[key] = form
+                    held[key], kept[key] = request.held[key], request.kept[key]
+        else:
+            chosen = converge if request.to_convergence else rounds
+            chosen.update((id(r), r) for r in request.records)
+    if forms:
+        fitness.score_forms(forms, held, kept)
+    if rounds:
+        fitness.refine(list(rounds.values()))
+    if converge:
+        fitness.refine(list(converge.values()), to_convergence=True)
+
+
+def _drive(fitness: Fitness, walk):
+    """Run one walk (a generator of :func:`_walk`) to its end; returns what it returns."""
+    try:
+        request = next(walk)
+        while True:
+            _serve(fitness, [request])
+            request = walk.send(None)
+    except StopIteration as done:
+        return done.value
+
+
+def _lockstep(fitness: Fitness, walks: list) -> list:
+    """Run ``walks`` ((generator, path) pairs, in rank order) together: each tick serves
+    the requests of every live walk at once (:func:`_serve`). A walk whose path meets an
+    earlier walk's stops without an end (module docstring). Returns each walk's (end,
+    path), or None for one that stopped."""
+    results, live = [None] * len(walks), {}
+
+    def advance(i: int, first: bool) -> None:
+        try:
+            live[i] = next(walks[i][0]) if first else walks[i][0].send(None)
+        except StopIteration as done:
+            results[i] = done.value
+            live.pop(i, None)
+
+    for i in range(len(walks)):
+        advance(i, first=True)
+    while live:
+        _serve(fitness, list(live.values()))
+        for i in sorted(live):
+            advance(i, first=False)
+        met = set()
+        for i, (walk, path) in enumerate(walks):
+            keys = {r.key for r in path}
+            if i in live and keys & met:
+                walk.close()
+                del live[i]
+            met |= keys
+    return results
+
+
+def _neighbour_records(fitness: Fitness, current: Record, simpler: bool):
     """The neighbours of ``current`` that are simpler than it (``simpler``) or not, scored
     (new ones in one batch) at their least-squares start; :func:`_first_replacing` refines
     them as its test reaches them, and asks for the others only once no simpler one
-    replaces ``current`` (a step down never needs them)."""
+    replaces ``current`` (a step down never needs them). A generator: yields the scoring
+    request (:class:`_Score`) and returns the records."""
     tree_mode = fitness.config.coefficients == "tree"
     mass = current.coefficients.mass
     keys, new, held, kept = [], {}, {}, {}
@@ -178,7 +271,7 @@ def _neighbour_records(fitness: Fitness, current: Record, simpler: bool) -> list
         if key not in fitness.records:
             new[key], held[key], kept[key] = form, m.held, m.kept
     if new:
-        fitness.score_forms(new, held, kept)
+        yield _Score(new, held, kept)
     return [fitness.records[k] for k in dict.fromkeys(keys)]
 
 
@@ -192,24 +285,26 @@ def _refine_below(fitness: Fitness, current: Record, refine_below: float) -> flo
 
 
 def select(fitness: Fitness, front: list[Record], alpha: float) -> tuple[Record, list[Record]]:
-    """The reported model: a walk from every member of the (refined) Pareto ``front``, then
-    the same walk among the walks' ends, from the end of the best-fitting member's walk
-    (module docstring); every test evaluates x'-features at the best member's simulated
-    velocity (:func:`selection_weak_form`). Returns the final record and that last walk's
-    path."""
+    """The reported model: a walk from every member of the (refined) Pareto ``front``, in
+    lockstep, then the same walk among the walks' ends, from the end of the best-fitting
+    member's walk (module docstring); every test evaluates x'-features at the best
+    member's simulated velocity (:func:`selection_weak_form`). Returns the final record
+    and that last walk's path."""
     best, *others = sorted(front, key=lambda r: (r.objective, r.complexity))
     weak = selection_weak_form(fitness, best)
-    first, path = simplify(fitness, best, alpha, weak=weak)
-    ends, visited = {first.key: first}, {r.key for r in path}
-    for start in others:
-        if start.key in visited:
-            continue  # its walk would retrace an earlier one
-        end, path = simplify(fitness, start, alpha, weak=weak,
-                             refine_below=REFINE_WITHIN * best.objective)
-        ends.setdefault(end.key, end)
-        visited.update(r.key for r in path)
-    return simplify(fitness, first, alpha, options=lambda current: list(ends.values()),
-                    simulated=True, weak=weak)
+    walks = []
+    for start, below in [(best, math.inf)] + [(r, REFINE_WITHIN * best.objective)
+                                              for r in others]:
+        path = [start]
+        walks.append((_walk(fitness, start, alpha, path, weak=weak, refine_below=below), path))
+    ends = {}
+    for result in _lockstep(fitness, walks):
+        if result is not None:
+            ends.setdefault(result[0].key, result[0])
+    first = walks[0][1][-1]
+    return _drive(fitness, _walk(fitness, first, alpha, [first],
+                                 options=lambda current: list(ends.values()),
+                                 simulated=True, weak=weak))
 
 
 def simplify(fitness: Fitness, best: Record, alpha: float, *, options=None,
@@ -223,29 +318,40 @@ def simplify(fitness: Fitness, best: Record, alpha: float, *, options=None,
     test's weak form (default :func:`selection_weak_form` of ``best``). Returns the final
     record and the path taken."""
     weak = selection_weak_form(fitness, best) if weak is None else weak
-    current, path, seen = best, [best], {best.key}
+    return _drive(fitness, _walk(fitness, best, alpha, [best], options=options,
+                                 refine_below=refine_below, simulated=simulated, weak=weak))
+
+
+def _walk(fitness: Fitness, best: Record, alpha: float, path: list[Record], *, weak: WeakForm,
+          options=None, refine_below: float = math.inf, simulated: bool = False):
+    """:func:`simplify`'s walk as a generator: yields its scoring and refinement requests
+    (:class:`_Score`, :class:`_Refine`; served by :func:`_drive` or :func:`_lockstep`),
+    appends each model it steps to to ``path`` (which starts as ``[best]``), and returns
+    (final record, path)."""
+    current, seen = best, {best.key}
     while True:
         if options is None:
-            candidates = _neighbour_records(fitness, current, simpler=True)
+            candidates = yield from _neighbour_records(fitness, current, simpler=True)
             below = _refine_below(fitness, current, refine_below)
 
             def others(current=current):
-                return _neighbour_records(fitness, current, simpler=False)
+                return (yield from _neighbour_records(fitness, current, simpler=False))
         else:
             everything = options(current)
             below = -math.inf
             candidates = [r for r in everything if r.complexity < current.complexity]
 
             def others(current=current, everything=everything):
+                yield from ()
                 return [r for r in everything if r.complexity >= current.complexity]
         candidates = [r for r in candidates if r.key not in seen]
 
         def rest(seen=seen, others=others):
-            return [r for r in others() if r.key not in seen]
+            return [r for r in (yield from others()) if r.key not in seen]
 
         base = held_out_residual(fitness, current, weak)
-        chosen = _first_replacing(fitness, candidates, rest, current, base, alpha, simulated,
-                                  below, weak)
+        chosen = yield from _first_replacing(fitness, candidates, rest, current, base, alpha,
+                                             simulated, below, weak)
         if chosen is None:
             # Before the walk ends here: the simpler neighbours' constants (and the current
             # model's) refined to convergence, then the same test again — a swapped
@@ -253,10 +359,10 @@ def simplify(fitness: Fitness, best: Record, alpha: float, *, options=None,
             unconverged = [r for r in candidates if r.refined and not r.converged]
             if not unconverged:
                 return current, path
-            fitness.refine(unconverged + [current], to_convergence=True)
+            yield _Refine(unconverged + [current], to_convergence=True)
             base = held_out_residual(fitness, current, weak)
-            chosen = _first_replacing(fitness, candidates, rest, current, base, alpha,
-                                      simulated, below, weak)
+            chosen = yield from _first_replacing(fitness, candidates, rest, current, base,
+                                                 alpha, simulated, below, weak)
             if chosen is None:
                 return current, path
         seen.add(chosen.key)
@@ -266,7 +372,7 @@ def simplify(fitness: Fitness, best: Record, alpha: float, *, options=None,
 
 def _first_replacing(fitness: Fitness, simpler: list[Record], rest, current: Record,
                      base: np.ndarray, alpha: float, simulated: bool,
-                     refine_below: float, weak: WeakForm) -> Record | None:
+                     refine_below: float, weak: WeakForm):
     """The first candidate (valid ones, in the order (complexity, objective)) that replaces
     ``current`` (held-out residual ``base``) by :func:`_replaces`, and with ``simulated`` by
     the ends' guard too; None if none does. The candidates are ``simpler`` (those simpler
@@ -275,12 +381,15 @@ def _first_replacing(fitness: Fitness, simpler: list[Record], rest, current: Rec
     test reaches them: one complexity at a time while simpler than ``current``, then all
     the others together (the Bonferroni count needs them all), so none more complex than
     the one taken is refined — the order and the outcome are those of refining all
-    first."""
+    first. A generator: yields the refinement requests (:class:`_Refine`)."""
     levels = sorted({r.complexity for r in simpler})
     groups = [[r for r in simpler if r.complexity == c] for c in levels] + [rest]
     for group in groups:
-        group = group() if callable(group) else group
-        fitness.refine([r for r in group if r.objective <= refine_below])
+        if callable(group):
+            group = yield from group()
+        pending = [r for r in group if r.valid and not r.refined and r.objective <= refine_below]
+        if pending:
+            yield _Refine(pending)
         ready = sorted((r for r in group if r.valid and r.status == OK),
                        key=lambda r: (r.complexity, r.objective))
         peers = sum(r.complexity >= current.complexity for r in ready)

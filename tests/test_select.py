@@ -198,14 +198,14 @@ def test_the_coulomb_level_is_refined_from_the_excess_fitted_v_s():
     is the law (v_s = 0.5): objective below 0.6× the excess's, v_s within 10 %. From the
     grid start the weak form picks (v_s = RMS x'/100) it stayed at v_s = 0.013."""
     from gpjax._features import Family, match
-    from gpjax._select import _neighbour_records
+    from gpjax._select import _drive, _neighbour_records
 
     fitness = _fitness("stribeck_resolved", seed=0)
     sign = fitness.default_feature(Family("tanh", "x_dot"))
     bump = sp.exp(-(0.65 ** 0.5 * V) ** 2) * sign
     excess = _record(fitness, {X: 40.0, V: 2.0, bump: 1.0},
                      held=(fitness.evaluator.inner_of(bump)[0].start + 1,))
-    law, = [r for r in _neighbour_records(fitness, excess, simpler=False)
+    law, = [r for r in _drive(fitness, _neighbour_records(fitness, excess, simpler=False))
             if r.valid and sign in r.coefficients.state and len(r.coefficients.state) == 4]
     fitness.refine([law])
     assert law.objective < 0.6 * excess.objective
