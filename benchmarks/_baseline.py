@@ -46,3 +46,31 @@ def run_child(tree: Path, script: str, *args: str):
                          capture_output=True, text=True,
                          **in_tree(tree, JAX_PLATFORMS="cpu", GPJAX_COMPILATION_CACHE="off"))
     return json.loads(out.stdout.strip().splitlines()[-1])
+
+
+def same_model(a, b) -> bool:
+    """Whether two runs' models (:class:`gpjax.Model`) are the same model: the same
+    equations with every number inline (a held or inner constant) to 3 significant digits,
+    and every named constant within one standard error of the other run's (the larger of
+    the two; 6 significant digits where a run reports none). Two runs whose sums were
+    ordered otherwise stop their Levenberg–Marquardt at another step once the constants are
+    resolved to a fraction of their standard error, which is no other model."""
+    import sympy as sp
+
+    def shape(model):
+        return [e.xreplace({f: sp.Float(f, 3) for f in e.atoms(sp.Float)})
+                for e in model.sympy()]
+
+    def errors(model):
+        return {} if model.uncertainty is None else model.uncertainty.standard_errors()
+
+    if shape(a) != shape(b) or set(a.constants) != set(b.constants):
+        return False
+    ea, eb = errors(a), errors(b)
+    for name, value in a.constants.items():
+        other = b.constants[name]
+        se = max(ea.get(name, 0.0), eb.get(name, 0.0))
+        se = se if 0 < se < float("inf") else 1e-6 * max(abs(value), abs(other))
+        if abs(value - other) > se:
+            return False
+    return True

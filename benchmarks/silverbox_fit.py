@@ -38,7 +38,7 @@ from gpjax._weak_form import estimate_initial_conditions
 from gpjax._silverbox import SEGMENTS, WARMUP, silverbox_segments
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _baseline import baseline_tree, in_tree  # noqa: E402
+from _baseline import baseline_tree, in_tree, same_model  # noqa: E402
 from _provenance import provenance  # noqa: E402
 
 #: Published test RMS in mV (multisine, arrow full, arrow no extrapolation), from the data's
@@ -60,13 +60,6 @@ def input_function(values: np.ndarray, t0: float, dt: float, method: str):
         return lambda t: float(values[min(int(np.floor((t - t0) / dt + 1e-9)), values.size - 1)])
     grid = t0 + dt * np.arange(values.size)
     return lambda t: float(np.interp(t, grid, values))
-
-
-def _rounded(model: Model):
-    """``model``'s equation with every number to 9 significant digits: two runs whose
-    sums were ordered otherwise differ in the 14th digit, which is no other model."""
-    equation = model.sympy()
-    return equation.xreplace({f: sp.Float(f, 9) for f in equation.atoms(sp.Float)})
 
 
 def dop853_rms(model: Model, segment) -> float:
@@ -134,7 +127,7 @@ def main() -> None:
         with baseline_tree(args.baseline) as tree, tempfile.TemporaryDirectory() as cache:
             baseline_s, baseline_mb = timed_fit(command[:-1] + [str(before)], tree,
                                                 GPJAX_CACHE_DIR=cache)
-        same = all(_rounded(Model.load(run / name)) == _rounded(Model.load(before / name))
+        same = all(same_model(Model.load(run / name), Model.load(before / name))
                    for name in ("model.json", "diagnosis/model.json"))
         baseline = {"revision": args.baseline, "seconds": baseline_s,
                     "peak_rss_mb": baseline_mb, "same_models": same,

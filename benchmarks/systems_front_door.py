@@ -46,7 +46,7 @@ from gpjax._system_bank import match_bank, system_variables
 from gpjax.systems import generate, get_system, write_csv
 
 sys.path.insert(0, str(Path(__file__).parent))
-from _baseline import baseline_tree, in_tree  # noqa: E402
+from _baseline import baseline_tree, in_tree, same_model  # noqa: E402
 from _provenance import provenance  # noqa: E402
 from bench_new_record import STAGES, SUMMARIES  # noqa: E402
 from bench_systems import scored  # noqa: E402
@@ -152,8 +152,7 @@ def run_one(name: str, seed: int, folder: Path, baseline: tuple | None = None) -
         out = folder / f"{name}_{seed}_baseline"
         old, old_seconds, old_figures = timed_fit(fit_command(out), in_tree(
             tree, GPJAX_COMPILATION_CACHE="on", GPJAX_CACHE_DIR=str(folder / "cache-baseline")))
-        same = old.returncode == 0 and [str(e) for e in gpjax.Model.load(
-            out / "model.json").sympy()] == [str(e) for e in model.sympy()]
+        same = old.returncode == 0 and same_model(gpjax.Model.load(out / "model.json"), model)
         compared = {"baseline": {"revision": revision, "seconds": old_seconds,
                                  "same_equations": same, **old_figures}}
     truth = [truth_terms(system, i) for i in range(len(system.coordinates))]
