@@ -651,11 +651,21 @@ def many_fits() -> str:
             + "\n\n" + _stamp(data))
 
 
-def select_cost() -> str:
-    data = _load("benchmarks/select_cost.json")
+def select_cost(path: str):
+    """The renderer of ``path``, written by ``bench_select.py``: per suite case, models
+    refined, whole-fit seconds of both trees, the selection's seconds (the baseline's too
+    where it reports them) and whether both report the same model."""
+    return lambda: _select_cost(_load(path))
+
+
+def _select_cost(data: dict) -> str:
+    def selection(r):
+        before = r.get("baseline_selection_s")
+        return (f"{before:.1f} → " if before is not None else "") + f"{r['current_selection_s']:.1f}"
+
     rows = [[r["case"], f"{r['baseline_refined']:,} → {r['current_refined']:,}",
              f"{r['baseline_s']:.1f} → {r['current_s']:.1f}", f"{r['baseline_over_current']:.2f}",
-             f"{r['current_selection_s']:.1f}", "yes" if r["same_model"] else "no"] for r in data["rows"]]
+             selection(r), "yes" if r["same_model"] else "no"] for r in data["rows"]]
     return (_table(["case", f"models refined, {data['baseline']} → this tree",
                     "fit s (faster of the rounds)", "ratio", "selection s", "same model"], rows,
                    "lrrrrl") + "\n\n" + _stamp(data))
@@ -739,7 +749,8 @@ TABLES = {
     "record-length": record_length,
     "reference-cost": reference_cost,
     "many-fits": many_fits,
-    "select-cost": select_cost,
+    "select-cost": select_cost("benchmarks/select_cost.json"),
+    "select-cost-lockstep": select_cost("benchmarks/select_cost_lockstep.json"),
     "call-cost": call_cost,
     "new-record": new_record("benchmarks/new_record.json"),
     "new-record-lockstep": new_record("benchmarks/new_record_lockstep.json"),
