@@ -187,10 +187,15 @@ def _load(path: Path, n_inputs: int) -> Callable | None:
         return None
     try:
         _initialize_custom_calls()
-        n_outputs = int.from_bytes(payload[:4], "little")
+        n_outputs, n_devices = (int.from_bytes(payload[k:k + 4], "little") for k in (0, 4))
+        ids = [int.from_bytes(payload[8 + 4 * k:12 + 4 * k], "little")
+               for k in range(n_devices)]
+        devices = {d.id: d for d in jax.devices()}
         in_tree = jax.tree_util.tree_structure((tuple(range(n_inputs)), {}))
         out_tree = jax.tree_util.tree_structure(tuple(range(n_outputs)))
-        return serialize_executable.deserialize_and_load(payload[4:], in_tree, out_tree)
+        return serialize_executable.deserialize_and_load(
+            payload[8 + 4 * n_devices:], in_tree, out_tree,
+            execution_devices=[devices[i] for i in ids])
     except Exception:  # noqa: BLE001 - a damaged or foreign file is compiled afresh
         return None
 
@@ -218,16 +223,21 @@ def _initialize_custom_calls() -> None:
 
 
 def _store(path: Path, compiled) -> None:
-    """Write ``compiled``'s executable to ``path`` atomically; skipped where the backend
-    cannot serialise it or the folder is not writable."""
+    """Write ``compiled``'s executable to ``path`` atomically, after its output count and
+    the ids of the devices it runs on (loaded, it runs on those: by default JAX would
+    load it for every local device, and with several host devices a program of one device
+    then asked for a shard per device); skipped where the backend cannot serialise it or
+    the folder is not writable."""
     from jax.experimental import serialize_executable
 
     try:
         payload, _, out_tree = serialize_executable.serialize(compiled)
+        ids = [d.id for d in compiled.runtime_executable().local_devices()]
+        header = b"".join(n.to_bytes(4, "little") for n in [out_tree.num_leaves, len(ids), *ids])
         path.parent.mkdir(parents=True, exist_ok=True)
         handle, temporary = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
         with os.fdopen(handle, "wb") as file:
-            file.write(out_tree.num_leaves.to_bytes(4, "little") + payload)
+            file.write(header + payload)
         os.replace(temporary, path)
     except Exception:  # noqa: BLE001 - caching is an optimisation, never a failure
         return

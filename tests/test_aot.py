@@ -31,9 +31,9 @@ SCRIPT = textwrap.dedent("""
 """)
 
 
-def _run(folder, key):
+def _run(folder, key, **variables):
     env = dict(os.environ, GPJAX_CACHE_DIR=str(folder), GPJAX_COMPILATION_CACHE="on",
-               JAX_PLATFORMS="cpu")
+               JAX_PLATFORMS="cpu", **variables)
     out = subprocess.run([sys.executable, "-c", SCRIPT, key], env=env, capture_output=True,
                          text=True, check=True)
     traced, *values = out.stdout.split()
@@ -62,10 +62,20 @@ def test_programs_stored_while_jax_holds_the_same_executables_still_load(tmp_pat
     assert _run(tmp_path, "record-a") == (0, first[1])
 
 
+def test_a_program_of_one_device_loads_where_there_are_several_host_devices(tmp_path):
+    """With two host devices (``XLA_FLAGS``, as the docs suggest on a 2-core machine), a
+    program compiled for one device was loaded for both and asked for two shards of
+    every argument: the second run of a fit failed in its reference solve."""
+    flags = {"XLA_FLAGS": "--xla_force_host_platform_device_count=2"}
+    first = _run(tmp_path, "record-a", **flags)
+    assert first[0] == 1
+    assert _run(tmp_path, "record-a", **flags) == (0, first[1])
+
+
 def test_a_damaged_program_file_is_compiled_again_and_replaced(tmp_path):
     _run(tmp_path, "record-a")
     (path,) = (tmp_path / _aot.PROGRAMS).iterdir()
-    path.write_bytes(b"\x02\x00\x00\x00not an executable")
+    path.write_bytes(b"\x02\x00\x00\x00\x01\x00\x00\x00\x00\x00\x00\x00not an executable")
     traced, values = _run(tmp_path, "record-a")
     assert traced == 1 and np.isfinite(values).all()
     assert _run(tmp_path, "record-a")[0] == 0
