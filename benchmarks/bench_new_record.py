@@ -9,6 +9,9 @@ whole process's seconds and the seconds its summary counts as compiling or loadi
     python benchmarks/bench_new_record.py --baseline 2596765 --timeout 1200 \
         --json benchmarks/new_record.json
 
+``--host-devices K`` compares this tree at one host device with this tree split over K
+(``XLA_FLAGS=--xla_force_host_platform_device_count=K``) instead.
+
 A row of a fit stopped by ``--timeout`` shows the timeout with a "+".
 """
 
@@ -57,10 +60,11 @@ def _write_records(folder: Path, count: int) -> list[Path]:
     return paths
 
 
-def _fit_all(tree: Path, records: list[Path], cache: Path, args) -> list[dict]:
+def _fit_all(tree: Path, records: list[Path], cache: Path, args, devices: int = 1) -> list[dict]:
     rows = []
+    flags = {"XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"} if devices > 1 else {}
     child = in_tree(tree, JAX_PLATFORMS="cpu", GPJAX_COMPILATION_CACHE="on",
-                    GPJAX_CACHE_DIR=str(cache))
+                    GPJAX_CACHE_DIR=str(cache), **flags)
     for path in records:
         began = time.perf_counter()
         try:
@@ -94,19 +98,26 @@ def main() -> None:
     parser.add_argument("--population", type=int, default=500)
     parser.add_argument("--generations", type=int, default=10)
     parser.add_argument("--baseline", help="git revision to compare against in the same run")
+    parser.add_argument("--host-devices", type=int, metavar="K",
+                        help="instead of a baseline revision: this tree at one host device "
+                             "against this tree split over K (XLA_FLAGS)")
     parser.add_argument("--json", help="write the results here")
     parser.add_argument("--timeout", type=float, default=None,
                         help="seconds after which a fit is stopped and its row marked")
     args = parser.parse_args()
     scratch = Path(tempfile.mkdtemp(prefix="gpjax-bench-record-"))
     records = _write_records(scratch, args.records)
-    trees = {"this tree": ROOT}
+    if args.baseline and args.host_devices:
+        parser.error("--baseline and --host-devices are two kinds of comparison: give one")
+    runs = ({"1 host device": (ROOT, 1), f"{args.host_devices} host devices":
+             (ROOT, args.host_devices)} if args.host_devices else {"this tree": (ROOT, 1)})
     results = {}
     with (baseline_tree(args.baseline) if args.baseline else contextlib.nullcontext()) as base:
         if base is not None:
-            trees = {args.baseline: base, **trees}
-        for label, tree in trees.items():
-            results[label] = _fit_all(tree, records, scratch / f"cache-{len(results)}", args)
+            runs = {args.baseline: (base, 1), **runs}
+        for label, (tree, devices) in runs.items():
+            results[label] = _fit_all(tree, records, scratch / f"cache-{len(results)}", args,
+                                      devices)
     print(f"{'record':24s}" + "".join(f"{label:>32s}" for label in results)
           + ("   ratio" if len(results) == 2 else ""))
     for i, path in enumerate(records):
