@@ -60,9 +60,13 @@ def _write_records(folder: Path, count: int) -> list[Path]:
     return paths
 
 
-def _fit_all(tree: Path, records: list[Path], cache: Path, args, devices: int = 1) -> list[dict]:
+def _fit_all(tree: Path, records: list[Path], cache: Path, args,
+             devices: int | None = None) -> list[dict]:
+    """Fit ``records`` one after another in child processes on the code at ``tree``, with
+    ``devices`` host devices (``None``: the tree's default)."""
     rows = []
-    flags = {"XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"} if devices > 1 else {}
+    flags = ({} if devices is None else
+             {"XLA_FLAGS": f"--xla_force_host_platform_device_count={devices}"})
     child = in_tree(tree, JAX_PLATFORMS="cpu", GPJAX_COMPILATION_CACHE="on",
                     GPJAX_CACHE_DIR=str(cache), **flags)
     for path in records:
@@ -110,11 +114,11 @@ def main() -> None:
     if args.baseline and args.host_devices:
         parser.error("--baseline and --host-devices are two kinds of comparison: give one")
     runs = ({"1 host device": (ROOT, 1), f"{args.host_devices} host devices":
-             (ROOT, args.host_devices)} if args.host_devices else {"this tree": (ROOT, 1)})
+             (ROOT, args.host_devices)} if args.host_devices else {"this tree": (ROOT, None)})
     results = {}
     with (baseline_tree(args.baseline) if args.baseline else contextlib.nullcontext()) as base:
         if base is not None:
-            runs = {args.baseline: (base, 1), **runs}
+            runs = {args.baseline: (base, None), **runs}
         for label, (tree, devices) in runs.items():
             results[label] = _fit_all(tree, records, scratch / f"cache-{len(results)}", args,
                                       devices)

@@ -754,6 +754,7 @@ TABLES = {
     "call-cost": call_cost,
     "new-record": new_record("benchmarks/new_record.json"),
     "new-record-lockstep": new_record("benchmarks/new_record_lockstep.json"),
+    "new-record-devices": new_record("benchmarks/new_record_devices.json"),
 }
 
 

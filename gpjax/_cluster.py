@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
+import os
 import re
 import signal
 import threading
@@ -42,17 +43,25 @@ def dask_client(scheduler: str | None, *, workers: int) -> Iterator:
     """
     from distributed import Client, LocalCluster
 
+    from ._integrate import host_device_flags  # imports JAX: not before a user error
+
     if scheduler is None:
         # Workers start with Ctrl-C ignored (inherited), so it reaches only this process,
         # which stops after the current epoch; the cluster stays up to finish it.
+        # Each worker gets its share of the host devices (inherited with the environment).
         main = threading.current_thread() is threading.main_thread()
         previous = signal.signal(signal.SIGINT, signal.SIG_IGN) if main else None
+        flags, shared = os.environ.get("XLA_FLAGS"), host_device_flags(workers)
         try:
+            if shared is not None:
+                os.environ["XLA_FLAGS"] = shared
             cluster = LocalCluster(n_workers=workers, threads_per_worker=1, processes=True,
                                    dashboard_address=None, silence_logs=logging.ERROR)
         finally:
             if previous is not None:
                 signal.signal(signal.SIGINT, previous)
+            if shared is not None and flags is not None:
+                os.environ["XLA_FLAGS"] = flags
         with cluster, Client(cluster) as client:
             yield client
         return
