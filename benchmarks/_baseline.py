@@ -59,16 +59,17 @@ def same_model(a, b) -> bool:
 
     def shape(model):
         return [e.xreplace({f: sp.Float(f, 3) for f in e.atoms(sp.Float)})
-                for e in model.sympy()]
+                for e in map(model.sympy, range(model.n_coordinates))]
 
     def errors(model):
-        return {} if model.uncertainty is None else model.uncertainty.standard_errors()
+        return {} if model.uncertainty is None else model.uncertainty.standard_errors
 
-    if shape(a) != shape(b) or set(a.constants) != set(b.constants):
+    ca, cb = a.constants(), b.constants()
+    if shape(a) != shape(b) or set(ca) != set(cb):
         return False
     ea, eb = errors(a), errors(b)
-    for name, value in a.constants.items():
-        other = b.constants[name]
+    for name, value in ca.items():
+        other = cb[name]
         se = max(ea.get(name, 0.0), eb.get(name, 0.0))
         se = se if 0 < se < float("inf") else 1e-6 * max(abs(value), abs(other))
         if abs(value - other) > se:
