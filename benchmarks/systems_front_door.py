@@ -88,6 +88,9 @@ def truth_terms(system, i: int) -> dict:
         found = label(feature, variables)
         out[found[0]] = out.get(found[0], 0.0) + found[1] * value
     scale = 1.0 if equation.rhs != 0 else out["mass"]
+    gain = float(equation.rhs.coeff(sp.Symbol("u")).subs(constants))
+    if i > 0 and gain != 0:  # the input in an equation past the first, as found_terms has it
+        out["forcing u"] = gain
     return {k: v / scale for k, v in out.items()}
 
 
