@@ -542,3 +542,6 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("gpjax: interrupted", file=sys.stderr)
         return 130
+    except BrokenPipeError:  # stdout's reader closed it (`gpjax fit … | head`): no traceback
+        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())  # nor at exit's flush
+        return 1

@@ -177,3 +177,21 @@ def test_one_coordinate_gets_its_residual_against_the_noise_floor(capsys):
                      diagnosing=True)  # gpjax fit --diagnose: no hint to add --diagnose
     out = capsys.readouterr().out
     assert "the diagnosis follows" in out and "hint" not in out
+
+
+def test_a_closed_stdout_ends_the_command_quietly():
+    """``gpjax fit … | head -1``: once the reader has gone, printing the rest raised
+    BrokenPipeError and a traceback followed the results."""
+    program = ("import sys; from gpjax import cli\n"
+               "def handler(args):\n    print('x' * 100_000)\n    return 0\n"
+               "cli._demo = handler\n"
+               "sys.exit(cli.main(['demo']))\n")
+    read, write = os.pipe()
+    os.close(read)  # the reader has gone before the command writes
+    try:
+        done = subprocess.run([sys.executable, "-c", program], stdout=write,
+                              stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write)
+    assert done.returncode == 1
+    assert "Traceback" not in done.stderr and "BrokenPipe" not in done.stderr, done.stderr
