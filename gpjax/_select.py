@@ -116,10 +116,10 @@ on an 8,000-sample record (a scan of 16,000 RK4 stages; ``benchmarks/call_cost.j
 beside ~1.4 ms per model, and a walk's steps are sequential: scoring a step's neighbours,
 then refining them a complexity at a time, each refinement followed by a scoring of the
 refined constants. Walked one after another, the front's walks made 47 scoring calls and
-16 refinements on a pendulum record, most of them carrying one or two models. So the
-walks advance together (:func:`_lockstep`): each is a generator that yields what it needs
-scored or refined next, and one tick serves every live walk's requests as one scoring
-batch and one refinement. The ranks stay: a walk whose path meets an earlier-ranked walk's
+15 refinements on a pendulum record, most of them carrying one or two models (in lockstep:
+26 and 10). So the walks advance together (:func:`_lockstep`): each is a generator that
+yields what it needs scored or refined next, and one tick serves every live walk's
+requests as one scoring batch and one refinement. The ranks stay: a walk whose path meets an earlier-ranked walk's
 path (the best member's first) stops without an end — from the shared model on it would
 retrace the other — where walked in turn a member on an earlier walk's path started none.
 
