@@ -152,7 +152,8 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
             on the simulated response (exact sensitivities from the variational equations,
             :meth:`scan_jvp`) before scoring; otherwise the given y0 is used as is.
         integrator: ``"scan"`` or ``"diffrax"`` (see the module docstring).
-        devices: devices a batch is split over; default all of ``jax.devices()``.
+        devices: devices a batch is split over; default all of ``jax.devices()``, at most
+            one per model of the largest batch the memory cap allows (:attr:`devices`).
         input_interpolation: how inputs are reconstructed at the RK4 stage times between
             samples, ``"linear"``, ``"bandlimited"`` or ``"hold"``
             (:func:`gpjax._data.between_samples`). With ``"hold"`` the forcing rows are
@@ -237,8 +238,16 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         self.n_bins_padded = min(padded_bins(self.n_bins, self.n_padded),
                                  self.n_padded // 2 + 1)
         n_stage = self.stage_rows(self.n_padded)
-        batch = max(1, min(batch, STAGE_ELEMENTS_PER_CALL // n_stage))
-        self.batch = -(-batch // len(self.devices)) * len(self.devices)
+        cap = max(1, STAGE_ELEMENTS_PER_CALL // n_stage)
+        batch = max(1, min(batch, cap))
+        # A call splits over no more devices than it has models, and rounding the batch up
+        # to a multiple of them never passes the memory cap (a long record on many host
+        # devices would otherwise hold a model per device, 16× the cap's numbers).
+        self.devices = self.devices[:batch]
+        count = len(self.devices)
+        self.batch = -(-batch // count) * count
+        if self.batch > cap:
+            self.batch = cap // count * count
         #: The batch sizes compiled (each on first use): :data:`SMALL_BATCHES` below
         #: :attr:`batch`, and it; a call of a few models runs at a small size.
         self.batch_sizes = tuple(sorted({-(-b // len(self.devices)) * len(self.devices)

@@ -1,3 +1,4 @@
+import os
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -249,3 +250,45 @@ def test_forcing_columns_past_the_capacity_are_cut_when_they_hold_nothing():
     wide[0, 20] = 1.0
     with pytest.raises(ValueError, match="past this evaluator's 16 columns"):
         _pad_columns(wide, 16)
+
+
+def test_a_batch_capped_by_memory_splits_over_no_more_devices_than_its_models():
+    """Four host devices, a memory cap of three models: the batch is three, split over
+    three devices (rounded up to a multiple of four it was four models, past the cap),
+    and scores match one device's."""
+    import subprocess
+    import sys
+    import textwrap
+
+    program = textwrap.dedent("""
+        import numpy as np
+        from gpjax import Measurement, Symbols, _evaluator
+        from gpjax._integrate import enable_float64
+        enable_float64()
+        import jax
+        t = np.linspace(0.0, 2.0, 401)
+        measurement = Measurement(time=t, response=np.sin(3 * t), inputs={"u": np.cos(2 * t)},
+                                  response_name="x", time_name="t")
+        symbols = Symbols("x", "t", ("u",))
+        rows = 2 * 400 + 1
+        _evaluator.STAGE_ELEMENTS_PER_CALL = 3 * rows
+        ev = _evaluator.PopulationEvaluator(measurement, symbols, max_degree=3,
+                                            pad_to_bucket=False)
+        one = _evaluator.PopulationEvaluator(measurement, symbols, max_degree=3,
+                                             pad_to_bucket=False,
+                                             devices=jax.devices()[:1])
+        def scores(evaluator):
+            column = evaluator.forcing_index(symbols.u[0])
+            population = evaluator.empty(5)
+            population.state[:, 0] = [5.0, 9.0, 12.0, 3.0, 7.0]
+            population.forcing[:, column] = 1.0
+            return evaluator.score(population).objective
+        same = np.allclose(scores(ev), scores(one), rtol=1e-12)
+        print(len(jax.devices()), len(ev.devices), ev.batch, same)
+    """)
+    env = {k: v for k, v in os.environ.items() if k != "XLA_FLAGS"}
+    done = subprocess.run([sys.executable, "-c", program], capture_output=True, text=True,
+                          timeout=300, env=env | {"JAX_PLATFORMS": "cpu", "XLA_FLAGS":
+                                                  "--xla_force_host_platform_device_count=4"})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert done.stdout.split() == ["4", "3", "3", "True"]
