@@ -213,10 +213,8 @@ def _serve(fitness: Fitness, requests: list) -> None:
 def _drive(fitness: Fitness, walk):
     """Run one walk (a generator of :func:`_walk`) to its end; returns what it returns."""
     try:
-        request = next(walk)
         while True:
-            _serve(fitness, [request])
-            request = walk.send(None)
+            _serve(fitness, [walk.send(None)])  # send(None) also starts it
     except StopIteration as done:
         return done.value
 
@@ -228,19 +226,19 @@ def _lockstep(fitness: Fitness, walks: list) -> list:
     path), or None for one that stopped."""
     results, live = [None] * len(walks), {}
 
-    def advance(i: int, first: bool) -> None:
+    def advance(i: int) -> None:  # send(None) also starts a walk
         try:
-            live[i] = next(walks[i][0]) if first else walks[i][0].send(None)
+            live[i] = walks[i][0].send(None)
         except StopIteration as done:
             results[i] = done.value
             live.pop(i, None)
 
     for i in range(len(walks)):
-        advance(i, first=True)
+        advance(i)
     while live:
         _serve(fitness, list(live.values()))
         for i in sorted(live):
-            advance(i, first=False)
+            advance(i)
         met = set()
         for i, (walk, path) in enumerate(walks):
             keys = {r.key for r in path}
