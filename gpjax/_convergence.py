@@ -203,6 +203,16 @@ def needed_substeps(model, measurement: Measurement, check: Convergence,
     return steps
 
 
+def coordinate_weights(measured: np.ndarray):
+    """Weights of a system's coordinates in the checks, s_1/s_d (s the spread of the
+    ``measured`` responses (N, D), as in the objective), so their figures are in the first
+    response's units; 1.0 for one coordinate's (N,)."""
+    if np.ndim(measured) == 1:
+        return 1.0
+    spread = np.std(measured, axis=0)
+    return spread[0] / np.where(spread > 0, spread, 1.0)
+
+
 def check_model(model, measurement: Measurement, *, tolerance: float,
                 reference: np.ndarray | None = None,
                 stable: int | None = None) -> tuple[Convergence, np.ndarray]:
@@ -224,10 +234,8 @@ def check_model(model, measurement: Measurement, *, tolerance: float,
         stable = stable_substeps(model, measurement, reference if ok else rk4)
     measured = measurement.response if np.ndim(rk4) == 1 else measurement.responses
     returned = reference
-    if np.ndim(rk4) == 2:
-        spread = np.std(measured, axis=0)
-        weights = spread[0] / np.where(spread > 0, spread, 1.0)
-        measured, rk4, reference = measured * weights, rk4 * weights, reference * weights
+    weights = coordinate_weights(measured)
+    measured, rk4, reference = measured * weights, rk4 * weights, reference * weights
     rms_rk4 = float(np.sqrt(np.mean((measured - rk4) ** 2)))
     if not ok:
         return Convergence(model.substeps, rms_rk4, math.inf, math.inf, math.inf,

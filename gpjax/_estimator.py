@@ -34,8 +34,8 @@ from ._objective import stop_objective
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
 from ._select import pareto_front, select
 from ._uncertainty import fitted_uncertainty
-from ._sign_width import (MAX_NARROWINGS, NARROWING, check_width, narrowed, narrowed_steps,
-                          sharpened)
+from ._sign_width import (NARROWING, check_width, narrowed, next_narrowing,
+                          sharpened, why_stopped, width_line)
 
 CHECKPOINT = "checkpoint.json"
 #: Columns of history.csv and equations.csv that hold text, not numbers.
@@ -251,25 +251,14 @@ class Identifier:
                                     fitness, tolerance=tolerance)
                 if width is None or width.converged:
                     break
-                if not auto or narrowings == MAX_NARROWINGS or math.isinf(
-                        width.narrowings_needed):
-                    stopped = ("fixed substeps" if not auto else "narrowest sign"
-                               if narrowings == MAX_NARROWINGS else "width not converging")
+                step = (next_narrowing(width, narrowings,
+                                       lambda factor: sharpened(self.model_, fitness, factor),
+                                       fitness.measurement, tolerance=tolerance)
+                        if auto else "fixed substeps")
+                if isinstance(step, str):
+                    stopped = step
                     break
-                # As many narrowings at once as the measured rate projects (at least
-                # one, at most those left): the constants barely move between widths,
-                # and each intermediate refit is a whole fit at more steps.
-                # A jump whose sign no step count up to the cap integrates stably is
-                # shortened.
-                most = int(min(MAX_NARROWINGS - narrowings, max(1, width.narrowings_needed)))
-                for jump in range(most, 0, -1):
-                    steps = narrowed_steps(sharpened(self.model_, fitness, NARROWING ** jump),
-                                           fitness.measurement, tolerance=tolerance)
-                    if steps is not None:
-                        break
-                else:
-                    stopped = "unstable sign"
-                    break
+                jump, steps = step
                 narrowings, front_too = narrowings + jump, False
                 refit = {"substeps": steps, "sign_width": fitness.sign_width / NARROWING ** jump}
             refits += 1
@@ -301,14 +290,7 @@ class Identifier:
             self.model_, convergence=check.to_json() | widths | {"refits": refits,
                                                                  "stopped": stopped},
             metrics=self.model_.metrics | {"rms_reference": check.rms_reference})
-        why = {"fixed substeps": "substeps is fixed; use substeps = \"auto\" or more substeps",
-               "substeps cap": f"at the cap of {MAX_SUBSTEPS} steps per sample",
-               "narrowest sign": f"at the narrowest sign, {NARROWING ** MAX_NARROWINGS}× "
-                                 "narrower than the default",
-               "width not converging": "narrowing the sign further would not converge",
-               "unstable sign": f"a narrower sign would need more than {MAX_SUBSTEPS} steps "
-                                "per sample for a stable RK4 step where the mass sticks",
-               "refit failed": "the refit at more steps or a narrower sign failed"}.get(stopped)
+        why = why_stopped(stopped)
         if why and width is not None and not width.converged:
             why += f" ({_projection(width)})"
         if not check.converged:
@@ -500,10 +482,7 @@ class Identifier:
             lines.append(f"  {check_line(check)}")
             width = check.get("sign_width")
             if width:
-                verdict = "converged" if width["converged"] else "NOT converged"
-                lines.append(f"  smoothed sign tanh(z/ε), ε = {width['fraction']:.3g}·RMS z: "
-                             f"{NARROWING}× narrower changes the response by "
-                             f"{width['ratio']:.2%} of the RMS residual ({verdict})")
+                lines.append(width_line(width, check.get("stopped")))
         band = self.model_.uncertainty
         if band is not None:
             lines.append("  ±: half of each constant's 95 % interval (output error, "
@@ -587,6 +566,8 @@ class _StopOnInterrupt:
 
 def _projection(width) -> str:
     """How fast the width check converged, for the warning of an unconverged sign."""
+    if not math.isfinite(width.rate):
+        return "the check one narrowing further could not be made"
     if math.isinf(width.narrowings_needed):
         return (f"its change did not fall as the sign narrowed: {width.ratio:.1%}, then "
                 f"{width.next_ratio:.1%}")

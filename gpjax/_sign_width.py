@@ -43,12 +43,13 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from typing import Callable
 
 import numpy as np
 import sympy as sp
 
 from ._coefficients import Coefficients
-from ._convergence import MAX_SUBSTEPS, check_model, needed_substeps
+from ._convergence import MAX_SUBSTEPS, check_model, coordinate_weights, needed_substeps
 from ._fitness import Fitness, Record, structure_key
 from ._model import Model
 
@@ -98,9 +99,13 @@ class WidthCheck:
     def narrowings_needed(self) -> float:
         """Narrowings until the check passes, projected from :attr:`rate` (geometric
         convergence, as the steps' check projects its own order): 0 when converged, inf
-        when the ratio does not fall as the sign narrows."""
+        when the ratio does not fall as the sign narrows or cannot be checked; 1 when the
+        rate is unknown (the reference solve failed on the sign NARROWING² times narrower:
+        that says nothing of convergence, so one narrowing at a time)."""
         if self.converged:
             return 0
+        if math.isfinite(self.ratio) and not math.isfinite(self.next_ratio):
+            return 1
         rate = self.rate
         if not rate > 1:
             return math.inf
@@ -181,25 +186,97 @@ def narrowed_steps(sharper: Model, measurement, *, tolerance: float) -> int | No
             needed_substeps(sharper, measurement, check, reference))
 
 
-def check_width(model: Model, reference: np.ndarray, rms_reference: float,
-                fitness: Fitness, *, tolerance: float) -> WidthCheck | None:
-    """Compare ``model``'s ``reference`` response (on the convergence check's samples)
-    with the reference response of the same model with its smoothed signs
-    :data:`NARROWING` times narrower (module docstring), and that one with the signs
-    NARROWING² times narrower (:attr:`WidthCheck.next_ratio`); None if it has none."""
-    sharper = sharpened(model, fitness, NARROWING)
+def width_check(model: Model, sharpen: Callable[[float], Model | None], measurement,
+                reference: np.ndarray, rms_reference: float, *, fraction: float,
+                tolerance: float) -> WidthCheck | None:
+    """The width check of a model of any number of coordinates (module docstring):
+    ``model``'s ``reference`` response ((n,) or (n, D), on the first n samples of
+    ``measurement``, as the convergence check solved it) against the reference response of
+    ``sharpen(NARROWING)`` (the same model with its smoothed signs :data:`NARROWING` times
+    narrower, its constants and initial state unchanged), and that one against
+    ``sharpen(NARROWING ** 2)``'s (:attr:`WidthCheck.next_ratio`), over ``rms_reference``,
+    the convergence check's RMS residual; coordinates are weighted as there
+    (:func:`gpjax._convergence.coordinate_weights`). ``fraction``: the width the model was
+    fitted at (ε / RMS z). None if ``sharpen`` finds no sign."""
+    sharper = sharpen(NARROWING)
     if sharper is None:
         return None
-    sharpest = sharpened(model, fitness, NARROWING ** 2)
-    measurement = fitness.measurement.segment(0, reference.size)
-    response, further = (m.simulate(measurement, initial_conditions=model.initial_conditions)
+    sharpest = sharpen(NARROWING ** 2)
+    window = measurement.segment(0, len(reference))
+    weights = coordinate_weights(window.responses if np.ndim(reference) == 2
+                                 else window.response)
+    response, further = (m.simulate(window, initial_conditions=model.initial_states)
                          for m in (sharper, sharpest))
 
+    def rms(a, b) -> float:
+        return float(np.sqrt(np.mean(((np.reshape(a, np.shape(reference))
+                                       - np.reshape(b, np.shape(reference))) * weights) ** 2)))
+
     def ratio(a, b) -> float:
-        difference = float(np.sqrt(np.mean((a - b) ** 2)))
+        difference = rms(a, b)
         return (difference / rms_reference if rms_reference > 0 and math.isfinite(difference)
                 else math.inf)
 
-    return WidthCheck(fitness.sign_width, float(np.sqrt(np.mean((response - reference) ** 2))),
-                      rms_reference, ratio(response, reference), tolerance,
-                      next_ratio=ratio(further, response))
+    return WidthCheck(fraction, rms(response, reference), rms_reference,
+                      ratio(response, reference), tolerance, next_ratio=ratio(further, response))
+
+
+def next_narrowing(check: WidthCheck, narrowings: int,
+                   sharpen: Callable[[float], Model | None], measurement, *,
+                   tolerance: float) -> tuple[int, int] | str:
+    """(jump, steps) of the next refit of a model whose width ``check`` failed after
+    ``narrowings`` narrowings (module docstring, **Refit**): as many narrowings at once as
+    the check's rate projects (at least one, at most those left of :data:`MAX_NARROWINGS`;
+    the constants barely move between widths, and each intermediate refit is a whole fit
+    at more steps), shortened while no step count up to the cap integrates the narrower
+    signs stably (:func:`narrowed_steps` of ``sharpen(NARROWING ** jump)``, the model with
+    its signs that much narrower); the steps per sample are those the narrower signs need.
+    Else why the narrowing stops: ``"narrowest sign"``, ``"width not converging"`` (the
+    change does not fall as the sign narrows) or ``"unstable sign"``."""
+    if narrowings >= MAX_NARROWINGS:
+        return "narrowest sign"
+    if math.isinf(check.narrowings_needed):
+        return "width not converging"
+    most = int(min(MAX_NARROWINGS - narrowings, max(1, check.narrowings_needed)))
+    for jump in range(most, 0, -1):
+        steps = narrowed_steps(sharpen(NARROWING ** jump), measurement, tolerance=tolerance)
+        if steps is not None:
+            return jump, steps
+    return "unstable sign"
+
+
+def check_width(model: Model, reference: np.ndarray, rms_reference: float,
+                fitness: Fitness, *, tolerance: float) -> WidthCheck | None:
+    """:func:`width_check` of one coordinate's reported ``model`` (signs found by
+    :func:`sharpened` at ``fitness``'s width)."""
+    return width_check(model, lambda factor: sharpened(model, fitness, factor),
+                       fitness.measurement, reference, rms_reference,
+                       fraction=fitness.sign_width, tolerance=tolerance)
+
+
+def why_stopped(stopped: str | None) -> str | None:
+    """Why the convergence loop (steps and sign width, :meth:`gpjax.Identifier.fit` or a
+    system's) ended unconverged, in words, for its ``stopped`` reason; None for another."""
+    return {"fixed substeps": "substeps is fixed; use substeps = \"auto\" or more substeps",
+            "substeps cap": f"at the cap of {MAX_SUBSTEPS} steps per sample",
+            "narrowest sign": f"at the narrowest sign, {NARROWING ** MAX_NARROWINGS}× "
+                              "narrower than the default",
+            "width not converging": "narrowing the sign further would not converge",
+            "unstable sign": f"a narrower sign would need more than {MAX_SUBSTEPS} steps "
+                             "per sample for a stable RK4 step where the mass sticks",
+            "refit failed": "the refit at more steps or a narrower sign failed"}.get(stopped)
+
+
+def width_line(check: dict, stopped: str | None = None) -> str:
+    """One line of a width check's JSON (:meth:`WidthCheck.to_json`) for a report;
+    ``stopped``: the convergence loop's reason for ending (:func:`why_stopped`)."""
+    head = f"  smoothed sign tanh(z/ε), ε = {check['fraction']:.3g}·RMS z: "
+    if not math.isfinite(check["ratio"]):
+        return (head + f"NOT checked, the reference solver fails on the signs {NARROWING}× "
+                "narrower")
+    why = why_stopped(stopped)
+    verdict = ("converged: the constants do not carry the smoothing" if check["converged"]
+               else "NOT converged: the constants carry some of the smoothing"
+               + (f"; {why}" if why else ""))
+    return (head + f"{NARROWING}× narrower changes the response by {check['ratio']:.2%} of "
+            f"the residual RMS (tolerance {check['tolerance']:.0%}), {verdict}")

@@ -27,8 +27,8 @@ record compiles nothing. As for one coordinate (:mod:`gpjax._sign_width`), the r
 system must not depend on that width: its reference response with every sign
 :data:`gpjax._sign_width.NARROWING` times narrower, constants unchanged, must differ from
 its own by less than the convergence tolerance of its RMS residual; otherwise the search
-refits it with the narrower signs, at most :data:`gpjax._sign_width.MAX_NARROWINGS` times
-(:func:`gpjax._system_search.search_system`).
+refits it with the narrower signs by one coordinate's rule
+(:func:`gpjax._sign_width.next_narrowing`; :func:`gpjax._system_search.search_system`).
 """
 
 from __future__ import annotations

@@ -14,12 +14,9 @@ something (the equations are coupled, so a neighbour's residual may rise with it
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 
 from ._config import WIDE_FUNCTIONS
-from ._convergence import MAX_SUBSTEPS
 from ._data import Measurement
 from ._diagnose_evidence import input_lines
 from ._diagnose_noise import noise_floor
@@ -99,20 +96,3 @@ def summary_line(name: str, statistics: dict, functions: tuple[str, ...] = (), *
              f"(in-band excess p = {floor['p_excess']:.2g}{small})")
     return (f"  residual of {name}: RMS {statistics['rms']:.4g} (NRMS "
             f"{statistics['nrms']:.3%}), {noise}{flag}")
-
-
-def width_line(check: dict) -> str:
-    """One line of a system's smoothed-sign width check
-    (:func:`gpjax._system_final.width_check`)."""
-    verdict = ("converged: the constants do not carry the smoothing" if check["converged"]
-               else "NOT converged: the constants carry some of the smoothing; narrower "
-               f"signs would need more than {MAX_SUBSTEPS} RK4 steps per sample to integrate "
-               "stably" if check.get("stopped") == "unstable sign"
-               else "NOT converged within the narrowing cap: the constants carry some of "
-               "the smoothing")
-    if not math.isfinite(check["ratio"]):
-        return (f"  smoothed sign tanh(z/ε), ε = {check['width']:.3g}·RMS z: NOT checked, the "
-                f"reference solver fails on the signs {check['narrowing']}× narrower")
-    return (f"  smoothed sign tanh(z/ε), ε = {check['width']:.3g}·RMS z: {check['narrowing']}× "
-            f"narrower changes the response by {check['ratio']:.2%} of the residual RMS "
-            f"(tolerance {check['tolerance']:.0%}), {verdict}")

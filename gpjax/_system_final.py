@@ -1,9 +1,8 @@
 """The reported system at converged integration: a term its fit does not demonstrate is
 dropped where the fit is at its noise floor (:func:`insignificant_removals`,
 :func:`flagged`; :func:`added_terms_p` tests a diagnosis's candidate the same way), and
-the smoothed sign's width
-is checked (:func:`width_check`; :mod:`gpjax._system_bank`) and narrowed where the
-constants carry the smoothing (:func:`sharpened`)."""
+its smoothed signs are found and narrowed (:func:`sharpened`, :func:`sharpened_model`;
+:mod:`gpjax._system_bank`) for the width check (:mod:`gpjax._sign_width`)."""
 
 from __future__ import annotations
 
@@ -13,9 +12,7 @@ import numpy as np
 from scipy import special
 
 from ._data import Measurement
-from ._features import SIGN_WIDTH
 from ._model import Model
-from ._sign_width import NARROWING
 from ._system_bank import sharpened_features
 from ._system_diagnose import residual_statistics
 from ._system_fit import SystemFit
@@ -127,24 +124,3 @@ def sharpened_model(model: Model, factor: float) -> Model | None:
     return Model.from_equations(model.coordinates, model.time, model.inputs, sharper,
                                 input_interpolation=model.input_interpolation,
                                 substeps=model.substeps)
-
-
-def width_check(fit: SystemFit, measurement: Measurement, tolerance: float, *,
-                width: float = SIGN_WIDTH) -> dict | None:
-    """Whether the reported system depends on its smoothed signs' width (module docstring of
-    :mod:`gpjax._system_bank`): ``ratio``, the RMS change of its scaled reference response
-    with every sign :data:`gpjax._sign_width.NARROWING` times narrower (constants kept)
-    over its scaled RMS residual; ``converged`` when below ``tolerance``; ``width`` the
-    fraction of RMS z the signs were fitted at. ``None`` without a sign."""
-    model = fit.model
-    narrowed = sharpened_model(model, NARROWING)
-    if narrowed is None:
-        return None
-    scale = measurement.responses.std(axis=0)
-    base, sharp = (np.reshape(m.simulate(measurement, initial_conditions=model.initial_states),
-                              measurement.responses.shape) for m in (model, narrowed))
-    change = float(np.sqrt(np.mean(((sharp - base) / scale) ** 2)))
-    residual = float(np.sqrt(np.mean(((base - measurement.responses) / scale) ** 2)))
-    ratio = change / residual if residual > 0 and math.isfinite(change) else math.inf
-    return {"width": width, "narrowing": NARROWING, "ratio": ratio,
-            "tolerance": tolerance, "converged": ratio < tolerance}

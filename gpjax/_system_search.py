@@ -95,10 +95,9 @@ from ._expressions import parse_expression
 from ._features import SIGN_WIDTH
 from ._objective import stop_objective
 from ._operators import crossover, initial_population, mutation, perturbation
-from ._sign_width import MAX_NARROWINGS, NARROWING, narrowed_steps
+from ._sign_width import NARROWING, next_narrowing, width_check
 from ._system_bank import kinds_for, sign_scales
-from ._system_final import (flagged, insignificant_removals, sharpened, sharpened_model,
-                            width_check)
+from ._system_final import flagged, insignificant_removals, sharpened, sharpened_model
 from ._system_fit import SystemFit, SystemWeakForm, fit_system
 from ._system_grammar import Equations
 from ._system_scorer import SystemScorer, as_trees, key_text
@@ -108,7 +107,7 @@ from ._system_scorer import SystemScorer, as_trees, key_text
 class SearchResult:
     """The final fit of the reported system; per generation (0 first) its
     :class:`gpjax._evolve.GenerationStats` as a dict; its smoothed signs' width check
-    (:func:`gpjax._system_final.width_check`, ``None`` without a sign); and the seconds of
+    (:meth:`gpjax._sign_width.WidthCheck.to_json`, ``None`` without a sign); and the seconds of
     the stages (``search_s``, ``selection_s``, ``convergence_s``: the final fit at converged
     integration and its uncertainty)."""
 
@@ -325,38 +324,50 @@ class SystemEvolution:
 
 
 def _narrowed(fit: SystemFit, structure, measurement: Measurement, settings: dict):
-    """(fit, its width check): where the reported system depends on its smoothed signs'
-    width, refitted with every sign :data:`gpjax._sign_width.NARROWING` times narrower,
-    from the constants of the last fit and at the steps per sample the narrower signs need
-    by the step check, until the check converges or after
-    :data:`gpjax._sign_width.MAX_NARROWINGS` narrowings (one coordinate's rule,
-    :mod:`gpjax._sign_width`). It stops, keeping the last fit and its check, where no step
-    count up to the cap integrates the narrower signs stably (the check's ``stopped``:
-    "unstable sign"; a fit there would report an unconverged model whose sensitivities are
-    the RK4 instability's), where the check cannot be made (the reference solver fails on
-    the narrower signs: a ratio of inf) or where the narrower refit diverges."""
-    width = SIGN_WIDTH
-    check = width_check(fit, measurement, settings["tolerance"], width=width)
-    for _ in range(MAX_NARROWINGS):
-        if check is None or check["converged"] or not math.isfinite(check["ratio"]):
+    """(fit, its width check's JSON): where the reported system depends on its smoothed
+    signs' width, refitted with the signs narrower from the constants of the last fit, by
+    one coordinate's rule and loop (:func:`gpjax._sign_width.next_narrowing`: the jump the
+    check's measured rate projects, at the steps the narrower signs need). It stops,
+    keeping the last fit, where the check converges or cannot be made (the reference
+    solver fails on the narrower signs: a ratio of inf), where ``next_narrowing`` says why
+    (the JSON's ``"stopped"``) or where the narrower refit diverges."""
+    tolerance, width, narrowings, stopped = settings["tolerance"], SIGN_WIDTH, 0, None
+    check = _width_check(fit, measurement, tolerance, width)
+    while check is not None and not check.converged and math.isfinite(check.ratio):
+        step = next_narrowing(check, narrowings,
+                              lambda factor: sharpened_model(fit.model, factor), measurement,
+                              tolerance=tolerance)
+        if isinstance(step, str):
+            stopped = step
             break
-        steps = narrowed_steps(sharpened_model(fit.model, NARROWING), measurement,
-                               tolerance=settings["tolerance"])
-        if steps is None:
-            check["stopped"] = "unstable sign"
-            break
-        width /= NARROWING
-        _progress.stage(f"refitting the system with its smoothed signs {NARROWING}× narrower "
-                        f"(ε = {width:.3g}·RMS z): its constants carried the smoothing")
-        start = sharpened(fit.model.system, measurement.response_names, NARROWING)
+        jump, steps = step
+        _progress.stage(f"refitting the system with its smoothed signs {NARROWING ** jump}× "
+                        f"narrower (ε = {width / NARROWING ** jump:.3g}·RMS z): its constants "
+                        "carried the smoothing")
+        start = sharpened(fit.model.system, measurement.response_names, NARROWING ** jump)
         structure = tuple((tuple(c.state), forcing) for c, (_, forcing) in zip(start, structure))
         try:
             fit = fit_system(measurement, structure, start=start, first_substeps=steps,
                              **settings)
         except ValueError:  # the narrower refit diverged: the last fit and check stand
             break
-        check = width_check(fit, measurement, settings["tolerance"], width=width)
-    return fit, check
+        width, narrowings = width / NARROWING ** jump, narrowings + jump
+        check = _width_check(fit, measurement, tolerance, width)
+    if check is None:
+        return fit, None
+    return fit, check.to_json() | ({"stopped": stopped} if stopped else {})
+
+
+def _width_check(fit: SystemFit, measurement: Measurement, tolerance: float, width: float):
+    """:func:`gpjax._sign_width.width_check` of a fitted system at sign ``width`` (ε / RMS
+    z): its reference response on the convergence check's samples against its signs'
+    narrower ones, over that check's RMS residual; ``None`` without a sign."""
+    model, last = fit.model, fit.checks[-1]
+    window = measurement.segment(0, last.samples)
+    reference = model.simulate(window, initial_conditions=model.initial_states)
+    return width_check(model, lambda factor: sharpened_model(model, factor), measurement,
+                       np.reshape(reference, window.responses.shape), last.rms_reference,
+                       fraction=width, tolerance=tolerance)
 
 
 def _random_terms(i: int, equations: Equations, rng) -> tuple:

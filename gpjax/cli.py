@@ -311,7 +311,8 @@ def _print_residuals(model, functions: tuple[str, ...], *, diagnosing: bool = Fa
     """Each coordinate's residual against its noise floor (with the hint where one misses
     something, unless the diagnosis follows), and a system's sign-width check;
     ``functions``: the run's function set."""
-    from ._system_diagnose import hint, summary_line, width_line
+    from ._sign_width import width_line
+    from ._system_diagnose import hint, summary_line
 
     print("Residuals per coordinate (reference solve):")
     residuals = model.metrics["residuals"]
@@ -321,7 +322,7 @@ def _print_residuals(model, functions: tuple[str, ...], *, diagnosing: bool = Fa
         print("  the diagnosis follows" if diagnosing else f"  hint: {hint(functions)}")
     width = model.metrics.get("sign_width")
     if width:
-        print(width_line(width))
+        print(width_line(width, width.get("stopped")))
 
 
 def _check_diagnose_options(args) -> None:

@@ -98,7 +98,9 @@ def test_constants_converge_as_the_sign_narrows(record):
     (0.13, 0.13 / 2.7, 3),        # 13 % falling 2.7x a narrowing: 13 % / 2.7^3 < 1 %
     (0.02, 0.0, 1),               # the next narrowing leaves nothing to change
     (0.05, 0.06, math.inf),       # does not fall: narrowing further would not converge
-    (0.05, math.nan, math.inf),   # a sharper solve failed
+    (0.05, math.nan, 1),          # a sharper solve failed: the rate is unknown, one at a time
+    (0.05, math.inf, 1),
+    (math.inf, 0.01, math.inf),   # the check itself could not be made
 ])
 def test_the_width_check_projects_the_narrowings_it_needs(ratio, next_ratio, needed):
     check = WidthCheck(0.01, ratio * 1e-3, 1e-3, ratio, 0.01, next_ratio=next_ratio)

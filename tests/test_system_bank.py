@@ -201,9 +201,10 @@ def test_search_finds_dry_friction_between_two_masses(tmp_path):
     # at each width but the last did not converge and could be made; the narrowing stops
     # at the cap, where the check cannot be made, or where RK4 could not integrate the
     # narrower sign stably within the step cap
-    assert width["narrowing"] == 4 and width["width"] < 0.01
-    assert width["converged"] or width["width"] == pytest.approx(0.01 / 4 ** 3) or (
-        width["ratio"] == np.inf) or width.get("stopped") == "unstable sign"
+    assert width["fraction"] < 0.01
+    assert width["converged"] or width["fraction"] == pytest.approx(0.01 / 4 ** 3) or (
+        width["ratio"] == np.inf) or width.get("stopped") in ("unstable sign",
+                                                               "width not converging")
 
 
 def test_a_diverged_coordinate_gets_a_hint():
@@ -228,77 +229,124 @@ def test_a_small_significant_excess_is_marked_as_below_the_gate():
     assert "misses something" in flagged and "gate" not in flagged
 
 
-def test_width_check_compares_a_narrower_sign():
-    """The reported system's sign narrowed 4× (constants kept) against its own response,
-    over its residual: a ratio and a verdict; no sign, no check."""
+def _fitted(model, measurement):
+    """A stand-in :class:`SystemFit` of ``model``: its convergence check on ``measurement``."""
     from types import SimpleNamespace
 
-    from gpjax._system_final import width_check
+    from gpjax._convergence import check_model
+
+    check, _ = check_model(model, measurement, tolerance=0.01)
+    return SimpleNamespace(model=model, checks=(check,))
+
+
+def test_a_systems_width_check_is_one_coordinates_check():
+    """The reported system's signs narrowed 4× and 16× (constants kept) against its own
+    reference response, over its convergence check's residual: a ratio, the next one (its
+    rate) and a verdict, in the first response's units as that check; no sign, no check."""
+    from gpjax._convergence import coordinate_weights
+    from gpjax._sign_width import WidthCheck
+    from gpjax._system_final import sharpened_model
+    from gpjax._system_search import _width_check
 
     measurement = _record(duration=2.0)
     model = _model(_equations())
-    check = width_check(SimpleNamespace(model=model), measurement, 0.01)
-    assert check["narrowing"] == 4 and 0 < check["ratio"] < np.inf
-    assert check["converged"] == (check["ratio"] < 0.01)
+    fit = _fitted(model, measurement)
+    check = _width_check(fit, measurement, 0.01, 0.01)
+    assert isinstance(check, WidthCheck) and check.fraction == 0.01
+    assert 0 < check.ratio < np.inf and 0 < check.next_ratio < np.inf
+    assert check.converged == (check.ratio < 0.01)
+    weights = coordinate_weights(measurement.responses)
+    own, sharper = (np.reshape(m.simulate(measurement, initial_conditions=model.initial_states),
+                               measurement.responses.shape)
+                    for m in (model, sharpened_model(model, 4)))
+    change = np.sqrt(np.mean(((sharper - own) * weights) ** 2))
+    assert check.ratio == pytest.approx(change / fit.checks[0].rms_reference, rel=1e-6)
     plain = [e.replace(state={f: v for f, v in e.state.items() if not f.has(sp.tanh)})
              for e in _equations()]
-    assert width_check(SimpleNamespace(model=_model(plain)), measurement, 0.01) is None
+    assert _width_check(_fitted(_model(plain), measurement), measurement, 0.01, 0.01) is None
 
 
 def test_width_line_says_when_the_narrower_check_cannot_be_made():
-    from gpjax._system_diagnose import width_line
+    from gpjax._sign_width import width_line
 
-    check = {"width": 0.0025, "narrowing": 4, "ratio": np.inf, "tolerance": 0.01,
-             "converged": False}
+    check = {"fraction": 0.0025, "ratio": np.inf, "tolerance": 0.01, "converged": False}
     line = width_line(check)
     assert "NOT checked" in line and "4× narrower" in line and "inf" not in line
     assert "converged" in width_line(dict(check, ratio=0.003, converged=True))
 
 
-def _narrowing(monkeypatch, steps):
-    """``_narrowed`` on a stand-in fit whose width check never converges, the narrower
-    signs needing ``steps`` per sample and every refit diverging: (its check, the
-    refits' keyword arguments); the last fit stands."""
+def _narrowing(monkeypatch, steps, checks):
+    """``_narrowed`` on a stand-in fit whose width checks give ``checks`` in turn ((ratio,
+    next ratio) pairs), the narrower signs needing ``steps`` per sample and every refit
+    after the first diverging: (its check's JSON, the refits' keyword arguments, the
+    factors the signs were narrowed by)."""
     from types import SimpleNamespace
 
+    import gpjax._sign_width as widths
     import gpjax._system_search as search
 
-    calls = []
-    monkeypatch.setattr(search, "width_check", lambda fit, measurement, tolerance, width: {
-        "converged": False, "ratio": 0.05, "width": width, "narrowing": 4,
-        "tolerance": tolerance})
-    monkeypatch.setattr(search, "sharpened", lambda equations, names, factor: list(equations))
-    monkeypatch.setattr(search, "sharpened_model", lambda model, factor: model)
-    monkeypatch.setattr(search, "narrowed_steps", lambda sharper, measurement, tolerance: steps)
+    calls, factors, left = [], [], list(checks)
 
-    def diverged(*args, **kwargs):
+    def width_check(fit, measurement, tolerance, width):
+        ratio, next_ratio = left.pop(0)
+        return widths.WidthCheck(width, ratio, 1.0, ratio, tolerance, next_ratio=next_ratio)
+
+    def refit(*args, **kwargs):
         calls.append(kwargs)
-        raise ValueError("the refined system diverged")
+        if len(calls) > 1:
+            raise ValueError("the refined system diverged")
+        return fit
 
-    monkeypatch.setattr(search, "fit_system", diverged)
+    monkeypatch.setattr(search, "_width_check", width_check)
+    monkeypatch.setattr(search, "sharpened",
+                        lambda equations, names, factor: factors.append(factor) or [])
+    monkeypatch.setattr(search, "sharpened_model", lambda model, factor: model)
+    monkeypatch.setattr(widths, "narrowed_steps", lambda sharper, measurement, tolerance: steps)
+    monkeypatch.setattr(search, "fit_system", refit)
     fit = SimpleNamespace(model=SimpleNamespace(system=[], substeps=2))
     out, check = search._narrowed(fit, (), SimpleNamespace(response_names=("x1", "x2")),
                                   {"tolerance": 0.01})
     assert out is fit
-    return check, calls
+    return check, calls, factors
+
+
+def test_a_narrowing_jumps_as_far_as_the_checks_rate_projects(monkeypatch):
+    """One coordinate's rule: a change that falls 4× per narrowing from 16× the tolerance
+    needs two narrowings, made in one refit (16× narrower) at the steps the narrower
+    signs need; that check passes and the loop ends (it narrowed one at a time: three
+    refits, each compiling its own programs, on a held-out chain with dry friction)."""
+    check, calls, factors = _narrowing(monkeypatch, 6, [(0.15, 0.0375), (0.005, 0.002)])
+    assert factors == [16] and len(calls) == 1 and calls[0]["first_substeps"] == 6
+    assert check["converged"] and check["fraction"] == pytest.approx(0.01 / 16)
+    assert "stopped" not in check
 
 
 def test_a_diverged_narrower_refit_keeps_the_last_fit_and_its_check(monkeypatch):
-    """The narrower refit starts at the steps the narrower signs need by the step check."""
-    check, calls = _narrowing(monkeypatch, 6)
-    assert len(calls) == 1 and calls[0]["first_substeps"] == 6
-    assert check["width"] == 0.01 and not check["converged"] and "stopped" not in check
+    """The refit after the first diverges: the first refit's fit and check stand (a change
+    falling 4× per narrowing from 3× the tolerance: one narrowing each time)."""
+    check, calls, factors = _narrowing(monkeypatch, 6, [(0.03, 0.0075), (0.03, 0.0075)])
+    assert factors == [4, 4] and len(calls) == 2
+    assert check["fraction"] == pytest.approx(0.0025) and not check["converged"]
+    assert "stopped" not in check
+
+
+def test_a_change_that_does_not_fall_as_the_sign_narrows_stops_the_narrowing(monkeypatch):
+    from gpjax._sign_width import width_line
+
+    check, calls, _ = _narrowing(monkeypatch, 6, [(0.05, 0.06)])
+    assert calls == [] and check["stopped"] == "width not converging"
+    assert "would not converge" in width_line(check, check["stopped"])
 
 
 def test_no_narrowing_to_a_sign_no_step_count_integrates_stably(monkeypatch):
     """One coordinate's rule (:func:`gpjax._sign_width.narrowed_steps`): where no step
     count up to the cap integrates the narrower signs stably, the last fit stands and the
     report says why, instead of an unconverged fit at the narrower signs."""
-    from gpjax._system_diagnose import width_line
+    from gpjax._sign_width import width_line
 
-    check, calls = _narrowing(monkeypatch, None)
+    check, calls, _ = _narrowing(monkeypatch, None, [(0.03, 0.0075)])
     assert calls == [] and check["stopped"] == "unstable sign"
-    assert "more than 64 RK4 steps per sample" in width_line(check)
+    assert "more than 64 steps per sample" in width_line(check, check["stopped"])
 
 
 def test_the_selection_offers_each_bank_term_its_polynomial_stand_in():
