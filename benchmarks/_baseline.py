@@ -50,22 +50,37 @@ def run_child(tree: Path, script: str, *args: str):
 
 def same_model(a, b) -> bool:
     """Whether two runs' models (:class:`gpjax.Model`) are the same model: the same
-    equations with every number inline (a held or inner constant) to 3 significant digits,
-    and every named constant within one standard error of the other run's (the larger of
-    the two; 6 significant digits where a run reports none). Two runs whose sums were
-    ordered otherwise stop their Levenberg–Marquardt at another step once the constants are
-    resolved to a fraction of their standard error, which is no other model."""
+    equations with named constants (:meth:`gpjax.Model.equation`), every number inline (a
+    held constant, a sign's scale) within 0.1 % of the other run's, and every named constant
+    within one standard error of the other run's (the larger of the two; 6 significant
+    digits where a run reports none). Two runs whose sums were ordered otherwise stop their
+    Levenberg–Marquardt at another step once the constants are resolved to a fraction of
+    their standard error, which is no other model. (Rounding every number of the numeric
+    equations to 3 significant digits called 0.99863 and 0.99870 two models: sympy rounds
+    a Float's binary mantissa, and the two straddled a rounding boundary.)"""
+    import math
+
     import sympy as sp
 
     def shape(model):
-        return [e.xreplace({f: sp.Float(f, 3) for f in e.atoms(sp.Float)})
-                for e in map(model.sympy, range(model.n_coordinates))]
+        rows = []
+        for i in range(model.n_coordinates):
+            equation = model.equation(i)
+            numbers = equation.atoms(sp.Float)
+            rows.append((equation.xreplace({f: sp.Symbol("_number") for f in numbers}),
+                         sorted(float(f) for f in numbers)))
+        return rows
+
+    def same_shape(x, y) -> bool:
+        return all(ex == ey and len(nx) == len(ny) and all(
+            math.isclose(p, q, rel_tol=1e-3) for p, q in zip(nx, ny))
+            for (ex, nx), (ey, ny) in zip(x, y)) and len(x) == len(y)
 
     def errors(model):
         return {} if model.uncertainty is None else model.uncertainty.standard_errors
 
     ca, cb = a.constants(), b.constants()
-    if shape(a) != shape(b) or set(ca) != set(cb):
+    if not same_shape(shape(a), shape(b)) or set(ca) != set(cb):
         return False
     ea, eb = errors(a), errors(b)
     for name, value in ca.items():
