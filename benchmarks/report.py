@@ -737,6 +737,7 @@ TABLES = {
     "systems-speed": systems_speed,
     "systems-refine-ab": systems_ab("benchmarks/systems_refine_ab.json"),
     "systems-programs-ab": systems_ab("benchmarks/systems_programs_ab.json"),
+    "systems-width-ab": systems_ab("benchmarks/systems_width_ab.json"),
     "islands-compare": islands_compare,
     "islands-hard": islands_hard,
     "islands-model": islands_model,
