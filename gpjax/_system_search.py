@@ -107,7 +107,8 @@ from ._system_scorer import SystemScorer, as_trees, key_text
 class SearchResult:
     """The final fit of the reported system; per generation (0 first) its
     :class:`gpjax._evolve.GenerationStats` as a dict; its smoothed signs' width check
-    (:meth:`gpjax._sign_width.WidthCheck.to_json`, ``None`` without a sign); and the seconds of
+    (:meth:`gpjax._sign_width.WidthCheck.to_json`, with ``stopped`` where the narrowing
+    ended unconverged; ``None`` without a sign); and the seconds of
     the stages (``search_s``, ``selection_s``, ``convergence_s``: the final fit at converged
     integration and its uncertainty)."""
 

@@ -309,9 +309,7 @@ def _fit(args) -> int:
 
 def _print_residuals(model, functions: tuple[str, ...], *, diagnosing: bool = False) -> None:
     """Each coordinate's residual against its noise floor (with the hint where one misses
-    something, unless the diagnosis follows), and a system's sign-width check;
-    ``functions``: the run's function set."""
-    from ._sign_width import width_line
+    something, unless the diagnosis follows); ``functions``: the run's function set."""
     from ._system_diagnose import hint, summary_line
 
     print("Residuals per coordinate (reference solve):")
@@ -320,9 +318,6 @@ def _print_residuals(model, functions: tuple[str, ...], *, diagnosing: bool = Fa
         print(summary_line(name, statistics, functions))
     if any(s["unexplained"] is not None for s in residuals.values()):
         print("  the diagnosis follows" if diagnosing else f"  hint: {hint(functions)}")
-    width = model.metrics.get("sign_width")
-    if width:
-        print(width_line(width, width.get("stopped")))
 
 
 def _check_diagnose_options(args) -> None:
