@@ -250,10 +250,12 @@ def check_model(model, measurement: Measurement, *, tolerance: float,
 
 def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int | None,
                   tolerance: float, first: int | None = None):
-    """(model, checks): ``fit_at(steps, previous)`` (``previous``: the last fit, ``None``
+    """(model, checks, reference): ``fit_at(steps, previous)`` (``previous``: the last fit, ``None``
     at first) at the record's initial step count (or ``first``), checked against the
     reference solve and fitted again at :func:`needed_substeps` until the check passes or the
-    steps reach :data:`MAX_SUBSTEPS`; with ``substeps`` given, that count, checked once."""
+    steps reach :data:`MAX_SUBSTEPS`; with ``substeps`` given, that count, checked once.
+    ``reference``: the last check's reference response of the model (:func:`check_model`),
+    for a check that compares against it (:func:`gpjax._sign_width.width_check`)."""
     steps = substeps or first or initial_substeps(measurement)
     checks, model = [], None
     while True:
@@ -261,5 +263,5 @@ def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int |
         check, reference = check_model(model, measurement, tolerance=tolerance)
         checks.append(check)
         if substeps or check.converged or steps >= MAX_SUBSTEPS:
-            return model, checks
+            return model, checks, reference
         steps = needed_substeps(model, measurement, check, reference)

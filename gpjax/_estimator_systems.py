@@ -45,12 +45,11 @@ def finish_system(identifier, evolution, seed: int, state, *, began: float,
                              else "generations")
     # the width check where one coordinate's is: in the convergence record, with the
     # reason its narrowing stopped unconverged
-    width = dict(result.sign_width or {})
-    stopped = width.pop("stopped", None)
     identifier.model_ = dataclasses.replace(
         fit.model, uncertainty=fit.uncertainty,
-        convergence=fit.checks[-1].to_json() | ({"sign_width": width} if width else {})
-        | ({"stopped": stopped} if stopped else {}),
+        convergence=fit.checks[-1].to_json()
+        | ({"sign_width": result.sign_width} if result.sign_width else {})
+        | ({"stopped": result.stopped} if result.stopped else {}),
         metrics={"rms": {k: v["rms"] for k, v in residuals.items()},
                  "nrms": {k: v["nrms"] for k, v in residuals.items()},
                  "objective": float(fit.scores.objective[0]), "residuals": residuals},

@@ -245,9 +245,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         # devices would otherwise hold a model per device, 16× the cap's numbers).
         self.devices = self.devices[:batch]
         count = len(self.devices)
-        self.batch = -(-batch // count) * count
-        if self.batch > cap:
-            self.batch = cap // count * count
+        self.batch = min(-(-batch // count), cap // count) * count
         #: The batch sizes compiled (each on first use): :data:`SMALL_BATCHES` below
         #: :attr:`batch`, and it; a call of a few models runs at a small size.
         self.batch_sizes = tuple(sorted({-(-b // len(self.devices)) * len(self.devices)

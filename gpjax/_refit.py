@@ -80,7 +80,7 @@ def refit(model: Model, measurement: Measurement, *, iterations: int = 20,
         fits[steps] = (refiner, population, fixed, coefficients)
         return fitted
 
-    fitted, checks = fit_converged(fit_at, measurement, substeps=substeps, tolerance=tolerance)
+    fitted, checks, _ = fit_converged(fit_at, measurement, substeps=substeps, tolerance=tolerance)
     refiner, population, fixed, coefficients = fits[fitted.substeps]
     return dataclasses.replace(
         fitted, convergence=checks[-1].to_json(),

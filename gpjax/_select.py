@@ -119,9 +119,10 @@ refined constants. Walked one after another, the front's walks made 47 scoring c
 15 refinements on a pendulum record, most of them carrying one or two models (in lockstep:
 26 and 10). So the walks advance together (:func:`_lockstep`): each is a generator that
 yields what it needs scored or refined next, and one tick serves every live walk's
-requests as one scoring batch and one refinement. The ranks stay: a walk whose path meets an earlier-ranked walk's
-path (the best member's first) stops without an end — from the shared model on it would
-retrace the other — where walked in turn a member on an earlier walk's path started none.
+requests as one scoring batch and one refinement. The ranks stay: a walk whose path meets
+an earlier-ranked walk's path (the best member's first) stops without an end — from the
+shared model on it would retrace the other — where walked in turn a member on an earlier
+walk's path started none.
 
 A difference from the paper, which reports the best tree as found.
 """

@@ -189,12 +189,14 @@ class SystemFit:
     """:func:`fit_system`'s result: the model, its scores at the fitted step count, every
     convergence check made (the last one passed unless ``substeps`` hit the cap), and the
     constants' standard errors and 95 % intervals (:mod:`gpjax._uncertainty`; names as the
-    model's constants, ``"x2.c1"``, ``"x2.m"``, and ``"x2(0)"``)."""
+    model's constants, ``"x2.c1"``, ``"x2.m"``, and ``"x2(0)"``); ``reference``: the
+    last check's reference response (N', D) on its samples."""
 
     model: Model
     scores: Scores
     checks: tuple
     uncertainty: Uncertainty | None = None
+    reference: np.ndarray | None = None
 
 
 def fit_system(measurement: Measurement, structure: Structure, *, max_degree: int = 3,
@@ -231,12 +233,12 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
             max_degree, input_interpolation, iterations, ties, kinds)
         return model
 
-    model, checks = fit_converged(fit_at, measurement, substeps=substeps, tolerance=tolerance,
-                                  first=first_substeps)
+    model, checks, reference = fit_converged(fit_at, measurement, substeps=substeps,
+                                             tolerance=tolerance, first=first_substeps)
     refiner, population, fixed, tied = last["refit"]
     uncertainty = uncertainty_of(refiner, population, fixed, ties=tied, names=lambda s: model_names(
         s, model, refiner.evaluator))
-    return SystemFit(model, last["scores"], tuple(checks), uncertainty)
+    return SystemFit(model, last["scores"], tuple(checks), uncertainty, reference)
 
 
 def _refit(measurement, structure, start, steps, max_degree, interpolation, iterations, ties,

@@ -107,8 +107,9 @@ from ._system_scorer import SystemScorer, as_trees, key_text
 class SearchResult:
     """The final fit of the reported system; per generation (0 first) its
     :class:`gpjax._evolve.GenerationStats` as a dict; its smoothed signs' width check
-    (:meth:`gpjax._sign_width.WidthCheck.to_json`, with ``stopped`` where the narrowing
-    ended unconverged; ``None`` without a sign); and the seconds of
+    (:meth:`gpjax._sign_width.WidthCheck.to_json`, ``None`` without a sign) and why its
+    narrowing ended unconverged (``stopped``, :func:`gpjax._sign_width.why_stopped`); and
+    the seconds of
     the stages (``search_s``, ``selection_s``, ``convergence_s``: the final fit at converged
     integration and its uncertainty)."""
 
@@ -116,6 +117,7 @@ class SearchResult:
     history: list[dict]
     timings: dict
     sign_width: dict | None = None
+    stopped: str | None = None
 
     @property
     def model(self):
@@ -318,20 +320,21 @@ class SystemEvolution:
                 best, fit = smaller, trial
                 removals = insignificant_removals(best, fit, config.selection_alpha,
                                                   candidates)
-        fit, width = _narrowed(fit, scorer.normalised(best), measurement, settings)
+        fit, width, stopped = _narrowed(fit, scorer.normalised(best), measurement, settings)
         return SearchResult(fit, [dataclasses.asdict(h) for h in state.history], {
             "selection_s": fitting - selecting,
-            "convergence_s": time.perf_counter() - fitting}, width)
+            "convergence_s": time.perf_counter() - fitting}, width, stopped)
 
 
 def _narrowed(fit: SystemFit, structure, measurement: Measurement, settings: dict):
-    """(fit, its width check's JSON): where the reported system depends on its smoothed
-    signs' width, refitted with the signs narrower from the constants of the last fit, by
-    one coordinate's rule and loop (:func:`gpjax._sign_width.next_narrowing`: the jump the
-    check's measured rate projects, at the steps the narrower signs need). It stops,
+    """(fit, its width check's JSON, why the narrowing stopped): where the reported system
+    depends on its smoothed signs' width, refitted with the signs narrower from the
+    constants of the last fit, by one coordinate's rule and loop
+    (:func:`gpjax._sign_width.next_narrowing`: the jump the check's measured rate
+    projects, at the steps the narrower signs need). It stops,
     keeping the last fit, where the check converges or cannot be made (the reference
     solver fails on the narrower signs: a ratio of inf), where ``next_narrowing`` says why
-    (the JSON's ``"stopped"``) or where the narrower refit diverges."""
+    (returned; None otherwise) or where the narrower refit diverges."""
     tolerance, width, narrowings, stopped = settings["tolerance"], SIGN_WIDTH, 0, None
     check = _width_check(fit, measurement, tolerance, width)
     while check is not None and not check.converged and math.isfinite(check.ratio):
@@ -354,21 +357,18 @@ def _narrowed(fit: SystemFit, structure, measurement: Measurement, settings: dic
             break
         width, narrowings = width / NARROWING ** jump, narrowings + jump
         check = _width_check(fit, measurement, tolerance, width)
-    if check is None:
-        return fit, None
-    return fit, check.to_json() | ({"stopped": stopped} if stopped else {})
+    return fit, None if check is None else check.to_json(), stopped
 
 
 def _width_check(fit: SystemFit, measurement: Measurement, tolerance: float, width: float):
     """:func:`gpjax._sign_width.width_check` of a fitted system at sign ``width`` (ε / RMS
-    z): its reference response on the convergence check's samples against its signs'
-    narrower ones, over that check's RMS residual; ``None`` without a sign."""
-    model, last = fit.model, fit.checks[-1]
-    window = measurement.segment(0, last.samples)
-    reference = model.simulate(window, initial_conditions=model.initial_states)
+    z): its reference response on the convergence check's samples (as that check solved
+    it) against its signs' narrower ones, over that check's RMS residual; ``None`` without
+    a sign."""
+    model = fit.model
     return width_check(model, lambda factor: sharpened_model(model, factor), measurement,
-                       np.reshape(reference, window.responses.shape), last.rms_reference,
-                       fraction=width, tolerance=tolerance)
+                       fit.reference, fit.checks[-1].rms_reference, fraction=width,
+                       tolerance=tolerance)
 
 
 def _random_terms(i: int, equations: Equations, rng) -> tuple:

@@ -237,8 +237,8 @@ def _fitted(model, measurement):
 
     from gpjax._convergence import check_model
 
-    check, _ = check_model(model, measurement, tolerance=0.01)
-    return SimpleNamespace(model=model, checks=(check,))
+    check, reference = check_model(model, measurement, tolerance=0.01)
+    return SimpleNamespace(model=model, checks=(check,), reference=reference)
 
 
 def test_a_systems_width_check_is_one_coordinates_check():
@@ -306,8 +306,9 @@ def _narrowing(monkeypatch, steps, checks):
     monkeypatch.setattr(widths, "narrowed_steps", lambda sharper, measurement, tolerance: steps)
     monkeypatch.setattr(search, "fit_system", refit)
     fit = SimpleNamespace(model=SimpleNamespace(system=[], substeps=2))
-    out, check = search._narrowed(fit, (), SimpleNamespace(response_names=("x1", "x2")),
-                                  {"tolerance": 0.01})
+    out, check, stopped = search._narrowed(
+        fit, (), SimpleNamespace(response_names=("x1", "x2")), {"tolerance": 0.01})
+    check = check | ({"stopped": stopped} if stopped else {})
     assert out is fit
     return check, calls, factors
 
