@@ -472,8 +472,8 @@ class Identifier:
             return f"Identifier(unfitted, population={self.config.population})"
         m = self.model_.metrics
         rms = m.get("rms", float("nan"))
-        rms = (", ".join(f"{k} {v:.4g}" for k, v in rms.items()) if isinstance(rms, dict)
-               else f"{rms:.4g}")
+        rms = (", ".join(f"{k} {'diverged' if v is None else f'{v:.4g}'}"  # None: diverged
+                         for k, v in rms.items()) if isinstance(rms, dict) else f"{rms:.4g}")
         lines = [f"{self.model_}",
                  f"  RMS {rms}   f = {m.get('objective', float('nan')):.4g}"
                  f"   stopped by {self.stopped_by or 'n/a'}"]

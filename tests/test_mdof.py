@@ -231,6 +231,17 @@ def _truth_model(system, record):
     return gpjax.Model.from_equations(("x1", "x2"), "t", ("u",), equations, substeps=2)
 
 
+def test_a_system_whose_reported_model_diverges_prints_which_coordinate():
+    """A coordinate whose reference solve diverged has no RMS (``None`` in the metrics, as
+    the residual statistics write it): the printout says so instead of failing."""
+    system, record, _ = _chain(duration=3.0)
+    identifier = gpjax.Identifier(gpjax.GPConfig())
+    identifier.model_ = dataclasses.replace(_truth_model(system, record),
+                                            metrics={"rms": {"x1": None, "x2": 0.25},
+                                                     "objective": 1e12})
+    assert "RMS x1 diverged, x2 0.25" in str(identifier)
+
+
 def test_system_model_file_round_trip_and_simulate_command(tmp_path, capsys):
     from gpjax.cli import main
     from gpjax.engine import load_model
