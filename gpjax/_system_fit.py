@@ -33,7 +33,7 @@ from ._data import Measurement
 from ._diagnose_fits import blocked_cv_residual
 from ._evaluator import Scores
 from ._model import Model
-from ._refine import Refiner, free_width
+from ._refine import REFIT_HORIZONS, Refiner, free_width
 from ._uncertainty import Uncertainty, model_names, uncertainty_of
 from ._system_couplings import couple, coupled_least_squares, fixed_columns, tie_columns
 from ._weak_form import WeakForm, smoothed_derivatives
@@ -255,7 +255,8 @@ def _refit(measurement, structure, start, steps, max_degree, interpolation, iter
     if not np.all(np.isfinite(evaluator.layout.pack(population))):
         raise ValueError("the least-squares start of the system is not finite")
     free = sum(1 + len(s) + len(f) + 2 for s, f in structure)
-    refiner = Refiner(evaluator, iterations=iterations, max_free=free_width(free), batch=1)
+    refiner = Refiner(evaluator, iterations=iterations, max_free=free_width(free), batch=1,
+                      horizons=REFIT_HORIZONS)
     tied = [tie_columns(ties, evaluator)]
     refined = refiner.refine(population, fixed, ties=tied).population
     equations = from_system_population(refined, evaluator, [start])[0]

@@ -20,7 +20,7 @@ from . import _trees
 from ._canonical import feature_name
 from ._coefficients import Coefficients, from_system_population, to_system_population
 from ._evaluator import PENALTY, PopulationEvaluator
-from ._refine import Refiner, free_width
+from ._refine import HORIZONS, REFIT_HORIZONS, Refiner, free_width
 from ._select import simulates_better
 from ._system_couplings import (couple, coupled_least_squares, coupled_residual,
                                 fixed_columns, held_structure, tie_columns)
@@ -37,7 +37,7 @@ class SystemScorer:
         self.batch = max(1, batch)  # systems per compiled refinement call
         self.objective: dict[tuple, float] = {}
         self.refined: dict[tuple, list[Coefficients]] = {}
-        self._refiners: dict[tuple[int, int], Refiner] = {}
+        self._refiners: dict[tuple, Refiner] = {}
         self._residuals: dict[tuple, float] = {}
 
     def key(self, system) -> tuple | None:
@@ -87,7 +87,7 @@ class SystemScorer:
         fixed-step objective is claimed, :mod:`gpjax._convergence`) is not evidence
         either."""
         trees = [as_trees(k, self.equations) for k in (simpler, current)]
-        self.refine_best(trees, self(trees), 2)
+        self.refine_best(trees, self(trees), 2, horizons=REFIT_HORIZONS)
         responses, _ = self.evaluator.simulate(to_system_population(
             [self.coefficients(k) for k in (simpler, current)], self.evaluator))
         measured = self.evaluator.measurement.responses.T
@@ -125,8 +125,11 @@ class SystemScorer:
                     self.objective[k] = float(value)
         return np.array([PENALTY if k is None else self.objective[k] for k in keys])
 
-    def refine_best(self, systems, scores, top: int) -> None:
-        """Levenberg–Marquardt on the best ``top`` distinct systems not refined yet."""
+    def refine_best(self, systems, scores, top: int, *,
+                    horizons: tuple[float, ...] = HORIZONS) -> None:
+        """Levenberg–Marquardt on the best ``top`` distinct systems not refined yet, with
+        the continuation ``horizons`` (:data:`gpjax._refine.REFIT_HORIZONS` for the
+        selection's guard)."""
         chosen = []
         for index in np.argsort(scores):
             key = self.key(systems[index])
@@ -149,11 +152,11 @@ class SystemScorer:
         # 6 s for one system alone, 12 s padded to 4, 15 s for 5).
         width = free_width(free)
         batch = 1 if len(chosen) == 1 else self.batch
-        if (width, batch) not in self._refiners:
-            self._refiners[width, batch] = Refiner(self.evaluator, iterations=20,
-                                                   max_free=width, batch=batch)
+        if (width, batch, horizons) not in self._refiners:
+            self._refiners[width, batch, horizons] = Refiner(
+                self.evaluator, iterations=20, max_free=width, batch=batch, horizons=horizons)
         ties = [tie_columns(t, self.evaluator) for _, t in coupled]
-        refiner = self._refiners[width, batch]
+        refiner = self._refiners[width, batch, horizons]
         refined = refiner.refine(population, fixed, ties=ties).population
         scores = self.evaluator.score(refined)
         for k, start, coefficients, value in zip(
