@@ -203,14 +203,18 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
                input_interpolation: str = "linear", iterations: int = 30,
                start: list[Coefficients] | None = None, tolerance: float = 0.01,
                substeps: int | None = None, third_law: bool = False,
-               first_substeps: int | None = None, kinds: tuple[str, ...] = ()) -> SystemFit:
+               first_substeps: int | None = None, kinds: tuple[str, ...] = (),
+               carried: bool = False) -> SystemFit:
     """Constants and initial states of a system ``structure`` on ``measurement``
     (module docstring): weak-form start (or ``start``), Levenberg–Marquardt on all
     coordinates at once, repeated at a finer step until the RK4 and reference responses
     differ by less than ``tolerance`` of the RMS residual (``substeps`` given: that step
     count, checked once; ``first_substeps``: the step count the ladder starts from, e.g. a
     similar system's converged one; ``kinds``: the bank kinds its evaluators hold beside
-    the structure's own, a search's, so its refits share one set of programs).
+    the structure's own, a search's, so its refits share one set of programs). The first
+    fit doubles its horizon (:data:`gpjax._refine.REFIT_HORIZONS`); a refit from the last
+    fit, and the first with ``carried`` (``start`` holds a fitted system's constants, its
+    signs narrowed), fit the whole record at once: their start is near.
     ``third_law``: every coupling feature (a power of x_i − x_j or x_i' − x_j') is one
     force acting on both coordinates, its mirror added to equation j and its constants
     tied (:mod:`gpjax._system_couplings`; then only one forcing value or mass per coupled
@@ -228,9 +232,11 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
     def fit_at(steps: int, previous: Model | None) -> Model:
         _progress.stage(f"fitting the system's constants at {steps} substeps, then its "
                         "convergence check")
+        near = previous is not None or carried
         model, last["scores"], last["refit"] = _refit(
             measurement, structure, list(previous.system) if previous else start, steps,
-            max_degree, input_interpolation, iterations, ties, kinds)
+            max_degree, input_interpolation, iterations, ties, kinds,
+            (1.0,) if near else REFIT_HORIZONS)
         return model
 
     model, checks, reference = fit_converged(fit_at, measurement, substeps=substeps,
@@ -242,7 +248,7 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
 
 
 def _refit(measurement, structure, start, steps, max_degree, interpolation, iterations, ties,
-           kinds):
+           kinds, horizons):
     def model_of(equations) -> Model:
         return Model.from_equations(measurement.response_names, measurement.time_name,
                                     measurement.input_names, equations,
@@ -256,7 +262,7 @@ def _refit(measurement, structure, start, steps, max_degree, interpolation, iter
         raise ValueError("the least-squares start of the system is not finite")
     free = sum(1 + len(s) + len(f) + 2 for s, f in structure)
     refiner = Refiner(evaluator, iterations=iterations, max_free=free_width(free), batch=1,
-                      horizons=REFIT_HORIZONS)
+                      horizons=horizons)
     tied = [tie_columns(ties, evaluator)]
     refined = refiner.refine(population, fixed, ties=tied).population
     equations = from_system_population(refined, evaluator, [start])[0]

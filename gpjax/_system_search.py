@@ -352,7 +352,7 @@ def _narrowed(fit: SystemFit, structure, measurement: Measurement, settings: dic
         structure = tuple((tuple(c.state), forcing) for c, (_, forcing) in zip(start, structure))
         try:
             fit = fit_system(measurement, structure, start=start, first_substeps=steps,
-                             **settings)
+                             carried=True, **settings)
         except ValueError:  # the narrower refit diverged: the last fit and check stand
             break
         width, narrowings = width / NARROWING ** jump, narrowings + jump
