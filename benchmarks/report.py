@@ -441,17 +441,19 @@ def systems_speed() -> str:
 def systems_ab(path: str):
     """The renderer of ``path``, written by ``systems_front_door.py --baseline``: whole
     `gpjax fit` processes of a revision and of its baseline on the same records, in one
-    run, each tree with its own program cache (cold for the run's first record only)."""
+    run, each tree with its own program cache (cold for each system's first record)."""
     return lambda: _systems_ab(path)
 
 
 def _systems_ab(path: str) -> str:
     data = _load(path)
     rows = []
+    systems = [r["system"] for r in data["rows"]]
     for i, r in enumerate(data["rows"]):
-        b = r["baseline"]
-        rows.append([f"`{r['system']}` seed {r['seed']}", "first (cold)" if i == 0
-                     else "later (warm)", f"{b['seconds']:.0f}", f"{r['seconds']:.0f}",
+        b = r["baseline"]  # a system's first record compiles its programs (its own shapes)
+        rows.append([f"`{r['system']}` seed {r['seed']}", "first (cold)"
+                     if systems.index(r["system"]) == i else "later (warm)",
+                     f"{b['seconds']:.0f}", f"{r['seconds']:.0f}",
                      f"{r['seconds'] / b['seconds']:.2f}×",
                      *(f"{b[k]:.0f} → {r[k]:.0f}" if b.get(k) is not None else "–"
                        for k in ("search_s", "selection_s", "convergence_s", "compile_s")),
@@ -738,6 +740,7 @@ TABLES = {
     "systems-refine-ab": systems_ab("benchmarks/systems_refine_ab.json"),
     "systems-programs-ab": systems_ab("benchmarks/systems_programs_ab.json"),
     "systems-width-ab": systems_ab("benchmarks/systems_width_ab.json"),
+    "systems-continuation-ab": systems_ab("benchmarks/systems_continuation_ab.json"),
     "islands-compare": islands_compare,
     "islands-hard": islands_hard,
     "islands-model": islands_model,
