@@ -53,18 +53,17 @@ JACOBIANS = ("variational", "autodiff")
 BATCH, MAX_FREE = 8, 8
 #: The continuation of a search's refinement (fractions of the record fitted in turn).
 HORIZONS = (0.25, 1.0)
-#: The continuation of a refit whose constants are reported or decide the selection (one
-#: model, or the two the selection's simulated guard compares): from the same first
-#: quarter, each horizon twice the last. A constant's error shifts the phase in proportion
-#: to the time elapsed, so a fit that holds the phase over a horizon holds it to about twice
-#: its error over twice that horizon, where four times can pass a phase wrap: a pendulum
-#: driven over the top (two coupled pendulums of held-out issue-42 probes, rotating through
-#: −15 rad) slipped a revolution when 25 % → 100 %, and its true structure refitted from a
-#: weak-form start within 2 % of every constant stopped at objective 74 against 11 with
-#: 25 → 50 → 100 %. A shorter first horizon is not the same improvement: over 6 % of the
-#: record a sine's inner scale is barely determined and drifts (one coordinate's driven
-#: pendulum refitted from its true constants: 3.0 with 25/50/100 %, 96 with 25/100 %, 81
-#: to 281 with 6/12/25/50/100 %).
+#: The continuation of a fit from a start (weak-form, least-squares or a search's constants)
+#: whose constants are reported or decide the selection: from the same first quarter, each
+#: horizon twice the last. A constant's error shifts the phase in proportion to the time
+#: elapsed, so a fit that holds the phase over a horizon holds it to about twice its error
+#: over twice that horizon, where four times can slip a revolution: on two coupled pendulums
+#: driven over the top (a record outside the repository) the true structure from a weak-form
+#: start within 2 % of every constant stopped at objective 74 with 25 → 100 %, at 11 with
+#: 25 → 50 → 100 %. A shorter first horizon is no better: over 6 % of the record a sine's
+#: inner scale is barely determined and drifts (one pendulum refitted from its true
+#: constants: 3.0 here, 96 with 25 → 100 %, 81–281 from 6 %). A refit from a fit (a finer
+#: step, narrower signs) starts near and fits the whole record at once.
 REFIT_HORIZONS = (0.25, 0.5, 1.0)
 #: The smaller batch a refiner also compiles (on first use): the final selection refines
 #: neighbours one or two at a time, and a call padded to 8 models costs 2–3× one of 2

@@ -39,6 +39,9 @@ def refit(model: Model, measurement: Measurement, *, iterations: int = 20,
             residual).
         substeps: a fixed RK4 step count (checked once) instead of growing it.
 
+    The first fit doubles its horizon (:data:`gpjax._refine.REFIT_HORIZONS`); a refit at a
+    finer step starts from it and fits the whole record at once.
+
     Raises:
         ModelFileError: the model's inputs are not the measurement's.
         UserInputError: the measurement has several responses.
@@ -61,8 +64,8 @@ def refit(model: Model, measurement: Measurement, *, iterations: int = 20,
         normalised = u0 is not None and model.forcing.get(str(u0)) == 1.0
         fixed = np.array([evaluator.forcing_index(u0) if normalised else -1])
         free = evaluator.layout.width  # every column a width may need, rounded up below
-        refiner = Refiner(evaluator, iterations=iterations, batch=1,
-                          max_free=free_width(free), horizons=REFIT_HORIZONS)
+        refiner = Refiner(evaluator, iterations=iterations, batch=1, max_free=free_width(free),
+                          horizons=REFIT_HORIZONS if previous is None else (1.0,))
         best = float(evaluator.score(population).objective[0])
         for _ in range(MAX_ROUNDS):
             refined = refiner.refine(population, fixed).population
