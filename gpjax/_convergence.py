@@ -250,8 +250,8 @@ def check_model(model, measurement: Measurement, *, tolerance: float,
 
 def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int | None,
                   tolerance: float, first: int | None = None):
-    """(model, checks, reference): ``fit_at(steps, previous)`` (``previous``: the last fit, ``None``
-    at first) at the record's initial step count (or ``first``), checked against the
+    """(model, checks, reference): ``fit_at(steps, previous)`` (``previous``: the last fit,
+    ``None`` at first) at the record's initial step count (or ``first``), checked against the
     reference solve and fitted again at :func:`needed_substeps` until the check passes or the
     steps reach :data:`MAX_SUBSTEPS`; with ``substeps`` given, that count, checked once.
     ``reference``: the last check's reference response of the model (:func:`check_model`),

@@ -23,7 +23,7 @@ from ._data import Measurement
 from ._evaluator import INVALID_STRUCTURE, OK, PENALTY, PopulationEvaluator, Scores
 from ._features import INNER_GRID, SIGN_WIDTH, Family, families_for, match, smoothed_sign
 from ._memory import check_fit_memory
-from ._refine import BATCH, HORIZONS, Refiner
+from ._refine import BATCH, HORIZONS, WHOLE_RECORD, Refiner
 from ._trees import Tree
 from ._weak_form import (WeakForm, least_squares, least_squares_residual, smoothed_derivatives,
                          smoothing_cutoff_hz)
@@ -158,7 +158,8 @@ class Fitness:
         # continuation (for poor starts) would only double the compile. Tree constants are
         # poor starts: a wrong stiffness wraps the phase over the full record.
         self.refiner = Refiner(self.evaluator, iterations=config.refine_iterations,
-                               batch=1 if single else BATCH, horizons=(1.0,) if config.coefficients == "least_squares"
+                               batch=1 if single else BATCH,
+                               horizons=WHOLE_RECORD if config.coefficients == "least_squares"
                                else HORIZONS)
         #: RMS of x and x' on the data: the scales of the bank's default inner constants
         self.scales = {role: float(np.sqrt(np.mean(z ** 2))) or 1.0 for role, z in

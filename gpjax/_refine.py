@@ -63,12 +63,21 @@ HORIZONS = (0.25, 1.0)
 #: 25 → 50 → 100 %. A shorter first horizon is no better: over 6 % of the record a sine's
 #: inner scale is barely determined and drifts (one pendulum refitted from its true
 #: constants: 3.0 here, 96 with 25 → 100 %, 81–281 from 6 %). A refit from a fit (a finer
-#: step, narrower signs) starts near and fits the whole record at once.
+#: step, narrower signs) starts near and fits the whole record at once
+#: (:func:`refit_horizons`).
 REFIT_HORIZONS = (0.25, 0.5, 1.0)
+#: No continuation: the whole record at once.
+WHOLE_RECORD = (1.0,)
 #: The smaller batch a refiner also compiles (on first use): the final selection refines
 #: neighbours one or two at a time, and a call padded to 8 models costs 2–3× one of 2
 #: (``benchmarks/call_cost.json``: 8,000 samples, the wide function set, 2 cores).
 SMALL_BATCH = 2
+
+
+def refit_horizons(near: bool) -> tuple[float, ...]:
+    """The continuation of a reported model's fit: :data:`WHOLE_RECORD` from a ``near``
+    start (the constants of a fit), else :data:`REFIT_HORIZONS`."""
+    return WHOLE_RECORD if near else REFIT_HORIZONS
 
 
 def free_width(free: int) -> int:

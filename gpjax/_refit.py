@@ -19,7 +19,7 @@ from ._data import Measurement
 from ._convergence import fit_converged
 from ._fitness import CONVERGED, MAX_ROUNDS
 from ._model import Model, _check_inputs, fitted_initial_state
-from ._refine import REFIT_HORIZONS, Refiner, free_width
+from ._refine import Refiner, free_width, refit_horizons
 from ._uncertainty import model_names, uncertainty_of
 from ._weak_form import estimate_initial_conditions
 
@@ -65,7 +65,7 @@ def refit(model: Model, measurement: Measurement, *, iterations: int = 20,
         fixed = np.array([evaluator.forcing_index(u0) if normalised else -1])
         free = evaluator.layout.width  # every column a width may need, rounded up below
         refiner = Refiner(evaluator, iterations=iterations, batch=1, max_free=free_width(free),
-                          horizons=REFIT_HORIZONS if previous is None else (1.0,))
+                          horizons=refit_horizons(previous is not None))
         best = float(evaluator.score(population).objective[0])
         for _ in range(MAX_ROUNDS):
             refined = refiner.refine(population, fixed).population

@@ -33,7 +33,7 @@ from ._data import Measurement
 from ._diagnose_fits import blocked_cv_residual
 from ._evaluator import Scores
 from ._model import Model
-from ._refine import REFIT_HORIZONS, Refiner, free_width
+from ._refine import Refiner, free_width, refit_horizons
 from ._uncertainty import Uncertainty, model_names, uncertainty_of
 from ._system_couplings import couple, coupled_least_squares, fixed_columns, tie_columns
 from ._weak_form import WeakForm, smoothed_derivatives
@@ -232,11 +232,10 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
     def fit_at(steps: int, previous: Model | None) -> Model:
         _progress.stage(f"fitting the system's constants at {steps} substeps, then its "
                         "convergence check")
-        near = previous is not None or carried
         model, last["scores"], last["refit"] = _refit(
             measurement, structure, list(previous.system) if previous else start, steps,
             max_degree, input_interpolation, iterations, ties, kinds,
-            (1.0,) if near else REFIT_HORIZONS)
+            refit_horizons(previous is not None or carried))
         return model
 
     model, checks, reference = fit_converged(fit_at, measurement, substeps=substeps,

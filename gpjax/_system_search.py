@@ -109,9 +109,8 @@ class SearchResult:
     :class:`gpjax._evolve.GenerationStats` as a dict; its smoothed signs' width check
     (:meth:`gpjax._sign_width.WidthCheck.to_json`, ``None`` without a sign) and why its
     narrowing ended unconverged (``stopped``, :func:`gpjax._sign_width.why_stopped`); and
-    the seconds of
-    the stages (``search_s``, ``selection_s``, ``convergence_s``: the final fit at converged
-    integration and its uncertainty)."""
+    the seconds of the stages (``search_s``, ``selection_s``, ``convergence_s``: the final
+    fit at converged integration and its uncertainty)."""
 
     fit: SystemFit
     history: list[dict]
