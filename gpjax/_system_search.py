@@ -35,10 +35,11 @@ system one term smaller replaces it unless the larger one predicts the held-out 
 the weak-form equation error significantly better (blocked cross-validation,
 :meth:`gpjax._system_fit.SystemWeakForm.held_out`; Diebold–Mariano by batch means), the
 removals tried in the order of their held-out mean square, until none qualifies; a power
-swap (a bank term for its polynomial stand-in near 0, :func:`_power_swaps`) is tried as a
-removal is. So an input in an equation that the data do not need, a coupling term, or a
-sin(x1 − x2) standing in for a linear spring, goes unless the held-out windows demonstrate
-it. Where the held-out test cannot tell the two apart either way (the
+swap (a bank term for its polynomial stand-in near 0) and a mirror swap (one end of a
+coupling given the law of its other end: Newton's third law) are tried as a removal is
+(:mod:`gpjax._system_select`). So an input in an equation that the data do not need, a
+coupling term, or a sin(x1 − x2) standing in for a linear spring, goes unless the held-out
+windows demonstrate it. Where the held-out test cannot tell the two apart either way (the
 equation error has little power where the states' smoothing blurs a term's effect: a
 gear's mesh damping), the removal must also not simulate significantly worse
 (:meth:`SystemScorer.simulates_better`: one coordinate's guard,
@@ -88,7 +89,6 @@ from . import _progress, _trees
 from ._canonical import Symbols, feature_name
 from ._config import GPConfig, check_system_config
 from ._data import Measurement
-from ._diagnose_acceptance import predictive_test
 from ._evaluator import PENALTY, PopulationEvaluator
 from ._evolve import GenerationStats, RunState
 from ._expressions import parse_expression
@@ -101,6 +101,7 @@ from ._system_final import flagged, insignificant_removals, sharpened, sharpened
 from ._system_fit import SystemFit, SystemWeakForm, fit_system
 from ._system_grammar import Equations
 from ._system_scorer import SystemScorer, as_trees, key_text
+from ._system_select import removals, simplest
 
 
 @dataclasses.dataclass(frozen=True)
@@ -292,7 +293,7 @@ class SystemEvolution:
         selecting = time.perf_counter()
         _progress.stage("final model selection: one-term removals by the held-out test at "
                         f"level {config.selection_alpha}")
-        best = _simplest(best, scorer, config.selection_alpha, config.convergence_tolerance)
+        best = simplest(best, scorer, config.selection_alpha, config.convergence_tolerance)
         fitting = time.perf_counter()
         settings = dict(max_degree=config.max_degree, third_law=config.third_law,
                         input_interpolation=config.input_interpolation,
@@ -302,10 +303,10 @@ class SystemEvolution:
                          **settings)
         candidates = [sum(map(len, scorer.equations.basis(i)))
                       for i in range(len(scorer.equations.names))]
-        removals = (insignificant_removals(best, fit, config.selection_alpha, candidates)
+        untested = (insignificant_removals(best, fit, config.selection_alpha, candidates)
                     if not flagged(fit, measurement) else [])
-        while removals:
-            smaller = removals.pop(0)
+        while untested:
+            smaller = untested.pop(0)
             _progress.stage(f"dropping a term its converged fit does not demonstrate (Wald "
                             f"test at level {config.selection_alpha} over its equation's "
                             "candidates), then fitting again")
@@ -317,7 +318,7 @@ class SystemEvolution:
                 continue
             if not flagged(trial, measurement):  # else the term stays: try the next
                 best, fit = smaller, trial
-                removals = insignificant_removals(best, fit, config.selection_alpha,
+                untested = insignificant_removals(best, fit, config.selection_alpha,
                                                   candidates)
         fit, width, stopped = _narrowed(fit, scorer.normalised(best), measurement, settings)
         return SearchResult(fit, [dataclasses.asdict(h) for h in state.history], {
@@ -440,7 +441,7 @@ def _neighbours(key, equations: Equations):
             if feature not in forcing:
                 part = (state, tuple(sorted(forcing + (feature,), key=str)))
                 yield key[:i] + (part,) + key[i + 1:]
-        yield from _removals(key, i)
+        yield from removals(key, i)
 
 
 def _equation_error_steps(key, scorer: SystemScorer, steps: int = 4, longest: int = 8):
@@ -477,36 +478,6 @@ def _forward(scorer: SystemScorer, key, i: int, state: list, forcing: list, step
         yield tuple(sorted(state, key=str)), tuple(sorted(forcing, key=str))
 
 
-def _removals(key, i: int):
-    state, forcing = key[i]
-    for k in range(len(state)):
-        yield key[:i] + ((state[:k] + state[k + 1:], forcing),) + key[i + 1:]
-    for k in range(len(forcing)):
-        yield key[:i] + ((state, forcing[:k] + forcing[k + 1:]),) + key[i + 1:]
-
-
-#: A bank kind's polynomial stand-in near z = 0 (sin z ≈ z, tanh θz ≈ θz, cos z ≈ 1 − z²/2).
-STAND_IN_DEGREE = {"sign": 1, "sin": 1, "cos": 2}
-
-
-def _power_swaps(key, i: int, scorer: SystemScorer):
-    """``key`` with one bank term of equation ``i`` replaced by its variable's polynomial
-    stand-in (:data:`STAND_IN_DEGREE`), where the equation lacks that power: where a
-    variable stays small (a coupling's relative displacement) sin z and z are nearly
-    collinear, and the selection keeps the transcendental term only where the data
-    demonstrate it, as they must any term."""
-    equations = scorer.equations
-    state, forcing = key[i]
-    for z in equations.meaning[i].values():
-        for kind, degree in STAND_IN_DEGREE.items():
-            if kind not in equations.kinds:
-                continue
-            feature, power = equations.feature(i, kind, z), z ** degree
-            if feature in state and power not in state:
-                swapped = tuple(sorted((*(f for f in state if f != feature), power), key=str))
-                yield key[:i] + ((swapped, forcing),) + key[i + 1:]
-
-
 def _survivors(pool, scores, scorer: SystemScorer, count: int):
     """The best ``count`` of ``pool``: distinct structures first, then repeats."""
     order = np.argsort(scores, kind="stable")
@@ -517,29 +488,3 @@ def _survivors(pool, scores, scorer: SystemScorer, count: int):
         seen.add(key)
     chosen = (first + repeats)[:count]
     return [pool[i] for i in chosen], scores[chosen]
-
-
-def _simplest(best, scorer: SystemScorer, alpha: float, resolution: float):
-    """From ``best``, one-term removals and power swaps (:func:`_power_swaps`) by the
-    held-out test (module docstring), tried in the order of their held-out mean square. A
-    change replaces the current system when it predicts the held-out windows significantly
-    better (level ``alpha``: the term demonstrably hurts), or when neither predicts
-    significantly better and it does not simulate significantly worse once refined
-    (:meth:`SystemScorer.simulates_better`). Ends when no change qualifies."""
-    current = best
-    while True:
-        candidates = [c for i in range(len(current))
-                      for c in (*_removals(current, i), *_power_swaps(current, i, scorer))
-                      if all(part[0] or part[1] for part in c)]
-        base = scorer.held_out(current)
-        residuals = [scorer.held_out(c) for c in candidates]
-        order = np.argsort([np.mean(r ** 2) for r in residuals], kind="stable")
-        for index in order:
-            if predictive_test(base, residuals[index])["p_value"] < alpha or (
-                    predictive_test(residuals[index], base)["p_value"] >= alpha
-                    and not scorer.simulates_better(current, candidates[index], alpha,
-                                                    resolution)):
-                current = candidates[index]
-                break
-        else:
-            return current

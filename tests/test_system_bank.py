@@ -358,7 +358,7 @@ def test_the_selection_offers_each_bank_term_its_polynomial_stand_in():
     the equation, and none for z·|z|."""
     from types import SimpleNamespace
 
-    from gpjax._system_search import _power_swaps
+    from gpjax._system_select import power_swaps
 
     equations = Equations(_record(duration=1.0), 3, functions=(
         "add", "sub", "mul", "sign", "abs", "sin", "cos"))
@@ -367,7 +367,32 @@ def test_the_selection_offers_each_bank_term_its_polynomial_stand_in():
     key = (((X1, sp.sin(X1 - X2), sign, sp.cos(X1), V1 * sp.Abs(V1)), (U,)),
            ((X2 - X1,), ()))
     swapped = {tuple(sorted(set(c[0][0]) - set(key[0][0]), key=str))
-               for c in _power_swaps(key, 0, scorer)}
+               for c in power_swaps(key, 0, scorer)}
     assert swapped == {(X1 - X2,), (V1 - V2,), (X1 ** 2,)}
-    assert all(c[1] == key[1] and c[0][1] == (U,) for c in _power_swaps(key, 0, scorer))
-    assert list(_power_swaps(key, 1, scorer)) == []
+    assert all(c[1] == key[1] and c[0][1] == (U,) for c in power_swaps(key, 0, scorer))
+    assert list(power_swaps(key, 1, scorer)) == []
+
+
+def test_the_selection_offers_a_coupling_the_law_of_its_other_end():
+    """Equation 2's polynomial stand-in c·z + c3·z³ (z = x2' − x1') for the quadratic
+    damper equation 1 has in −z is offered that damper, its other terms kept; nothing is
+    offered where it would add a term, where the equations already agree, or where the other
+    end has no bank term."""
+    from types import SimpleNamespace
+
+    from gpjax._system_select import mirror_swaps
+
+    equations = Equations(_record(duration=1.0), 3, functions=("add", "sub", "mul", "abs"))
+    scorer = SimpleNamespace(equations=equations)
+    z = V2 - V1
+    key = (((V1, X1 - X2, (V1 - V2) * sp.Abs(V1 - V2)), (U,)),
+           ((V2, X2 - X1, z, z ** 3), ()))
+    (swapped,) = mirror_swaps(key, 1, scorer)
+    assert swapped[0] == key[0]
+    assert set(swapped[1][0]) == {V2, X2 - X1, z * sp.Abs(z)} and swapped[1][1] == ()
+    assert list(mirror_swaps(key, 0, scorer)) == []  # equation 2 has no bank term in z
+    assert list(mirror_swaps(swapped, 1, scorer)) == []
+    plain = (((V1, X1 - X2, V1 - V2), (U,)), key[1])
+    assert list(mirror_swaps(plain, 1, scorer)) == []
+    one = (key[0], ((V2, X2 - X1, z), ()))
+    assert [set(c[1][0]) for c in mirror_swaps(one, 1, scorer)] == [{V2, X2 - X1, z * sp.Abs(z)}]
