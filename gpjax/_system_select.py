@@ -1,8 +1,9 @@
 """A system's selection at the search's step count: from the best system found, one
 change at a time by the held-out predictive test (:func:`simplest`; the rule is in
 :mod:`gpjax._system_search`'s docstring). The changes: a term removed (:func:`removals`), a
-bank term swapped for its polynomial stand-in (:func:`power_swaps`), and one end of a
-coupling given the law of its other end (:func:`mirror_swaps`)."""
+bank term swapped for its polynomial stand-in (:func:`power_swaps`) and back
+(:func:`bank_swaps`), and one end of a coupling given the law of its other end
+(:func:`mirror_swaps`)."""
 
 from __future__ import annotations
 
@@ -23,26 +24,48 @@ def removals(key, i: int):
         yield key[:i] + ((state, forcing[:k] + forcing[k + 1:]),) + key[i + 1:]
 
 
-#: A bank kind's polynomial stand-in near z = 0 (sin z ≈ z, tanh θz ≈ θz, cos z ≈ 1 − z²/2).
-STAND_IN_DEGREE = {"sign": 1, "sin": 1, "cos": 2}
+#: A bank kind's Taylor terms near z = 0, lowest first (sin z = z − z³/6 + …, tanh θz =
+#: θz − (θz)³/3 + …, cos z = 1 − z²/2 + z⁴/24 − …).
+STAND_IN_DEGREES = {"sign": (1, 3), "sin": (1, 3), "cos": (2, 4)}
 
 
 def power_swaps(key, i: int, scorer: SystemScorer):
-    """``key`` with one bank term of equation ``i`` replaced by its variable's polynomial
-    stand-in (:data:`STAND_IN_DEGREE`), where the equation lacks that power: where a
-    variable stays small (a coupling's relative displacement) sin z and z are nearly
-    collinear, and the selection keeps the transcendental term only where the data
-    demonstrate it, as they must any term."""
+    """``key`` with one bank term of equation ``i`` replaced by its polynomial stand-in:
+    the lowest of its variable's Taylor powers (:data:`STAND_IN_DEGREES`) that the equation
+    lacks (beside z, sin z adds what z³ adds). Where a variable stays small (a coupling's
+    relative displacement) sin z and z are nearly collinear, and the selection keeps the
+    transcendental term only where the data demonstrate it, as they must any term."""
     equations = scorer.equations
     state, forcing = key[i]
     for z in equations.meaning[i].values():
-        for kind, degree in STAND_IN_DEGREE.items():
-            if kind not in equations.kinds:
-                continue
-            feature, power = equations.feature(i, kind, z), z ** degree
-            if feature in state and power not in state:
+        for kind, degrees in STAND_IN_DEGREES.items():
+            feature = equations.feature(i, kind, z) if kind in equations.kinds else None
+            power = next((z ** d for d in degrees if z ** d not in state), None)
+            if feature in state and power is not None:
                 swapped = tuple(sorted((*(f for f in state if f != feature), power), key=str))
                 yield key[:i] + ((swapped, forcing),) + key[i + 1:]
+
+
+def bank_swaps(key, i: int, scorer: SystemScorer):
+    """``key`` with the powers of one variable z of equation ``i`` (two or more) replaced
+    by one bank term of z, of each kind of the function set; with three or more, also all
+    but z itself. The reverse of :func:`power_swaps` (one coordinate's walk swaps powers for
+    a function too), offered only where it removes a term, so that the held-out test's tie
+    goes to it for the reason it goes to any removal: c·z + c₃·z³ is the search's usual
+    stand-in for a damper's z·|z|, and without a bank term in any equation neither this
+    move nor :func:`mirror_swaps` would reach it."""
+    equations = scorer.equations
+    state, forcing = key[i]
+    for z in equations.meaning[i].values():
+        powers = [f for f in state if f.as_base_exp()[0] == z]
+        if len(powers) < 2:
+            continue
+        keeps = ((), (z,)) if len(powers) > 2 and z in powers else ((),)
+        for kind in equations.kinds:
+            feature = equations.feature(i, kind, z)
+            for keep in keeps:
+                part = (*(f for f in state if f not in powers), *keep, feature)
+                yield key[:i] + ((tuple(sorted(part, key=str)), forcing),) + key[i + 1:]
 
 
 def _coupling_terms(features, z: sp.Expr, variables) -> dict:
@@ -93,25 +116,32 @@ def mirror_swaps(key, j: int, scorer: SystemScorer):
 
 
 def simplest(best, scorer: SystemScorer, alpha: float, resolution: float):
-    """From ``best``, one-term removals, power swaps and mirror swaps by the held-out test
+    """From ``best``, one-term removals, power, bank and mirror swaps by the held-out test
     (:mod:`gpjax._system_search`), tried in the order of their held-out mean square. A
     change replaces the current system when it predicts the held-out windows significantly
     better (level ``alpha``: the term demonstrably hurts), or when neither predicts
     significantly better and it does not simulate significantly worse once refined
-    (:meth:`SystemScorer.simulates_better`). A system once left is not offered again (a
-    swap and its reverse cannot cycle). Ends when no change qualifies."""
+    (:meth:`SystemScorer.simulates_better`). Only that simulated guard can veto a power
+    swap: the held-out windows' equation error, on smoothed noisy states, is biased
+    differently for a function and its Taylor stand-in (errors in variables: E sin(x + n) ≠
+    sin x), enough to call a held-out chain's true k·x1 significantly worse than
+    22·sin x1 + 3.4·x1³ (2 % noise). A system once left is not offered again (a swap and its
+    reverse cannot cycle). Ends when no change qualifies."""
     current, visited = best, {best}
     while True:
-        candidates = [c for i in range(len(current))
-                      for c in (*removals(current, i), *power_swaps(current, i, scorer),
-                                *mirror_swaps(current, i, scorer))
-                      if all(part[0] or part[1] for part in c) and c not in visited]
+        swaps = {c for i in range(len(current)) for c in power_swaps(current, i, scorer)}
+        changes = (c for i in range(len(current)) for c in (
+            *removals(current, i), *power_swaps(current, i, scorer),
+            *bank_swaps(current, i, scorer), *mirror_swaps(current, i, scorer)))
+        candidates = list(dict.fromkeys(c for c in changes if c not in visited
+                                        and all(part[0] or part[1] for part in c)))
         base = scorer.held_out(current)
         residuals = [scorer.held_out(c) for c in candidates]
         order = np.argsort([np.mean(r ** 2) for r in residuals], kind="stable")
         for index in order:
             if predictive_test(base, residuals[index])["p_value"] < alpha or (
-                    predictive_test(residuals[index], base)["p_value"] >= alpha
+                    (candidates[index] in swaps
+                     or predictive_test(residuals[index], base)["p_value"] >= alpha)
                     and not scorer.simulates_better(current, candidates[index], alpha,
                                                     resolution)):
                 current = candidates[index]

@@ -354,8 +354,8 @@ def test_no_narrowing_to_a_sign_no_step_count_integrates_stably(monkeypatch):
 
 def test_the_selection_offers_each_bank_term_its_polynomial_stand_in():
     """sin z -> z, the smoothed sign of z -> z, cos z -> z² (the selection keeps the bank
-    term only where the held-out test demonstrates it); none where the power is already in
-    the equation, and none for z·|z|."""
+    term only where the data demonstrate it); sin z -> z³ where z is already in the
+    equation; none for z·|z|."""
     from types import SimpleNamespace
 
     from gpjax._system_select import power_swaps
@@ -371,6 +371,8 @@ def test_the_selection_offers_each_bank_term_its_polynomial_stand_in():
     assert swapped == {(X1 - X2,), (V1 - V2,), (X1 ** 2,)}
     assert all(c[1] == key[1] and c[0][1] == (U,) for c in power_swaps(key, 0, scorer))
     assert list(power_swaps(key, 1, scorer)) == []
+    beside = (((X1 - X2, sp.sin(X1 - X2)), (U,)), key[1])  # beside z, sin z stands for z³
+    assert [c[0][0] for c in power_swaps(beside, 0, scorer)] == [((X1 - X2) ** 3, X1 - X2)]
 
 
 def test_the_selection_offers_a_coupling_the_law_of_its_other_end():
@@ -396,3 +398,47 @@ def test_the_selection_offers_a_coupling_the_law_of_its_other_end():
     assert list(mirror_swaps(plain, 1, scorer)) == []
     one = (key[0], ((V2, X2 - X1, z), ()))
     assert [set(c[1][0]) for c in mirror_swaps(one, 1, scorer)] == [{V2, X2 - X1, z * sp.Abs(z)}]
+
+
+def test_the_selection_offers_powers_of_a_variable_one_bank_term_in_their_place():
+    """c·z + c3·z³ (z = x1' − x2') -> one bank term of z of each kind, the equation's other
+    terms kept; with three powers also z kept beside it; nothing for a single power."""
+    from types import SimpleNamespace
+
+    from gpjax._system_select import bank_swaps
+
+    equations = Equations(_record(duration=1.0), 3, functions=("add", "sub", "mul", "abs", "sin"))
+    scorer = SimpleNamespace(equations=equations)
+    z = V1 - V2
+    key = (((V1, X1 - X2, z, z ** 3), (U,)), ((V2,), ()))
+    offered = [set(c[0][0]) for c in bank_swaps(key, 0, scorer)]
+    assert offered == [{V1, X1 - X2, z * sp.Abs(z)}, {V1, X1 - X2, sp.sin(z)}]
+    assert all(c[0][1] == (U,) and c[1] == key[1] for c in bank_swaps(key, 0, scorer))
+    three = (((V1, z, z ** 2, z ** 3), (U,)), key[1])
+    assert [set(c[0][0]) for c in bank_swaps(three, 0, scorer)][:2] == [
+        {V1, z * sp.Abs(z)}, {V1, z, z * sp.Abs(z)}]
+    assert list(bank_swaps(key, 1, scorer)) == []
+
+
+def test_only_the_simulated_guard_vetoes_a_power_swap():
+    """A held-out test that calls the stand-in significantly worse does not keep sin x1 (the
+    equation error's bias between a function and its Taylor stand-in); the simulated guard
+    does, and a removal stays vetoed by the held-out test."""
+    from types import SimpleNamespace
+
+    from gpjax._system_select import simplest
+
+    equations = Equations(_record(duration=1.0), 3, functions=("add", "sub", "mul", "sin"))
+    best = (((sp.sin(X1), V1), (U,)), ((V2, X2 - X1), ()))
+    swapped = (((X1, V1), (U,)), best[1])
+    noise = np.random.default_rng(0).normal(size=400)
+
+    def held_out(key):  # best fits the held-out windows best, the swap worse, the rest worse
+        return noise * {best: 1.0, swapped: 1.5}.get(key, 3.0)
+
+    def scorer(guard: bool):
+        return SimpleNamespace(equations=equations, held_out=held_out,
+                               simulates_better=lambda current, other, a, r: guard)
+
+    assert simplest(best, scorer(False), 0.05, 0.01) == swapped
+    assert simplest(best, scorer(True), 0.05, 0.01) == best
