@@ -464,6 +464,30 @@ def _systems_ab(path: str) -> str:
                     "same equations"], rows, "llrrrrrrrl") + "\n\n" + _stamp(data))
 
 
+def systems_scored_ab(path: str) -> str:
+    """Per record of a ``systems_front_door.py --baseline`` run: the baseline's structure,
+    constants and extrapolation beside this tree's."""
+    data = _load(path)
+    rows = []
+    for r in data["rows"]:
+        b = r["baseline"]
+        verdict = {True: "right", False: "WRONG"}
+        rows.append([f"`{r['system']}` seed {r['seed']}",
+                     f"{verdict[b['structure_right']]} → {verdict[r['structure_right']]}",
+                     f"{_pct(b['max_constant_error'])} → {_pct(r['max_constant_error'])}",
+                     f"{_pct(max(b['extrapolation_nrms']))} → "
+                     f"{_pct(max(r['extrapolation_nrms']))}",
+                     f"{b['seconds']:.0f} → {r['seconds']:.0f}",
+                     "yes" if b["same_equations"] else "no"])
+    revision = data["rows"][0]["baseline"]["revision"] if data["rows"] else "–"
+    functions = ", ".join(dict.fromkeys(r["command"].split("--functions ")[-1].split()[0]
+                                        if "--functions" in r["command"] else "default"
+                                        for r in data["rows"]))
+    return (_table(["record", f"structure at {revision} → now", "worst constant error",
+                    "worst coordinate's extrapolation NRMS", "s per fit", "same equations"],
+                   rows, "llrrrl") + f"\n\nFunction set: `{functions}`. " + _stamp(data))
+
+
 # ---------------------------------------------------------------- islands, many records, cache
 
 
@@ -741,6 +765,7 @@ TABLES = {
     "systems-programs-ab": systems_ab("benchmarks/systems_programs_ab.json"),
     "systems-width-ab": systems_ab("benchmarks/systems_width_ab.json"),
     "systems-continuation-ab": systems_ab("benchmarks/systems_continuation_ab.json"),
+    "systems-wide-ab": lambda: systems_scored_ab("benchmarks/systems_wide_ab.json"),
     "islands-compare": islands_compare,
     "islands-hard": islands_hard,
     "islands-model": islands_model,

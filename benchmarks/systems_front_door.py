@@ -7,7 +7,8 @@ options on records written by the catalogue, several seeds, scored against the t
 Each record (:func:`gpjax.systems.generate`: 1 % noise on every response and on the input,
 an extrapolation record with a 20 % larger input) is written as CSV and fitted by a
 separate ``gpjax fit … --response x1 --response x2 …`` process with the defaults, plus
-``--functions add,sub,mul,sign`` where the truth has dry friction. Scored:
+``--functions add,sub,mul,sign`` where the truth has dry friction (``--functions``: this set
+for every fit, e.g. the README's wide one). Scored:
 
 * **structure**: every equation's terms, each read as (kind, variable) — a power k of
   x_i, x_i − x_j, x_i' or x_i' − x_j', or a bank kind of one (:mod:`gpjax._system_bank`;
@@ -23,7 +24,8 @@ JSON records the revision, command, date and machine of the last run
 
 ``--baseline REV`` fits every record a second time with the code of git revision ``REV``
 (a temporary worktree), in the same run, and adds to its row ``baseline``: that fit's
-revision, seconds, seconds compiling, stages and whether its equations are this tree's.
+revision, seconds, seconds compiling, stages, whether its equations are this tree's, and
+its own structure, constant error and extrapolation NRMS, scored as this tree's.
 Each tree compiles into its own fresh program cache, so the first record of a run compiles
 cold under both and later ones find their programs.
 """
@@ -127,15 +129,18 @@ def timed_fit(command: list[str], child: dict) -> tuple:
     return done, seconds, figures
 
 
-def run_one(name: str, seed: int, folder: Path, baseline: tuple | None = None) -> dict:
+def run_one(name: str, seed: int, folder: Path, baseline: tuple | None = None,
+            functions: str | None = None) -> dict:
     """One record fitted and scored; ``baseline`` = (revision, its tree) fits it again
-    with that code (module docstring)."""
+    with that code (module docstring); ``functions``: every fit's function set (default
+    :data:`FUNCTIONS`, else gpjax's)."""
     data = generate(name, seed=seed)
     system = data.system
     path = folder / f"{name}_{seed}.csv"
     write_csv(data.fit, path)
     responses = [word for c in system.coordinates for word in ("--response", c)]
-    extra = ["--functions", FUNCTIONS[name]] if name in FUNCTIONS else []
+    functions = functions or FUNCTIONS.get(name)
+    extra = ["--functions", functions] if functions else []
 
     def fit_command(out: Path) -> list[str]:
         return [sys.executable, "-m", "gpjax", "fit", str(path), "--time", "t", *responses,
@@ -149,18 +154,27 @@ def run_one(name: str, seed: int, folder: Path, baseline: tuple | None = None) -
         return {"system": name, "seed": seed, "revision": provenance()["revision"],
                 "error": done.stderr.strip()[-500:], "seconds": seconds}
     model = gpjax.Model.load(folder / f"{name}_{seed}" / "model.json")
+    truth = [truth_terms(system, i) for i in range(len(system.coordinates))]
+
+    def score(fitted: gpjax.Model) -> tuple:
+        found = [found_terms(fitted, i) for i in range(len(truth))]
+        return found, *scored(fitted, found, truth, data.extrapolation)
+
     compared = {}
     if baseline is not None:
         revision, tree = baseline
         out = folder / f"{name}_{seed}_baseline"
         old, old_seconds, old_figures = timed_fit(fit_command(out), in_tree(
             tree, GPJAX_COMPILATION_CACHE="on", GPJAX_CACHE_DIR=str(folder / "cache-baseline")))
-        same = old.returncode == 0 and same_model(gpjax.Model.load(out / "model.json"), model)
+        scores = {}
+        if old.returncode == 0:
+            old_model = gpjax.Model.load(out / "model.json")
+            _, right, worst, spread = score(old_model)
+            scores = {"same_equations": same_model(old_model, model), "structure_right": right,
+                      "max_constant_error": worst, "extrapolation_nrms": spread.tolist()}
         compared = {"baseline": {"revision": revision, "seconds": old_seconds,
-                                 "same_equations": same, **old_figures}}
-    truth = [truth_terms(system, i) for i in range(len(system.coordinates))]
-    found = [found_terms(model, i) for i in range(len(system.coordinates))]
-    structure, error, nrms = scored(model, found, truth, data.extrapolation)
+                                 "same_equations": False, **scores, **old_figures}}
+    found, structure, error, nrms = score(model)
     return {"system": name, "seed": seed, "revision": provenance()["revision"],
             "command": " ".join(["gpjax", "fit", "<record>"] + command[5:]),
             "structure_right": structure, "max_constant_error": error,
@@ -177,6 +191,8 @@ def main() -> None:
     parser.add_argument("--seeds", type=int, default=5)
     parser.add_argument("--json", default="benchmarks/systems_front_door.json")
     parser.add_argument("--baseline", help="git revision to time against in the same run")
+    parser.add_argument("--functions", help="every fit's function set (default: gpjax's, or "
+                        "add,sub,mul,sign where the truth has dry friction)")
     args = parser.parse_args()
     path = Path(args.json)
     rows = json.loads(path.read_text())["rows"] if path.is_file() else []
@@ -189,7 +205,7 @@ def main() -> None:
             for seed in range(args.seeds):
                 if (name, seed) in done:
                     continue
-                row = run_one(name, seed, Path(folder), baseline)
+                row = run_one(name, seed, Path(folder), baseline, args.functions)
                 rows.append(row)
                 old = row.get("baseline")
                 print(f"{name} seed {seed}: " + (f"ERROR {row['error']}" if "error" in row else
