@@ -121,15 +121,17 @@ def simplest(best, scorer: SystemScorer, alpha: float, resolution: float):
     change replaces the current system when it predicts the held-out windows significantly
     better (level ``alpha``: the term demonstrably hurts), or when neither predicts
     significantly better and it does not simulate significantly worse once refined
-    (:meth:`SystemScorer.simulates_better`). Only that simulated guard can veto a power
-    swap: the held-out windows' equation error, on smoothed noisy states, is biased
-    differently for a function and its Taylor stand-in (errors in variables: E sin(x + n) ≠
-    sin x), enough to call a held-out chain's true k·x1 significantly worse than
-    22·sin x1 + 3.4·x1³ (2 % noise). A system once left is not offered again (a swap and its
+    (:meth:`SystemScorer.simulates_better`). The held-out windows' equation error, on
+    smoothed noisy states, is biased differently for a function and its Taylor stand-in
+    (errors in variables: E sin(x + n) ≠ sin x), enough to call a held-out chain's true k·x1
+    significantly worse than 22·sin x1 + 3.4·x1³ (2 % noise); so it cannot veto a power swap
+    nor take a bank swap on its own: the simulated guard decides both, the held-out test
+    only screening bank swaps (a refinement each would be dear). A system once left is not offered again (a swap and its
     reverse cannot cycle). Ends when no change qualifies."""
     current, visited = best, {best}
     while True:
-        swaps = {c for i in range(len(current)) for c in power_swaps(current, i, scorer)}
+        to_power = {c for i in range(len(current)) for c in power_swaps(current, i, scorer)}
+        to_bank = {c for i in range(len(current)) for c in bank_swaps(current, i, scorer)}
         changes = (c for i in range(len(current)) for c in (
             *removals(current, i), *power_swaps(current, i, scorer),
             *bank_swaps(current, i, scorer), *mirror_swaps(current, i, scorer)))
@@ -139,12 +141,13 @@ def simplest(best, scorer: SystemScorer, alpha: float, resolution: float):
         residuals = [scorer.held_out(c) for c in candidates]
         order = np.argsort([np.mean(r ** 2) for r in residuals], kind="stable")
         for index in order:
-            if predictive_test(base, residuals[index])["p_value"] < alpha or (
-                    (candidates[index] in swaps
+            change = candidates[index]
+            swap = change in to_power or change in to_bank
+            if (not swap and predictive_test(base, residuals[index])["p_value"] < alpha) or (
+                    (change in to_power
                      or predictive_test(residuals[index], base)["p_value"] >= alpha)
-                    and not scorer.simulates_better(current, candidates[index], alpha,
-                                                    resolution)):
-                current = candidates[index]
+                    and not scorer.simulates_better(current, change, alpha, resolution)):
+                current = change
                 visited.add(current)
                 break
         else:

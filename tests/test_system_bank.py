@@ -422,23 +422,29 @@ def test_the_selection_offers_powers_of_a_variable_one_bank_term_in_their_place(
 
 def test_only_the_simulated_guard_vetoes_a_power_swap():
     """A held-out test that calls the stand-in significantly worse does not keep sin x1 (the
-    equation error's bias between a function and its Taylor stand-in); the simulated guard
-    does, and a removal stays vetoed by the held-out test."""
+    equation error's bias between a function and its Taylor stand-in), nor does one that
+    calls sin x1 significantly better than x1 + x1³ replace them; the simulated guard
+    decides, and a removal stays vetoed by the held-out test."""
     from types import SimpleNamespace
 
     from gpjax._system_select import simplest
 
     equations = Equations(_record(duration=1.0), 3, functions=("add", "sub", "mul", "sin"))
-    best = (((sp.sin(X1), V1), (U,)), ((V2, X2 - X1), ()))
-    swapped = (((X1, V1), (U,)), best[1])
     noise = np.random.default_rng(0).normal(size=400)
 
-    def held_out(key):  # best fits the held-out windows best, the swap worse, the rest worse
-        return noise * {best: 1.0, swapped: 1.5}.get(key, 3.0)
+    def scorer(scales: dict, passes: set):
+        """Held-out residuals ``scales`` × noise (3 for any other system); the simulated
+        guard lets only ``passes`` through."""
+        return SimpleNamespace(
+            equations=equations, held_out=lambda key: noise * scales.get(key, 3.0),
+            simulates_better=lambda current, other, a, r: other not in passes)
 
-    def scorer(guard: bool):
-        return SimpleNamespace(equations=equations, held_out=held_out,
-                               simulates_better=lambda current, other, a, r: guard)
-
-    assert simplest(best, scorer(False), 0.05, 0.01) == swapped
-    assert simplest(best, scorer(True), 0.05, 0.01) == best
+    other = ((V2, X2 - X1), ())
+    function, stand_in = (((sp.sin(X1), V1), (U,)), other), (((X1, V1), (U,)), other)
+    scales = {function: 1.0, stand_in: 1.5}  # the stand-in significantly worse held out
+    assert simplest(function, scorer(scales, {stand_in}), 0.05, 0.01) == stand_in
+    assert simplest(function, scorer(scales, set()), 0.05, 0.01) == function
+    powers = (((X1, X1 ** 3, V1), (U,)), other)
+    scales = {powers: 1.0, function: 0.5}  # sin x1 significantly better held out
+    assert simplest(powers, scorer(scales, set()), 0.05, 0.01) == powers
+    assert simplest(powers, scorer(scales, {function}), 0.05, 0.01) == function
