@@ -37,9 +37,11 @@ the weak-form equation error significantly better (blocked cross-validation,
 removals tried in the order of their held-out mean square, until none qualifies; a power
 swap (a bank term for its polynomial stand-in near 0), a bank swap (the reverse, where it
 removes a term) and a mirror swap (one end of a coupling given the law of its other end:
-Newton's third law) are tried as a removal is (:mod:`gpjax._system_select`). So an input in an equation that the data do not need, a
-coupling term, or a sin(x1 − x2) standing in for a linear spring, goes unless the held-out
-windows demonstrate it. Where the held-out test cannot tell the two apart either way (the
+Newton's third law) are tried too, the first two decided by the simulated guard below
+(:func:`gpjax._system_select.simplest`: the held-out equation error is biased between a
+function and its Taylor stand-in). So an input in an equation that the data do not need,
+a coupling term, or a sin(x1 − x2) standing in for a linear spring, goes unless the
+held-out windows demonstrate it. Where the held-out test cannot tell the two apart either way (the
 equation error has little power where the states' smoothing blurs a term's effect: a
 gear's mesh damping), the removal must also not simulate significantly worse
 (:meth:`SystemScorer.simulates_better`: one coordinate's guard,
