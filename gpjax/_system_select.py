@@ -126,15 +126,17 @@ def simplest(best, scorer: SystemScorer, alpha: float, resolution: float):
     (errors in variables: E sin(x + n) ≠ sin x), enough to call a held-out chain's true k·x1
     significantly worse than 22·sin x1 + 3.4·x1³ (2 % noise); so it cannot veto a power swap
     nor take a bank swap on its own: the simulated guard decides both, the held-out test
-    only screening bank swaps (a refinement each would be dear). A system once left is not offered again (a swap and its
-    reverse cannot cycle). Ends when no change qualifies."""
+    only screening bank swaps (a refinement each would be dear). A system once left is not
+    offered again (a swap and its reverse cannot cycle). Ends when no change qualifies."""
     current, visited = best, {best}
     while True:
-        to_power = {c for i in range(len(current)) for c in power_swaps(current, i, scorer)}
-        to_bank = {c for i in range(len(current)) for c in bank_swaps(current, i, scorer)}
-        changes = (c for i in range(len(current)) for c in (
-            *removals(current, i), *power_swaps(current, i, scorer),
-            *bank_swaps(current, i, scorer), *mirror_swaps(current, i, scorer)))
+        to_power, to_bank, changes = set(), set(), []
+        for i in range(len(current)):
+            powers = list(power_swaps(current, i, scorer))
+            banks = list(bank_swaps(current, i, scorer))
+            to_power.update(powers)
+            to_bank.update(banks)
+            changes += [*removals(current, i), *powers, *banks, *mirror_swaps(current, i, scorer)]
         candidates = list(dict.fromkeys(c for c in changes if c not in visited
                                         and all(part[0] or part[1] for part in c)))
         base = scorer.held_out(current)
