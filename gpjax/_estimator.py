@@ -34,7 +34,7 @@ from ._objective import stop_objective
 from ._report import fit_figure, history_csv, write_bytes_atomic, write_text_atomic
 from ._select import pareto_front, select
 from ._uncertainty import fitted_uncertainty
-from ._sign_width import (NARROWING, check_width, narrowed, next_narrowing,
+from ._sign_width import (NARROWING, check_width, fitted_signs, narrowed, next_narrowing,
                           sharpened, why_stopped, width_line)
 
 CHECKPOINT = "checkpoint.json"
@@ -252,7 +252,8 @@ class Identifier:
                 if width is None or width.converged:
                     break
                 step = (next_narrowing(width, narrowings,
-                                       lambda factor: sharpened(self.model_, fitness, factor),
+                                       lambda factor: sharpened(self.model_, factor,
+                                                                fitted_signs(fitness)),
                                        fitness.measurement, tolerance=tolerance)
                         if auto else "fixed substeps")
                 if isinstance(step, str):

@@ -117,25 +117,29 @@ class WidthCheck:
         return dataclasses.asdict(self) | {"converged": self.converged}
 
 
-def _sign_replacements(features, fitness: Fitness, factor: float) -> dict[sp.Expr, sp.Expr]:
-    """tanh(a·z) → tanh(factor·a·z) for each smoothed sign (a = the width's scale, to
-    1e-9 relative) inside ``features``."""
-    out = {}
-    for role, z in (("x", fitness.symbols.x), ("x_dot", fitness.symbols.x_dot)):
-        scale = fitness.sign_scale(role)
-        for feature in features:
-            for tanh in feature.atoms(sp.tanh):
-                a = (tanh.args[0] / z)
-                if a.is_Number and math.isclose(float(a), scale, rel_tol=1e-9):
-                    out[tanh] = sp.tanh(sp.Float(factor * float(a)) * z)
-    return out
+def fitted_signs(fitness: Fitness) -> Callable[[sp.Expr], bool]:
+    """Which tanh of one coordinate's model is one of ``fitness``'s smoothed signs: a
+    tanh(a·z) of the response or its rate whose a is that variable's sign scale (to 1e-9
+    relative); a tanh law whose scale was fitted is a law of its own."""
+    variables = [(z, fitness.sign_scale(role)) for role, z in
+                 (("x", fitness.symbols.x), ("x_dot", fitness.symbols.x_dot))]
+
+    def is_sign(tanh: sp.Expr) -> bool:
+        return any((a := tanh.args[0] / z).is_Number
+                   and math.isclose(float(a), scale, rel_tol=1e-9) for z, scale in variables)
+    return is_sign
 
 
-def narrowed_coefficients(coefficients: Coefficients, fitness: Fitness,
-                          factor: float) -> Coefficients | None:
-    """``coefficients`` with every smoothed sign (module docstring) ``factor`` times
-    narrower, the values unchanged; None if they hold none."""
-    replacements = _sign_replacements(coefficients.state, fitness, factor)
+def narrowed_coefficients(coefficients: Coefficients, factor: float,
+                          is_sign: Callable[[sp.Expr], bool] | None = None
+                          ) -> Coefficients | None:
+    """``coefficients`` with every smoothed sign tanh(θ·z) ``factor`` times narrower,
+    tanh(factor·θ·z), the values unchanged; None if they hold none. ``is_sign`` says
+    which tanh is a smoothed sign (one coordinate's: :func:`fitted_signs`); by default
+    every tanh, as in a system's bank (:mod:`gpjax._system_bank`)."""
+    replacements = {tanh: sp.tanh(sp.expand(factor * tanh.args[0]))
+                    for feature in coefficients.state for tanh in feature.atoms(sp.tanh)
+                    if is_sign is None or is_sign(tanh)}
     if not replacements:
         return None
     return coefficients.replace(state={f.xreplace(replacements): v
@@ -146,7 +150,7 @@ def narrowed(record: Record, old: Fitness, new: Fitness) -> Record:
     """A copy of ``record`` (scored by ``old``) for ``new``, a fitness at a narrower sign
     width: its smoothed signs rewritten at ``new``'s width and held there (not refined)."""
     factor = old.sign_width / new.sign_width
-    coefficients = narrowed_coefficients(record.coefficients, old, factor)
+    coefficients = narrowed_coefficients(record.coefficients, factor, fitted_signs(old))
     if coefficients is None:
         return record
     held = set(record.held)
@@ -161,21 +165,23 @@ def narrowed(record: Record, old: Fitness, new: Fitness) -> Record:
                                held=tuple(sorted(held)), held_signs=new.held_signs(held))
 
 
-def sharpened(model: Model, fitness: Fitness, factor: float) -> Model | None:
-    """``model`` with its smoothed signs ``factor`` times narrower, its constants, initial
-    state and step count unchanged; None if it has none."""
-    coefficients = narrowed_coefficients(model.coefficients, fitness, factor)
-    if coefficients is None:
+def sharpened(model: Model, factor: float,
+              is_sign: Callable[[sp.Expr], bool] | None = None) -> Model | None:
+    """``model`` (any number of coordinates) with its smoothed signs ``factor`` times
+    narrower (:func:`narrowed_coefficients`; ``is_sign`` as there), its constants, initial
+    states and step count unchanged; None if it has none."""
+    equations = [narrowed_coefficients(c, factor, is_sign) for c in model.system]
+    if all(e is None for e in equations):
         return None
-    return Model.from_coefficients(model.symbols, coefficients,
-                                   input_interpolation=model.input_interpolation,
-                                   substeps=model.substeps)
+    return Model.from_equations(model.coordinates, model.time, model.inputs,
+                                [e or c for e, c in zip(equations, model.system)],
+                                input_interpolation=model.input_interpolation,
+                                substeps=model.substeps)
 
 
 def narrowed_steps(sharper: Model, measurement, *, tolerance: float) -> int | None:
     """RK4 steps per sample for ``sharper``, a model with its signs narrowed at the step
-    count of the model it came from (:func:`sharpened`; a system's
-    :func:`gpjax._system_final.sharpened_model`): that count if the step check
+    count of the model it came from (:func:`sharpened`): that count if the step check
     (:func:`gpjax._convergence.check_model`) passes there, else the count that check asks
     for — measured, not assumed to grow with the sign's steepness; ``None`` where no count
     up to the cap keeps RK4 stable on it."""
@@ -248,8 +254,9 @@ def next_narrowing(check: WidthCheck, narrowings: int,
 def check_width(model: Model, reference: np.ndarray, rms_reference: float,
                 fitness: Fitness, *, tolerance: float) -> WidthCheck | None:
     """:func:`width_check` of one coordinate's reported ``model`` (signs found by
-    :func:`sharpened` at ``fitness``'s width)."""
-    return width_check(model, lambda factor: sharpened(model, fitness, factor),
+    :func:`fitted_signs` at ``fitness``'s width)."""
+    signs = fitted_signs(fitness)
+    return width_check(model, lambda factor: sharpened(model, factor, signs),
                        fitness.measurement, reference, rms_reference,
                        fraction=fitness.sign_width, tolerance=tolerance)
 

@@ -135,15 +135,3 @@ def bank_of(names: tuple[str, ...], features: list) -> tuple[tuple[str, ...], np
             kinds.add(found[0])
             scales[i * len(variables[i]) + found[1]] = found[2]
     return tuple(k for k in KINDS if k in kinds), scales
-
-
-def sharpened_features(features, names: tuple[str, ...], i: int, factor: float) -> dict:
-    """{feature: the same with its smoothed sign ``factor`` times narrower} for the sign
-    terms among equation ``i``'s ``features`` (θ × ``factor``)."""
-    variables = system_variables(names)[i]
-    out = {}
-    for feature in features:
-        found = match_bank(feature, variables)
-        if found is not None and found[0] == "sign":
-            out[feature] = bank_feature("sign", variables[found[1]], found[2] * factor)
-    return out

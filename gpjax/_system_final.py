@@ -1,8 +1,6 @@
 """The reported system at converged integration: a term its fit does not demonstrate is
 dropped where the fit is at its noise floor (:func:`insignificant_removals`,
-:func:`flagged`; :func:`added_terms_p` tests a diagnosis's candidate the same way), and
-its smoothed signs are found and narrowed (:func:`sharpened`, :func:`sharpened_model`;
-:mod:`gpjax._system_bank`) for the width check (:mod:`gpjax._sign_width`)."""
+:func:`flagged`; :func:`added_terms_p` tests a diagnosis's candidate the same way)."""
 
 from __future__ import annotations
 
@@ -12,8 +10,6 @@ import numpy as np
 from scipy import special
 
 from ._data import Measurement
-from ._model import Model
-from ._system_bank import sharpened_features
 from ._system_diagnose import residual_statistics
 from ._system_fit import SystemFit
 
@@ -102,25 +98,3 @@ def added_terms_p(fit: SystemFit, added: dict[int, tuple[tuple, tuple]]) -> floa
     if not math.isfinite(dof):
         return float(special.chdtrc(k, statistic))
     return float(special.fdtrc(k, dof, statistic / k))
-
-
-def sharpened(equations, names: tuple[str, ...], factor: float) -> list:
-    """``equations`` (per coordinate :class:`~gpjax._coefficients.Coefficients`) with every
-    smoothed sign ``factor`` times narrower, constants kept."""
-    out = []
-    for i, equation in enumerate(equations):
-        sharp = sharpened_features(equation.state, names, i, factor)
-        out.append(equation.replace(state={sharp.get(f, f): v
-                                           for f, v in equation.state.items()}))
-    return out
-
-
-def sharpened_model(model: Model, factor: float) -> Model | None:
-    """``model`` with every smoothed sign ``factor`` times narrower, its constants and step
-    count unchanged; ``None`` without a sign."""
-    sharper = sharpened(model.system, model.coordinates, factor)
-    if all(s.state == c.state for s, c in zip(sharper, model.system)):
-        return None
-    return Model.from_equations(model.coordinates, model.time, model.inputs, sharper,
-                                input_interpolation=model.input_interpolation,
-                                substeps=model.substeps)

@@ -97,9 +97,9 @@ from ._expressions import parse_expression
 from ._features import SIGN_WIDTH
 from ._objective import stop_objective
 from ._operators import crossover, initial_population, mutation, perturbation
-from ._sign_width import NARROWING, next_narrowing, width_check
+from ._sign_width import NARROWING, next_narrowing, sharpened, width_check
 from ._system_bank import kinds_for, sign_scales
-from ._system_final import flagged, insignificant_removals, sharpened, sharpened_model
+from ._system_final import flagged, insignificant_removals
 from ._system_fit import SystemFit, SystemWeakForm, fit_system
 from ._system_grammar import Equations
 from ._system_scorer import SystemScorer, as_trees, key_text
@@ -341,7 +341,7 @@ def _narrowed(fit: SystemFit, structure, measurement: Measurement, settings: dic
     check = _width_check(fit, measurement, tolerance, width)
     while check is not None and not check.converged and math.isfinite(check.ratio):
         step = next_narrowing(check, narrowings,
-                              lambda factor: sharpened_model(fit.model, factor), measurement,
+                              lambda factor: sharpened(fit.model, factor), measurement,
                               tolerance=tolerance)
         if isinstance(step, str):
             stopped = step
@@ -350,7 +350,7 @@ def _narrowed(fit: SystemFit, structure, measurement: Measurement, settings: dic
         _progress.stage(f"refitting the system with its smoothed signs {NARROWING ** jump}× "
                         f"narrower (ε = {width / NARROWING ** jump:.3g}·RMS z): its constants "
                         "carried the smoothing")
-        start = sharpened(fit.model.system, measurement.response_names, NARROWING ** jump)
+        start = sharpened(fit.model, NARROWING ** jump).system
         structure = tuple((tuple(c.state), forcing) for c, (_, forcing) in zip(start, structure))
         try:
             fit = fit_system(measurement, structure, start=start, first_substeps=steps,
@@ -368,7 +368,7 @@ def _width_check(fit: SystemFit, measurement: Measurement, tolerance: float, wid
     it) against its signs' narrower ones, over that check's RMS residual; ``None`` without
     a sign."""
     model = fit.model
-    return width_check(model, lambda factor: sharpened_model(model, factor), measurement,
+    return width_check(model, lambda factor: sharpened(model, factor), measurement,
                        fit.reference, fit.checks[-1].rms_reference, fraction=width,
                        tolerance=tolerance)
 

@@ -10,7 +10,8 @@ import sympy as sp
 from gpjax import GPConfig, Identifier
 from gpjax._canonical import CanonicalForm
 from gpjax._fitness import Fitness
-from gpjax._sign_width import NARROWING, WidthCheck, narrowed, narrowed_coefficients
+from gpjax._sign_width import (NARROWING, WidthCheck, fitted_signs, narrowed,
+                               narrowed_coefficients)
 from gpjax.systems import generate, get_system
 
 CONFIG = GPConfig(population=8, generations=1, functions=("add", "mul", "tanh", "exp"))
@@ -59,7 +60,7 @@ def test_narrowing_rewrites_the_smoothed_signs_only_and_holds_them(record):
     assert copy.held == law.held and copy.key != law.key  # the same slots, now the sharper sign
     # a tanh whose scale was fitted is a law of its own, not a sign: nothing to narrow
     fitted = law.coefficients.replace(state={wide.symbols.x: 40.0, sp.tanh(3.0 * v): 1.0})
-    assert narrowed_coefficients(fitted, wide, NARROWING) is None
+    assert narrowed_coefficients(fitted, NARROWING, fitted_signs(wide)) is None
 
 
 @pytest.mark.slow

@@ -247,7 +247,7 @@ def test_a_systems_width_check_is_one_coordinates_check():
     rate) and a verdict, in the first response's units as that check; no sign, no check."""
     from gpjax._convergence import coordinate_weights
     from gpjax._sign_width import WidthCheck
-    from gpjax._system_final import sharpened_model
+    from gpjax._sign_width import sharpened
     from gpjax._system_search import _width_check
 
     measurement = _record(duration=2.0)
@@ -260,7 +260,7 @@ def test_a_systems_width_check_is_one_coordinates_check():
     weights = coordinate_weights(measurement.responses)
     own, sharper = (np.reshape(m.simulate(measurement, initial_conditions=model.initial_states),
                                measurement.responses.shape)
-                    for m in (model, sharpened_model(model, 4)))
+                    for m in (model, sharpened(model, 4)))
     change = np.sqrt(np.mean(((sharper - own) * weights) ** 2))
     assert check.ratio == pytest.approx(change / fit.checks[0].rms_reference, rel=1e-6)
     plain = [e.replace(state={f: v for f, v in e.state.items() if not f.has(sp.tanh)})
@@ -287,7 +287,7 @@ def _narrowing(monkeypatch, steps, checks):
     import gpjax._sign_width as widths
     import gpjax._system_search as search
 
-    calls, factors, left = [], [], list(checks)
+    calls, left = [], list(checks)
 
     def width_check(fit, measurement, tolerance, width):
         ratio, next_ratio = left.pop(0)
@@ -300,9 +300,8 @@ def _narrowing(monkeypatch, steps, checks):
         return fit
 
     monkeypatch.setattr(search, "_width_check", width_check)
-    monkeypatch.setattr(search, "sharpened",
-                        lambda equations, names, factor: factors.append(factor) or [])
-    monkeypatch.setattr(search, "sharpened_model", lambda model, factor: model)
+    monkeypatch.setattr(search, "sharpened",  # a stand-in whose equations name the factor
+                        lambda model, factor: SimpleNamespace(system=("narrowed", factor)))
     monkeypatch.setattr(widths, "narrowed_steps", lambda sharper, measurement, tolerance: steps)
     monkeypatch.setattr(search, "fit_system", refit)
     fit = SimpleNamespace(model=SimpleNamespace(system=[], substeps=2))
@@ -310,7 +309,7 @@ def _narrowing(monkeypatch, steps, checks):
         fit, (), SimpleNamespace(response_names=("x1", "x2")), {"tolerance": 0.01})
     check = check | ({"stopped": stopped} if stopped else {})
     assert out is fit
-    return check, calls, factors
+    return check, calls, [kwargs["start"][1] for kwargs in calls]
 
 
 def test_a_narrowing_jumps_as_far_as_the_checks_rate_projects(monkeypatch):
