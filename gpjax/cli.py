@@ -74,8 +74,9 @@ def _parser() -> argparse.ArgumentParser:
     diagnose.add_argument("--model", required=True, help="model.json (constants are refitted)")
     diagnose.add_argument("--time", required=True, help="name of the time column (seconds)")
     _response_option(diagnose)
-    diagnose.add_argument("--input", action="append", default=[], dest="inputs",
-                          help="name of an input column (repeat for several)")
+    diagnose.add_argument("--input", action="extend", type=_names, default=[],
+                          dest="inputs", help="name of an input column (repeat, or "
+                          "separate by commas, for several)")
     diagnose.add_argument("--out", default="gpjax-diagnose",
                           help="report folder (default: gpjax-diagnose)")
     _diagnose_options(diagnose)
@@ -102,8 +103,9 @@ def _parser() -> argparse.ArgumentParser:
 def _fit_options(parser, *, out: str) -> None:
     parser.add_argument("--time", required=True, help="name of the time column (seconds)")
     _response_option(parser)
-    parser.add_argument("--input", action="append", default=[], dest="inputs",
-                        help="name of an input column (repeat for several)")
+    parser.add_argument("--input", action="extend", type=_names, default=[], dest="inputs",
+                        help="name of an input column (repeat, or separate by commas, "
+                        "for several)")
     parser.add_argument("--config", help="TOML file of settings (docs/configuration.md)")
     parser.add_argument("--population", type=int, help="individuals per generation")
     parser.add_argument("--generations", type=int, help="maximum generations")
@@ -120,9 +122,10 @@ def _fit_options(parser, *, out: str) -> None:
 
 
 def _response_option(parser) -> None:
-    parser.add_argument("--response", action="append", required=True, dest="responses",
-                        help="name of a measured response column (repeat for the "
-                        "coordinates of a system with several degrees of freedom)")
+    parser.add_argument("--response", action="extend", type=_names, required=True,
+                        dest="responses", help="name of a measured response column (repeat, "
+                        "or separate by commas, for the coordinates of a system with "
+                        "several degrees of freedom)")
 
 
 def _one_response(args) -> str:

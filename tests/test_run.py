@@ -134,6 +134,23 @@ def test_functions_option_sets_the_function_set_over_the_config_file(tmp_path):
     assert cli._config(plain, GPConfig()).functions == GPConfig().functions
 
 
+def test_responses_and_inputs_may_be_repeated_or_separated_by_commas():
+    """``--response x1,x2`` names the same coordinates as ``--response x1 --response x2``
+    (as ``--functions`` takes a list), in order; the same for ``--input``."""
+    from gpjax import cli
+
+    def parsed(*names):
+        args = cli._parser().parse_args(["fit", "d.csv", "--time", "t", *names])
+        return args.responses, args.inputs
+
+    assert (parsed("--response", "x1,x2", "--input", "u, v")
+            == parsed("--response", "x1", "--response", "x2", "--input", "u", "--input", "v")
+            == (["x1", "x2"], ["u", "v"]))
+    assert parsed("--response", "x1,x2", "--response", "x3")[0] == ["x1", "x2", "x3"]
+    with pytest.raises(cli.UserInputError, match="expected comma-separated names"):
+        parsed("--response", ",")
+
+
 def test_one_coordinate_gets_its_residual_against_the_noise_floor(capsys):
     """A fit of one coordinate reports its residual as a system's coordinates do: the true
     Duffing model sits at its noise floor, the same model without its cubic spring is
