@@ -97,8 +97,8 @@ import numpy as np
 
 from . import _progress
 from ._canonical import Symbols
-from ._convergence import (MAX_SUBSTEPS, Convergence, check_model, initial_substeps,
-                           needed_substeps, next_substeps)
+from ._convergence import (MAX_SUBSTEPS, Convergence, check_model, fit_converged,
+                           initial_substeps, next_substeps)
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._diagnose_acceptance import accepted
 from ._diagnose_ambiguity import indistinguishable, separating_input
@@ -428,13 +428,16 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
     settings = {"holdout": holdout, "max_steps": max_steps, "shortlist": shortlist,
                 "min_gain": min_gain, "alpha": alpha, "iterations": iterations,
                 "input_interpolation": input_interpolation, "input_noise": input_noise}
-    while True:  # the structures are chosen; refit them on the whole record, converged
+    out = {}
+
+    def refit_at(count: int, previous=None) -> Model:
+        """The chosen structures refitted on the whole record at ``count`` RK4 steps per
+        sample (``out``: the diagnosis and its problem); the last one's model."""
         _progress.stage(f"diagnosis: refitting {len(fits)} model(s) on the whole record at "
-                        f"{substeps} substeps")
+                        f"{count} substeps")
         whole = FitProblem(measurement, symbols, holdout=0.0, iterations=iterations,
-                         substeps=substeps, batch=len(fits),
-                         input_interpolation=input_interpolation,
-                         rate_band=drifting)
+                           substeps=count, batch=len(fits),
+                           input_interpolation=input_interpolation, rate_band=drifting)
         whole.pool_lhs, whole.pool_forcing = problem.pool_lhs, problem.pool_forcing
         structures = [fit.structure for fit in fits]
         refits = (consensus_refits(whole, structures)
@@ -443,22 +446,27 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         result = Diagnosis(mode=chosen_mode, steps=steps, rankings=rankings, fits=fits,
                            refits=refits, frequencies=lines, n_train=problem.n_train,
                            measurement=measurement, symbols=symbols,
-                           settings=settings | {"substeps": substeps})
+                           settings=settings | {"substeps": count})
         _progress.stage("diagnosis: the refits' residuals, "
                         + ("convergence check and " if chosen_mode == "simulation" else "")
                         + "uncertainty")
         result.noise = _noise(result, problem)
         result.unexplained = _unexplained(result, problem, alpha)
-        if chosen_mode != "simulation":
-            result.uncertainty = _equation_error_uncertainty(result)
-            return result
-        check, reference = check_model(result.model(), measurement,
-                                       tolerance=convergence_tolerance)
-        if check.converged or not automatic or substeps >= MAX_SUBSTEPS:
-            result.convergence = check.to_json()
-            result.uncertainty = _uncertainty(result, whole)
-            return result
-        substeps = needed_substeps(result.model(), measurement, check, reference)
+        out.update(result=result, whole=whole)
+        return result.model()
+
+    if chosen_mode != "simulation":  # an equation-error fit integrates nothing
+        refit_at(substeps)
+        out["result"].uncertainty = _equation_error_uncertainty(out["result"])
+        return out["result"]
+    # the structures are chosen; refit them on the whole record, converged
+    _, checks, _ = fit_converged(refit_at, measurement, first=substeps,
+                                 substeps=None if automatic else substeps,
+                                 tolerance=convergence_tolerance)
+    result = out["result"]
+    result.convergence = checks[-1].to_json()
+    result.uncertainty = _uncertainty(result, out["whole"])
+    return result
 
 
 def _uncertainty(result: Diagnosis, whole: FitProblem) -> Uncertainty:
