@@ -147,9 +147,11 @@ class SystemDiagnosis:
         lines = ["# Diagnosis of a system", "",
                  f"Effects added: {', '.join(self.effects_added) or 'none'}.", ""]
         for step in self.steps:
-            test = step["test"]
+            test, rms = step["test"], step["heldout_rms_before"]
+            was = (f"{rms:.4g}" if rms is not None and math.isfinite(rms)
+                   else "none (the model before diverged on the estimation part)")
             lines.append(f"- {step['effect']} on {step['acts_on']}: held-out RMS (scaled) "
-                         f"{step['heldout_rms_before']:.4g} -> {step['heldout_rms_after']:.4g}, "
+                         f"{was} -> {step['heldout_rms_after']:.4g}, "
                          f"p = {test['p_adjusted']:.3g} (held-out test and Wald test, "
                          "Bonferroni)")
         lines += ["", "## Model before", "", *(f"- `{before.sympy(i)}`"

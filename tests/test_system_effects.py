@@ -223,3 +223,23 @@ def test_the_selection_guard_keeps_a_coupling_the_simulated_responses_need():
     assert linear != truth
     assert scorer.simulates_better(truth, linear, 0.05, 0.01)
     assert not scorer.simulates_better(truth, truth, 0.05, 0.01)
+
+
+def test_the_report_says_where_the_model_before_diverged():
+    """A step whose starting structure diverged when refitted on the estimation part (its
+    held-out residual NaN) reads so in report.md, not "nan"."""
+    from types import SimpleNamespace
+
+    from gpjax._system_effects import SystemDiagnosis
+
+    model = gpjax.Model.from_equations(NAMES, "t", ("u",),
+                                       _equations(get_system("chain2").constants))
+    fit = SimpleNamespace(model=model, uncertainty=None,
+                          checks=[SimpleNamespace(to_json=lambda: {})])
+    step = {"effect": "coulomb_friction", "acts_on": "x2", "equations": [2],
+            "test": {"p_adjusted": 1e-6}, "heldout_rms_after": 0.0125}
+    for before, text in ((float("nan"), "none (the model before diverged"),
+                         (0.02, "0.02 -> 0.0125")):
+        report = SystemDiagnosis(steps=[step | {"heldout_rms_before": before}], rankings=[],
+                                 before=fit, after=fit, residuals={}, settings={}).markdown()
+        assert text in report and "nan" not in report
