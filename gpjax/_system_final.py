@@ -1,17 +1,64 @@
-"""The reported system at converged integration: a term its fit does not demonstrate is
-dropped where the fit is at its noise floor (:func:`insignificant_removals`,
-:func:`flagged`; :func:`added_terms_p` tests a diagnosis's candidate the same way)."""
+"""The reported system at converged integration: a structure the reference solver cannot
+integrate gives way to its nearest one that it can (:func:`integrable`), and a term its fit
+does not demonstrate is dropped where the fit is at its noise floor
+(:func:`insignificant_removals`, :func:`flagged`; :func:`added_terms_p` tests a
+diagnosis's candidate the same way)."""
 
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import numpy as np
 from scipy import special
 
+from . import _progress
 from ._data import Measurement
 from ._system_diagnose import residual_statistics
-from ._system_fit import SystemFit
+from ._system_fit import SystemFit, fit_system
+from ._system_scorer import SystemScorer
+from ._system_select import removals
+
+
+def reported(best, scorer: SystemScorer, measurement: Measurement, settings: dict,
+             alpha: float) -> tuple:
+    """(key, fit) of the reported system: the selection's ``best`` fitted at converged
+    integration (:func:`gpjax._system_fit.fit_system` with ``settings``), replaced by its
+    nearest structure the reference solver integrates where it cannot
+    (:func:`integrable`), then its terms that fit does not demonstrate dropped one at a
+    time (:func:`insignificant_removals` at level ``alpha``) while the refit stays
+    unflagged (:func:`flagged`; a refit that diverges or is flagged keeps the term).
+
+    Raises:
+        ValueError: the converged fit of ``best`` diverged.
+    """
+    def fit_of(key, first: int | None) -> SystemFit | None:
+        try:
+            return fit_system(measurement, scorer.normalised(key),
+                              start=scorer.coefficients(key), first_substeps=first, **settings)
+        except ValueError:  # the refit diverged
+            return None
+
+    fit = fit_system(measurement, scorer.normalised(best), start=scorer.coefficients(best),
+                     **settings)
+    if not integrates(fit):
+        _progress.stage("the reference solver cannot integrate the selected system: "
+                        "fitting its one-term removals at converged integration")
+        best, fit = integrable(best, lambda key: fit_of(key, fit.checks[0].substeps)) or (
+            best, fit)
+    candidates = [sum(map(len, scorer.equations.basis(i)))
+                  for i in range(len(scorer.equations.names))]
+    untested = (insignificant_removals(best, fit, alpha, candidates)
+                if not flagged(fit, measurement) else [])
+    while untested:
+        smaller = untested.pop(0)
+        _progress.stage(f"dropping a term its converged fit does not demonstrate (Wald test "
+                        f"at level {alpha} over its equation's candidates), then fitting again")
+        trial = fit_of(smaller, fit.model.substeps)
+        if trial is not None and not flagged(trial, measurement):  # else the term stays
+            best, fit = smaller, trial
+            untested = insignificant_removals(best, fit, alpha, candidates)
+    return best, fit
 
 
 def flagged(fit: SystemFit, measurement: Measurement) -> bool:
@@ -20,6 +67,33 @@ def flagged(fit: SystemFit, measurement: Measurement) -> bool:
     (:func:`gpjax._system_diagnose.residual_statistics`)."""
     statistics = residual_statistics(fit.model, measurement).values()
     return any(s["rms"] is None or s["unexplained"] is not None for s in statistics)
+
+
+def integrates(fit: SystemFit) -> bool:
+    """Whether the reference solver integrates ``fit``'s model over the samples of its last
+    convergence check (a finite reference RMS residual)."""
+    return math.isfinite(fit.checks[-1].rms_reference)
+
+
+def integrable(key, fit_of: Callable) -> tuple | None:
+    """(key, fit) of the one-term removal of ``key`` that the reference solver integrates
+    with the smallest RMS residual at converged integration (``fit_of(key)``: that fit, or
+    None where it diverged); None where no removal integrates. For a ``key`` whose
+    converged fit the reference solver cannot integrate: the search ranks structures by
+    RK4 at its own step count, whose numerical damping can hold back a term that makes the
+    exact ODE blow up (a −c₃·x'³ standing in for a friction on a record whose speed passes
+    √(c₁/c₃)). Such a structure is no model of the record — only the discretisation makes
+    it one — and its one-term removals are the structures nearest to it."""
+    fits = []
+    for i in range(len(key)):
+        for smaller in removals(key, i):
+            fit = fit_of(smaller)
+            if fit is not None and integrates(fit):
+                fits.append((fit.checks[-1].rms_reference, len(fits), smaller, fit))
+    if not fits:
+        return None
+    _, _, smaller, fit = min(fits)
+    return smaller, fit
 
 
 def _term_constants(fit: SystemFit, terms: dict[int, tuple[tuple, tuple]]) -> dict:

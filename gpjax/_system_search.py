@@ -50,7 +50,9 @@ That guard is in-sample and nested, so it leans towards the larger system, and a
 fits the measured input's noise as it rings through the dynamics passes it; so a removal
 that predicts the held-out windows significantly better is taken without it, and the Wald
 pruning below removes what the converged fit does not demonstrate. The chosen system is
-refitted at converged integration (:func:`gpjax._system_fit.fit_system`), and a term whose
+refitted at converged integration (:func:`gpjax._system_fit.fit_system`); where the
+reference solver cannot integrate that fit, its one-term removal that it integrates best
+replaces it (:func:`gpjax._system_final.integrable`). A term whose
 constant that fit cannot tell from 0 (a Wald test with the interval's standard error, at
 ``selection_alpha`` over the number of features its equation chose from: Bonferroni, the
 test is post-selection) is dropped and the rest refitted, one at a time, least
@@ -99,7 +101,7 @@ from ._objective import stop_objective
 from ._operators import crossover, initial_population, mutation, perturbation
 from ._sign_width import NARROWING, next_narrowing, sharpened, width_check
 from ._system_bank import kinds_for, sign_scales
-from ._system_final import flagged, insignificant_removals
+from ._system_final import reported
 from ._system_fit import SystemFit, SystemWeakForm, fit_system
 from ._system_grammar import Equations
 from ._system_scorer import SystemScorer, as_trees, key_text
@@ -301,27 +303,7 @@ class SystemEvolution:
                         input_interpolation=config.input_interpolation,
                         tolerance=config.convergence_tolerance,
                         kinds=kinds_for(config.functions))
-        fit = fit_system(measurement, scorer.normalised(best), start=scorer.coefficients(best),
-                         **settings)
-        candidates = [sum(map(len, scorer.equations.basis(i)))
-                      for i in range(len(scorer.equations.names))]
-        untested = (insignificant_removals(best, fit, config.selection_alpha, candidates)
-                    if not flagged(fit, measurement) else [])
-        while untested:
-            smaller = untested.pop(0)
-            _progress.stage(f"dropping a term its converged fit does not demonstrate (Wald "
-                            f"test at level {config.selection_alpha} over its equation's "
-                            "candidates), then fitting again")
-            try:
-                trial = fit_system(measurement, scorer.normalised(smaller),
-                                   start=scorer.coefficients(smaller),
-                                   first_substeps=fit.model.substeps, **settings)
-            except ValueError:  # the refit without it diverged: the term stays
-                continue
-            if not flagged(trial, measurement):  # else the term stays: try the next
-                best, fit = smaller, trial
-                untested = insignificant_removals(best, fit, config.selection_alpha,
-                                                  candidates)
+        best, fit = reported(best, scorer, measurement, settings, config.selection_alpha)
         fit, width, stopped = _narrowed(fit, scorer.normalised(best), measurement, settings)
         return SearchResult(fit, [dataclasses.asdict(h) for h in state.history], {
             "selection_s": fitting - selecting,

@@ -12,6 +12,7 @@ every command writes its progress there, one line per generation and per stage
 from __future__ import annotations
 
 import argparse
+import gc
 import os
 import shutil
 import sys
@@ -526,8 +527,20 @@ def _run(config, measurement, seed, out: Path, *, resume: bool, **islands):
         raise
 
 
+def console() -> int:
+    """The ``gpjax`` console script and ``python -m gpjax``: :func:`main`'s exit status,
+    with the interpreter's last garbage collection skipped (:func:`gc.freeze`). At exit
+    it would traverse every object the run left behind (sympy's caches, the compiled
+    programs): about 0.5 s of a 5 s ``gpjax demo``. Every file is written and closed
+    before :func:`main` returns, and the memory goes back with the process."""
+    status = main()
+    gc.freeze()
+    return status
+
+
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of the ``gpjax`` console script; returns the exit status."""
+    """The command line ``argv`` (default ``sys.argv[1:]``) run in this process; returns
+    the exit status."""
     try:
         args = _parser().parse_args(argv)
         handler = {"demo": _demo, "fit": _fit, "fit-many": _fit_many, "diagnose": _diagnose,

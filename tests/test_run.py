@@ -5,6 +5,7 @@ import os
 import signal
 import subprocess
 import sys
+from pathlib import Path
 
 import pytest
 from _runs import kill_and_resume, wait_for_generation
@@ -194,6 +195,23 @@ def test_one_coordinate_gets_its_residual_against_the_noise_floor(capsys):
                      diagnosing=True)  # gpjax fit --diagnose: no hint to add --diagnose
     out = capsys.readouterr().out
     assert "the diagnosis follows" in out and "hint" not in out
+
+
+def test_the_console_script_is_main_without_the_last_collection(monkeypatch):
+    """``gpjax`` and ``python -m gpjax`` return :func:`gpjax.cli.main`'s status and skip
+    the interpreter's last garbage collection (``gc.freeze``: ~0.5 s of a warm demo);
+    ``main`` itself, which tests and notebooks call in a living process, does not."""
+    import tomllib
+
+    from gpjax import cli
+
+    frozen = []
+    monkeypatch.setattr(cli.gc, "freeze", lambda: frozen.append(True))
+    monkeypatch.setattr(cli, "main", lambda: 2)
+    assert cli.console() == 2 and frozen == [True]
+    project = tomllib.loads((Path(__file__).parents[1] / "pyproject.toml").read_text())
+    assert project["project"]["scripts"]["gpjax"] == "gpjax.cli:console"
+    assert "console()" in (Path(cli.__file__).parent / "__main__.py").read_text()
 
 
 def test_a_closed_stdout_ends_the_command_quietly():

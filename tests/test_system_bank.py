@@ -447,3 +447,33 @@ def test_only_the_simulated_guard_vetoes_a_power_swap():
     scales = {powers: 1.0, function: 0.5}  # sin x1 significantly better held out
     assert simplest(powers, scorer(scales, set()), 0.05, 0.01) == powers
     assert simplest(powers, scorer(scales, {function}), 0.05, 0.01) == function
+
+
+def test_a_system_the_reference_solver_cannot_integrate_gives_way_to_a_removal():
+    """The selected system's converged fit diverges under the reference solver (a −c₃·x2'³
+    that only the search's coarse RK4 held back): of its one-term removals, the one the
+    reference solver integrates with the smallest residual is reported; none: None."""
+    from types import SimpleNamespace
+
+    from gpjax._system_final import integrable, integrates
+
+    def fit(rms):
+        return SimpleNamespace(checks=(SimpleNamespace(rms_reference=rms),))
+
+    key = (((X1, V1, X1 - X2), (U,)), ((X2 - X1, V2, V2 ** 3), ()))
+    residuals = {(((X1, V1, X1 - X2), (U,)), ((X2 - X1, V2), ())): 0.02,  # no cubic: stable
+                 (((X1, V1, X1 - X2), (U,)), ((X2 - X1, V2 ** 3), ())): 0.05}
+    seen = []
+
+    def fit_of(smaller):
+        seen.append(smaller)
+        if not smaller[0][1]:  # without the input the refit diverges
+            return None
+        return fit(residuals.get(smaller, np.inf))
+
+    assert not integrates(fit(np.inf)) and integrates(fit(0.02))
+    smaller, chosen = integrable(key, fit_of)
+    assert smaller == (((X1, V1, X1 - X2), (U,)), ((X2 - X1, V2), ()))
+    assert chosen.checks[-1].rms_reference == 0.02
+    assert len(seen) == 7  # every term of both equations, the input too
+    assert integrable(key, lambda smaller: fit(np.inf)) is None
