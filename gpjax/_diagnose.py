@@ -428,11 +428,11 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
     settings = {"holdout": holdout, "max_steps": max_steps, "shortlist": shortlist,
                 "min_gain": min_gain, "alpha": alpha, "iterations": iterations,
                 "input_interpolation": input_interpolation, "input_noise": input_noise}
-    out = {}
+    last = {}  # the last refit: its diagnosis and its whole-record problem
 
     def refit_at(count: int, previous=None) -> Model:
         """The chosen structures refitted on the whole record at ``count`` RK4 steps per
-        sample (``out``: the diagnosis and its problem); the last one's model."""
+        sample (their diagnosis kept in ``last``); the last structure's model."""
         _progress.stage(f"diagnosis: refitting {len(fits)} model(s) on the whole record at "
                         f"{count} substeps")
         whole = FitProblem(measurement, symbols, holdout=0.0, iterations=iterations,
@@ -452,20 +452,20 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
                         + "uncertainty")
         result.noise = _noise(result, problem)
         result.unexplained = _unexplained(result, problem, alpha)
-        out.update(result=result, whole=whole)
+        last.update(result=result, whole=whole)
         return result.model()
 
     if chosen_mode != "simulation":  # an equation-error fit integrates nothing
         refit_at(substeps)
-        out["result"].uncertainty = _equation_error_uncertainty(out["result"])
-        return out["result"]
+        last["result"].uncertainty = _equation_error_uncertainty(last["result"])
+        return last["result"]
     # the structures are chosen; refit them on the whole record, converged
     _, checks, _ = fit_converged(refit_at, measurement, first=substeps,
                                  substeps=None if automatic else substeps,
                                  tolerance=convergence_tolerance)
-    result = out["result"]
+    result = last["result"]
     result.convergence = checks[-1].to_json()
-    result.uncertainty = _uncertainty(result, out["whole"])
+    result.uncertainty = _uncertainty(result, last["whole"])
     return result
 
 
