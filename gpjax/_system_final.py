@@ -78,15 +78,17 @@ def integrates(fit: SystemFit) -> bool:
 def integrable(key, fit_of: Callable) -> tuple | None:
     """(key, fit) of the one-term removal of ``key`` that the reference solver integrates
     with the smallest RMS residual at converged integration (``fit_of(key)``: that fit, or
-    None where it diverged); None where no removal integrates. For a ``key`` whose
-    converged fit the reference solver cannot integrate: the search ranks structures by
-    RK4 at its own step count, whose numerical damping can hold back a term that makes the
+    None where it diverged; a removal that would empty an equation is not fitted); None
+    where no removal integrates. For a ``key`` whose converged fit the reference solver
+    cannot integrate: the search ranks structures by RK4 at its own step count, whose numerical damping can hold back a term that makes the
     exact ODE blow up (a −c₃·x'³ standing in for a friction on a record whose speed passes
     √(c₁/c₃)). Such a structure is no model of the record — only the discretisation makes
     it one — and its one-term removals are the structures nearest to it."""
     fits = []
     for i in range(len(key)):
         for smaller in removals(key, i):
+            if not (smaller[i][0] or smaller[i][1]):  # an emptied equation is no model
+                continue
             fit = fit_of(smaller)
             if fit is not None and integrates(fit):
                 fits.append((fit.checks[-1].rms_reference, len(fits), smaller, fit))
