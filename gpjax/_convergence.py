@@ -249,19 +249,29 @@ def check_model(model, measurement: Measurement, *, tolerance: float,
 
 
 def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int | None,
-                  tolerance: float, first: int | None = None):
+                  tolerance: float, first: int | None = None, unsolved_ends: bool = False):
     """(model, checks, reference): ``fit_at(steps, previous)`` (``previous``: the last fit,
     ``None`` at first) at the record's initial step count (or ``first``), checked against the
     reference solve and fitted again at :func:`needed_substeps` until the check passes or the
     steps reach :data:`MAX_SUBSTEPS`; with ``substeps`` given, that count, checked once.
+    ``fit_at`` returning ``None`` is a failed fit: the last model, its checks and reference
+    are returned as they stand (``None`` and no checks where the first fit failed).
+    ``unsolved_ends``: a check whose reference solve failed (ratio not finite) ends the
+    ladder, as no RK4 step count brings a response the reference cannot integrate closer
+    to it (the diagnosis, whose test does not rank a diverged model; the estimator and
+    systems refit at more steps instead, which can move the constants to where it can).
     ``reference``: the last check's reference response of the model (:func:`check_model`),
     for a check that compares against it (:func:`gpjax._sign_width.width_check`)."""
     steps = substeps or first or initial_substeps(measurement)
-    checks, model = [], None
+    checks, model, reference = [], None, None
     while True:
-        model = fit_at(steps, model)
+        fitted = fit_at(steps, model)
+        if fitted is None:
+            return model, checks, reference
+        model = fitted
         check, reference = check_model(model, measurement, tolerance=tolerance)
         checks.append(check)
-        if substeps or check.converged or steps >= MAX_SUBSTEPS:
+        if (substeps or check.converged or steps >= MAX_SUBSTEPS
+                or (unsolved_ends and not math.isfinite(check.ratio))):
             return model, checks, reference
         steps = needed_substeps(model, measurement, check, reference)

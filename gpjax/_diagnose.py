@@ -97,8 +97,7 @@ import numpy as np
 
 from . import _progress
 from ._canonical import Symbols
-from ._convergence import (MAX_SUBSTEPS, Convergence, check_model, fit_converged,
-                           initial_substeps, next_substeps)
+from ._convergence import MAX_SUBSTEPS, fit_converged, initial_substeps
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._diagnose_acceptance import accepted
 from ._diagnose_ambiguity import indistinguishable, separating_input
@@ -351,19 +350,23 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         candidates = [structure.plus(c.terms) for c in shortlisted]
         pairs = (rank_pairs(problem.weak, context, structure, ranked, shortlist)
                  if chosen_mode == "equation_error" and shortlisted else [])
-        while chosen_mode == "simulation" and automatic:  # integrate the current model
-            _progress.stage(f"diagnosis: step {round_number + 1}: convergence check at "
-                            f"{substeps} substeps")
-            probe = current or problem.fit_equation_error([structure])[0]  # converged
-            check = _integration(probe, problem, convergence_tolerance)
-            if check.converged or substeps >= MAX_SUBSTEPS or not math.isfinite(check.ratio):
-                break
-            substeps = next_substeps(check)
-            pools = problem.pool_lhs, problem.pool_forcing
-            problem = problem_at(substeps)
-            problem.pool_lhs, problem.pool_forcing = pools
-            if current is not None:  # the last accepted structure, refitted
-                current = fits[-1] = fit_structures(problem, chosen_mode, [structure])[0]
+        if chosen_mode == "simulation" and automatic:  # integrate the current model
+            def fit_at(steps: int, previous: Model | None) -> Model:
+                nonlocal problem, current
+                if previous is not None:  # a finer step: the problem again, and the last
+                    pools = problem.pool_lhs, problem.pool_forcing  # accepted structure
+                    problem = problem_at(steps)                      # refitted on it
+                    problem.pool_lhs, problem.pool_forcing = pools
+                    if current is not None:
+                        current = fits[-1] = fit_structures(problem, chosen_mode, [structure])[0]
+                _progress.stage(f"diagnosis: step {round_number + 1}: convergence check at "
+                                f"{steps} substeps")
+                return _integrated(current or problem.fit_equation_error([structure])[0],
+                                   problem)  # the equation-error fit is converged
+
+            fit_converged(fit_at, problem.train, substeps=None, first=substeps,
+                          tolerance=convergence_tolerance, unsolved_ends=True)
+            substeps = problem.substeps
         also = f" and {len(pairs)} pair(s)" if pairs else ""
         _progress.stage(f"diagnosis: step {round_number + 1}: fitting {len(candidates)} "
                         f"candidate effect(s){also} ({chosen_mode} mode) and testing them")
@@ -525,13 +528,12 @@ def _equation_error_uncertainty(result: Diagnosis) -> Uncertainty | None:
                        n_samples=result.measurement.n_samples)
 
 
-def _integration(fit: Fit, problem: FitProblem, tolerance: float) -> Convergence:
-    """The integration check (:func:`check_model`) of ``fit``'s constants and initial state
-    on the estimation part, at the problem's step count and input interpolation."""
-    model = Model.from_coefficients(problem.symbols, fit.coefficients,
-                                    input_interpolation=problem.input_interpolation,
-                                    substeps=problem.substeps)
-    return check_model(model, problem.train, tolerance=tolerance)[0]
+def _integrated(fit: Fit, problem: FitProblem) -> Model:
+    """``fit``'s constants and initial state as a model at the problem's step count and
+    input interpolation, for the integration check on the estimation part."""
+    return Model.from_coefficients(problem.symbols, fit.coefficients,
+                                   input_interpolation=problem.input_interpolation,
+                                   substeps=problem.substeps)
 
 
 def _noise(d: Diagnosis, problem: FitProblem) -> dict:

@@ -22,8 +22,7 @@ import numpy as np
 from . import _progress
 from ._aot import compile_ledger, compiled_since
 from ._config import GPConfig
-from ._convergence import (MAX_SUBSTEPS, Convergence, check_line, check_model,
-                           needed_substeps)
+from ._convergence import Convergence, check_line, fit_converged
 from ._data import Measurement
 from ._errors import UserInputError
 from ._evolve import Evolution, RunState, evolution_for
@@ -218,74 +217,90 @@ class Identifier:
     def _converge(self, fitness: Fitness, seed: int, state: RunState) -> Fitness:
         """Check the reported model's integration against the reference solve, and its
         smoothed signs' width (:mod:`gpjax._sign_width`); with ``substeps="auto"``, refit
-        the Pareto front and the reported model at more RK4 steps, or at a narrower sign,
-        until both pass, the steps reach :data:`MAX_SUBSTEPS` (:mod:`gpjax._convergence`),
-        the sign its narrowest (:data:`~gpjax._sign_width.MAX_NARROWINGS`) or the width
-        check's own rate of convergence
-        (:attr:`~gpjax._sign_width.WidthCheck.narrowings_needed`) says that narrowing
-        does not converge, or a narrower sign would need more than MAX_SUBSTEPS steps for
-        a stable RK4 step (:func:`gpjax._convergence.stable_substeps`). Once the sign is narrowed, only the reported model is refitted
-        (a sign's width changes the constants of the models that have one, not the
-        ranking; refitting the front at every width cost a Coulomb fit of 8,000 samples
-        13 minutes); the front's other rows keep their fit. Returns the fitness in use."""
+        the Pareto front and the reported model at more RK4 steps
+        (:func:`gpjax._convergence.fit_converged`, the loop systems and the diagnosis use),
+        or the reported model at a narrower sign, until both pass, the steps reach
+        :data:`MAX_SUBSTEPS`, the sign its narrowest
+        (:data:`~gpjax._sign_width.MAX_NARROWINGS`) or the width check's own rate of
+        convergence (:attr:`~gpjax._sign_width.WidthCheck.narrowings_needed`) says that
+        narrowing does not converge, or a narrower sign would need more than MAX_SUBSTEPS
+        steps for a stable RK4 step (:func:`gpjax._convergence.stable_substeps`). Once the
+        sign is narrowed, only the reported model is refitted (a sign's width changes the
+        constants of the models that have one, not the ranking; refitting the front at every
+        width cost a Coulomb fit of 8,000 samples 13 minutes); the front's other rows keep
+        their fit. Returns the fitness in use."""
         tolerance = self.config.convergence_tolerance
         auto = self.config.substeps == "auto"
-        refits, narrowings, stopped, front_too = 0, 0, "converged", True
-        while True:
-            width = None
-            _progress.stage(f"convergence check at {self.model_.substeps} substeps")
-            check, self._reference = check_model(self.model_, self.measurement_,
-                                                 tolerance=tolerance)
-            self.convergence_.append(check)
-            capped = ("fixed substeps" if not auto else
-                      "substeps cap" if check.substeps >= MAX_SUBSTEPS else None)
-            if not check.converged:
-                if capped:
-                    stopped = capped
-                    break
-                refit = {"substeps": needed_substeps(self.model_, self.measurement_, check,
-                                                       self._reference),
-                         "sign_width": fitness.sign_width}
-            else:
-                width = check_width(self.model_, self._reference, check.rms_reference,
-                                    fitness, tolerance=tolerance)
-                if width is None or width.converged:
-                    break
-                step = (next_narrowing(width, narrowings,
-                                       lambda factor: sharpened(self.model_, factor,
-                                                                fitted_signs(fitness)),
-                                       fitness.measurement, tolerance=tolerance)
-                        if auto else "fixed substeps")
-                if isinstance(step, str):
-                    stopped = step
-                    break
-                jump, steps = step
-                narrowings, front_too = narrowings + jump, False
-                refit = {"substeps": steps, "sign_width": fitness.sign_width / NARROWING ** jump}
-            refits += 1
-            # The structures were ranked at the coarser step or wider sign (the ranking,
-            # unlike the constants, barely moves); the front and the reported model are
-            # refitted at more steps, the reported model alone at a narrower sign (to
-            # convergence).
+        run = {"fitness": fitness, "refits": 0, "front_too": True}
+
+        def refit(steps: int, sign_width: float) -> bool:
+            """Refit the front (or, once the sign is narrowed, the reported model alone) at
+            ``steps`` RK4 steps and ``sign_width``; False where the reported model's refit
+            failed. The structures were ranked at the coarser step or wider sign (the
+            ranking, unlike the constants, barely moves)."""
+            old, front_too = run["fitness"], run["front_too"]
+            run["refits"] += 1
             _progress.stage(f"refitting {'the Pareto front' if front_too else 'the reported model'}"
-                            f" at {refit['substeps']} substeps, smoothed-sign width "
-                            f"{refit['sign_width']:.3g}")
-            new = Fitness(self.measurement_, self.config, **refit, single=not front_too)
-            carried = {r.key: narrowed(r, fitness, new)
+                            f" at {steps} substeps, smoothed-sign width {sign_width:.3g}")
+            new = Fitness(self.measurement_, self.config, substeps=steps, sign_width=sign_width,
+                          single=not front_too)
+            carried = {r.key: narrowed(r, old, new)
                        for r in (self._front if front_too else []) + [self._chosen]}
             adopted = {r.key: r for r in new.adopt(list(carried.values()))}
             chosen = adopted.get(carried[self._chosen.key].key)
             if chosen is None or not (chosen.valid and chosen.status == OK):
+                return False
+            if new.sign_width != old.sign_width:
+                new.refine([chosen], to_convergence=True)  # constants the width check compares
+            run["fitness"] = new
+            if front_too:
+                self._report(new, pareto_front([r for r in adopted.values() if r.status == OK]),
+                             chosen, seed, state)
+            else:
+                self._replace_chosen(new, chosen, seed, state)
+            return True
+
+        def fit_at(steps: int, previous: Model | None) -> Model | None:
+            # the first fit of each ladder is the model in hand (the search's, or the last
+            # narrowing's); later ones are refits at more steps, same sign width
+            if previous is not None and not refit(steps, run["fitness"].sign_width):
+                run["failed"] = True
+                return None
+            _progress.stage(f"convergence check at {steps} substeps")
+            return self.model_
+
+        narrowings, stopped = 0, "converged"
+        while True:
+            width = None
+            _, checks, self._reference = fit_converged(
+                fit_at, self.measurement_, substeps=None if auto else self.model_.substeps,
+                tolerance=tolerance, first=self.model_.substeps)
+            self.convergence_.extend(checks)
+            check = checks[-1]
+            if run.pop("failed", False):
                 stopped = "refit failed"
                 break
-            if new.sign_width != fitness.sign_width:
-                new.refine([chosen], to_convergence=True)  # constants the width check compares
-            fitness = new
-            if front_too:
-                self._report(fitness, pareto_front([r for r in adopted.values()
-                                                    if r.status == OK]), chosen, seed, state)
-            else:
-                self._replace_chosen(fitness, chosen, seed, state)
+            if not check.converged:
+                stopped = "substeps cap" if auto else "fixed substeps"
+                break
+            width = check_width(self.model_, self._reference, check.rms_reference,
+                                run["fitness"], tolerance=tolerance)
+            if width is None or width.converged:
+                break
+            step = (next_narrowing(width, narrowings,
+                                   lambda factor: sharpened(self.model_, factor,
+                                                            fitted_signs(run["fitness"])),
+                                   run["fitness"].measurement, tolerance=tolerance)
+                    if auto else "fixed substeps")
+            if isinstance(step, str):
+                stopped = step
+                break
+            jump, steps = step
+            narrowings, run["front_too"] = narrowings + jump, False
+            if not refit(steps, run["fitness"].sign_width / NARROWING ** jump):
+                stopped = "refit failed"
+                break
+        fitness, refits = run["fitness"], run["refits"]
         widths = {"sign_width": width.to_json()} if width is not None else {}
         self.model_ = dataclasses.replace(
             self.model_, convergence=check.to_json() | widths | {"refits": refits,

@@ -9,7 +9,8 @@ import pytest
 from scipy.linalg import expm
 
 from gpjax import Model, Symbols
-from gpjax._convergence import (Convergence, bandwidth_hz, check_model, initial_substeps,
+from gpjax._convergence import (MAX_SUBSTEPS, Convergence, bandwidth_hz, check_model,
+                                fit_converged, initial_substeps,
                                 needed_substeps, next_substeps, stable_substeps)
 from gpjax._data import Measurement
 
@@ -134,3 +135,47 @@ def test_a_sticking_mass_needs_a_stable_step_and_a_crossing_does_not():
     assert stable_substeps(model, data, np.sin(3 * t)) == 1
     check = Convergence(4, 1.0, 1.0, 0.001, 0.001, 0.01, t.size, stable_substeps=24)
     assert not check.converged and next_substeps(check) == 24
+
+
+def test_the_fit_ladder_refits_until_the_check_passes_and_stops_on_a_failed_fit():
+    """:func:`fit_converged`, the one ladder of the estimator, systems and the diagnosis:
+    a coarse fit is fitted again at the step count its check asks for, until it passes; a
+    fit that fails (``None``) leaves the last model and its checks; ``unsolved_ends`` stops
+    at a check whose reference solve failed, which otherwise climbs to the cap."""
+    record = _held_record()
+    noisy = Measurement(time=record.time, response=record.response + np.random.default_rng(0)
+                        .normal(0, 0.02 * np.std(record.response), record.n_samples),
+                        inputs=record.inputs, time_name="t", response_name="x")
+    asked = []
+
+    def fit_at(steps, previous):
+        asked.append((steps, previous is not None))
+        return _model("hold", initial_conditions=(0.01, -0.2), substeps=steps)
+
+    model, checks, reference = fit_converged(fit_at, noisy, substeps=None, tolerance=0.01,
+                                             first=1)
+    assert [c.converged for c in checks] == [False] * (len(checks) - 1) + [True]
+    assert asked[0] == (1, False) and all(again for _, again in asked[1:])
+    assert model.substeps == checks[-1].substeps > 1 and reference.shape == (noisy.n_samples,)
+
+    failing = iter([_model("hold", initial_conditions=(0.01, -0.2), substeps=1), None])
+    model, checks, _ = fit_converged(lambda steps, previous: next(failing), noisy,
+                                     substeps=None, tolerance=0.01, first=1)
+    assert model.substeps == 1 and len(checks) == 1 and not checks[0].converged
+
+    # m·x'' + K·x − 1e9·x³ = u from x = 0.01: the cubic wins and x escapes in finite time
+    blowing_up = Model.single(S, mass=M, state={"x": K, "x**3": -1e9}, forcing={"u": 1.0},
+                              input_interpolation="hold", initial_conditions=(0.01, -0.2))
+    ladders = {}
+    for ends in (True, False):
+        steps_asked = []
+
+        def fit_unsolved(steps, previous, steps_asked=steps_asked):
+            steps_asked.append(steps)
+            return dataclasses.replace(blowing_up, substeps=steps)
+
+        _, checks, _ = fit_converged(fit_unsolved, noisy, substeps=None, tolerance=0.01,
+                                     first=1, unsolved_ends=ends)
+        assert not math.isfinite(checks[0].ratio)
+        ladders[ends] = steps_asked
+    assert ladders[True] == [1] and ladders[False][-1] == MAX_SUBSTEPS
