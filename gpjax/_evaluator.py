@@ -329,13 +329,17 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         """Objective (eq. 7), its parts (eqs. 8–9), RMS and status for every model."""
         return self._batched(population, responses=False)[0]
 
-    def simulate(self, population: Population) -> tuple[np.ndarray, Scores]:
+    def simulate(self, population: Population, *, forcing_basis: np.ndarray | None = None
+                 ) -> tuple[np.ndarray, Scores]:
         """Simulated responses (P, N) ((P, D, N) for a system) at the sample times, and the
-        scores."""
-        scores, responses = self._batched(population, responses=True)
+        scores; ``forcing_basis``: another (:meth:`forcing_basis_as`) in place of
+        :attr:`forcing_basis`."""
+        scores, responses = self._batched(population, responses=True,
+                                          forcing_basis=forcing_basis)
         return responses, scores
 
-    def _batched(self, population: Population, *, responses: bool):
+    def _batched(self, population: Population, *, responses: bool,
+                 forcing_basis: np.ndarray | None = None):
         """Scores (and responses) of ``population`` in padded batches, models that use no
         family apart on :attr:`plain_layout` (one more compile;
         ``benchmarks/bench_feature_bank.py``), the others by the families they use
@@ -353,7 +357,7 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
             forcing = _pad_columns(part.forcing, self.forcing_capacity)
             for size, chunk in padded_chunks((part.mass, part.state, forcing, part.y0,
                                               part.inner), self.batch_sizes):
-                out = self._call(*chunk)
+                out = self._call(*chunk, forcing_basis=forcing_basis)
                 parts.append([np.asarray(o)[:size] for o in out[:6]])
                 if responses:
                     paths.append(np.asarray(out[6])[:size, ..., :self.measurement.n_samples])
@@ -364,10 +368,10 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
                         rms=stacked[3], status=stacked[4].astype(int), y0=stacked[5])
         return scores, (np.concatenate(paths)[back] if responses else None)
 
-    def _call(self, mass, state, forcing, y0, inner):
+    def _call(self, mass, state, forcing, y0, inner, *, forcing_basis=None):
+        basis = self._forcing_basis if forcing_basis is None else forcing_basis
         return jax.block_until_ready(self._run(
-            *map(jnp.asarray, (mass, state, forcing, y0, inner, self._forcing_basis)),
-            self.record_arrays))
+            *map(jnp.asarray, (mass, state, forcing, y0, inner, basis)), self.record_arrays))
 
     def _simulate_and_score(self, mass, state, forcing, y0, inner, forcing_basis, record):
         with self.tracing(record):

@@ -205,23 +205,25 @@ class Columns:
     def _layout_of(self, width: int) -> FlatLayout:
         return self.layout if width == self.layout.width else self.plain_layout
 
-    def forcing_basis_as(self, interpolation: str) -> np.ndarray:
+    def forcing_basis_as(self, interpolation: str | None = None, *,
+                         inputs: dict[str, np.ndarray] | None = None) -> np.ndarray:
         """:attr:`forcing_basis` with the inputs reconstructed between samples by
-        ``interpolation`` (``"linear"`` or ``"bandlimited"``) instead of the evaluator's own:
-        same rows and columns, so a program compiled for one takes the other.
+        ``interpolation`` (``"linear"`` or ``"bandlimited"``) instead of the evaluator's own,
+        or of other ``inputs`` samples (name -> (N,), e.g. with noise drawn on them): same
+        rows and columns, so a program compiled for one takes the other.
 
         Raises:
-            ValueError: a ``"hold"`` evaluator or ``interpolation`` (their forcing rows are
-                laid out otherwise).
+            ValueError: an ``interpolation`` with a ``"hold"`` evaluator, or ``"hold"``
+                (their forcing rows are laid out otherwise).
         """
         from ._record import padded_rows
 
-        if self.split_stages or interpolation == "hold":
+        if interpolation is not None and (self.split_stages or interpolation == "hold"):
             raise ValueError("a held input has its own forcing rows; compare linear and "
                              "bandlimited reconstructions only")
         rows = self._forcing_basis.shape[0]
         inputs = {name: padded_rows(self._at_stages(values, interpolation), rows)
-                  for name, values in self.measurement.inputs.items()}
+                  for name, values in (inputs or self.measurement.inputs).items()}
         basis = np.zeros_like(self._forcing_basis)
         for column, feature in enumerate(self._forcing_features):
             basis[:, column] = self.forcing_values(feature, self.stage_times, inputs)

@@ -10,7 +10,8 @@ from gpjax import Model, Symbols, diagnose
 from gpjax._data import Measurement
 from gpjax._diagnose_acceptance import (accepted, long_run_variance, predictive_test,
                                         score_test)
-from gpjax._diagnose_noise import MAX_LINES, input_lines_only, noise_floor, signal_band_hz
+from gpjax._diagnose_noise import (MAX_LINES, input_lines_only, input_noise_sigma, noise_floor,
+                                  signal_band_hz)
 from gpjax._diagnose_noise import lines as spectral_lines
 from gpjax._diagnose_residual import describe_residual
 
@@ -133,6 +134,21 @@ def test_input_lines_removes_sensor_noise_from_a_multisine_not_from_a_broadband_
     assert np.std(cleaned.inputs["T"] - clean) < 0.2 * 0.05
     assert np.array_equal(cleaned.inputs["w"], data.inputs["w"])
     assert min(abs(f - 285) for f in report["T"]["lines_hz"]) < 0.5
+
+
+def test_input_noise_of_a_multisine_is_its_floor_above_its_band_and_a_broadband_has_none():
+    """The Hann-windowed floor keeps the drive's lines out: within 6 % of the sensor's σ on
+    a record that is not a whole number of the multisine's periods; a white drive has no
+    bins above its band."""
+    rng = np.random.default_rng(6)
+    dt, n = 0.05, 4001
+    t = np.arange(n) * dt
+    tones = np.linspace(0.1, 3.0, 60)
+    drive = np.sin(2 * np.pi * np.outer(t, tones) + rng.uniform(0, 2 * np.pi, 60)).sum(axis=1)
+    for sigma in (0.02, 0.1):
+        estimate = input_noise_sigma(drive + sigma * np.std(drive) * rng.standard_normal(n), dt)
+        assert abs(estimate / (sigma * np.std(drive)) - 1) < 0.06, (sigma, estimate)
+    assert input_noise_sigma(rng.standard_normal(n), dt) is None
 
 
 def test_signal_band_of_a_noisy_rate_ignores_the_white_noise():

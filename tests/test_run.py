@@ -197,6 +197,43 @@ def test_one_coordinate_gets_its_residual_against_the_noise_floor(capsys):
     assert "the diagnosis follows" in out and "hint" not in out
 
 
+def test_the_measured_inputs_noise_rung_through_a_true_model_is_not_flagged():
+    """Sampled at 10 Hz, the sensor noise of the measured input (4 %) rings through the true
+    Duffing model to well above the response's own noise floor: the gate counts it
+    (``ratio_with_input``), so the true model is not flagged; without its cubic spring it
+    still is."""
+    import dataclasses
+
+    import numpy as np
+    import sympy as sp
+
+    from gpjax import Model
+    from gpjax._coefficients import Coefficients
+    from gpjax._synthetic import generate
+    from gpjax._system_diagnose import residual_statistics
+    from gpjax.systems import get_system
+
+    system = dataclasses.replace(get_system("duffing"), sample_rate=10.0, duration=150.0)
+    record = generate(system, seed=0, noise=0.01, input_noise=0.04).fit
+    measurement = record.measurement()
+    x, v = sp.symbols("x x_dot")
+    c = system.constants
+    state = {v: c["c"], x: c["k"], x ** 3: c["k3"]}
+    y0 = (float(np.ravel(record.response_true)[0]), float(np.ravel(record.velocity_true)[0]))
+
+    def model(state):
+        return Model.from_equations(("x",), "t", ("u",), [Coefficients(
+            1.0, state, {sp.Symbol("u"): 1.0}, y0)], substeps=8,
+            input_interpolation="bandlimited")
+
+    truth = residual_statistics(model(state), measurement)["x"]
+    assert truth["noise"]["ratio"] > 1.5  # the input's noise, not a missing term
+    assert truth["noise"]["ratio_with_input"] < 1.25 and truth["unexplained"] is None
+    linear = model({f: value for f, value in state.items() if f != x ** 3})
+    missing = residual_statistics(linear, measurement)["x"]
+    assert missing["noise"]["ratio_with_input"] > 3 and missing["unexplained"] is not None
+
+
 def test_the_console_script_is_main_without_the_last_collection(monkeypatch):
     """``gpjax`` and ``python -m gpjax`` return :func:`gpjax.cli.main`'s status and skip
     the interpreter's last garbage collection (``gc.freeze``: ~0.5 s of a warm demo);
