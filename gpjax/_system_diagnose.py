@@ -22,8 +22,14 @@ input's own white-noise floor σ_u is estimated much as the response's is (its H
 periodogram above its own 99 %-energy band, :func:`gpjax._diagnose_noise.input_noise_sigma`),
 seeded draws of it are added to the input, and the model is simulated with and without them
 (RK4 at its step count): the RMS difference σ_in is the input noise's share, and the gate compares the
-residual with √(σ̂² + σ_in²) (``ratio_with_input``). An input without bins above its band
-(a broadband drive) has no floor and counts for nothing, as before.
+residual with √(σ̂² + σ_in²) (``ratio_with_input``). That share is a linear propagation
+only where the response moves in proportion to the noise: the same draws halved must move
+it about half as much (a scaling of 2). On a strongly driven hardening Duffing (a record
+outside the repository) the noise moved the response by 43 % of its RMS and half of it by
+as much (scaling 0.98; 1.98–2.00 on four smooth records): the response is not a smooth
+function of its input there, the share is not counted and the line says so. An input
+without bins above its band (a broadband drive) has no floor and counts for nothing, as
+before.
 """
 
 from __future__ import annotations
@@ -43,6 +49,13 @@ from ._weak_form import smoothed_derivatives, smoothing_cutoff_hz
 #: to white noise is narrowband, so a record holds few independent cycles of it); the mean
 #: of eight spreads √8 times less.
 INPUT_NOISE_DRAWS = 8
+#: Draws whose response is compared with the same draws halved: the input noise's share is
+#: counted only where that response is proportional to the noise (module docstring).
+SCALING_DRAWS = 2
+#: Below this scaling (between 1, a response the noise moves as much at half the noise,
+#: and 2, one it moves in proportion: the midpoint) the response is not a smooth function
+#: of its input here, and the share is not counted.
+PROPORTIONAL_FROM = 1.5
 
 
 def residual_statistics(model: Model, measurement: Measurement, *, alpha: float = 0.05,
@@ -50,6 +63,7 @@ def residual_statistics(model: Model, measurement: Measurement, *, alpha: float 
     """Per coordinate name: ``rms`` (response units), ``nrms``, ``noise`` (the noise floor's
     ``sigma``, ``ratio`` = RMS/σ̂, ``band_hz``, ``p_excess``, and where an input has a noise
     floor ``input_sigma``, the measured input's noise rung through the model, and
+    ``input_scaling``, and where that scaling is proportional (≥ :data:`PROPORTIONAL_FROM`)
     ``ratio_with_input`` = RMS/√(σ̂² + input_sigma²), which the gate uses (module
     docstring); ``None`` on a record too short for it; all ``None`` where the model diverges
     on the record) and ``unexplained`` (the residual described, or ``None`` where it is not
@@ -79,10 +93,12 @@ def residual_statistics(model: Model, measurement: Measurement, *, alpha: float 
         floor = noise_floor(residual, single.dt, smoothing_cutoff_hz(single))
         if floor is not None:
             rung = input_noise_response(model, measurement) if rung is None else rung
-            if rung.size:
-                floor["input_sigma"] = float(rung[d])
-                floor["ratio_with_input"] = floor["rms"] / float(np.hypot(floor["sigma"],
-                                                                          rung[d]))
+            if rung[0].size:
+                floor["input_sigma"], floor["input_scaling"] = map(float, (rung[0][d],
+                                                                           rung[1][d]))
+                if floor["input_scaling"] >= PROPORTIONAL_FROM:
+                    floor["ratio_with_input"] = floor["rms"] / float(np.hypot(
+                        floor["sigma"], rung[0][d]))
         unexplained = None
         if floor is not None and gate_ratio(floor) >= FAR_ABOVE and floor["p_excess"] < alpha:
             states = smoothed_derivatives(single)
@@ -99,34 +115,42 @@ def gate_ratio(floor: dict) -> float:
     return floor.get("ratio_with_input", floor["ratio"])
 
 
-def input_noise_response(model: Model, measurement: Measurement) -> np.ndarray:
+def input_noise_response(model: Model, measurement: Measurement
+                         ) -> tuple[np.ndarray, np.ndarray]:
     """Per coordinate (D,), the RMS of ``model``'s response to its measured inputs' noise
     (module docstring): each input's white-noise floor
     (:func:`gpjax._diagnose_noise.input_noise_sigma`), :data:`INPUT_NOISE_DRAWS` seeded draws
     of it (the same record gives the same figure) each added to the inputs, the model
     simulated by RK4 at its step count with and without them from its fitted initial states,
-    the mean square difference over the draws. Empty where no input has a floor or a
-    response to a noisy input diverges."""
+    the mean square difference over the draws; and per coordinate the scaling of that
+    response with the noise: its RMS over the first :data:`SCALING_DRAWS` draws against
+    the same draws halved (2 where it is proportional). Both empty where no input has a
+    floor or a response to a noisy input diverges."""
     sigmas = {name: input_noise_sigma(values, measurement.dt) or 0.0
               for name, values in measurement.inputs.items()}
     if not any(sigmas.values()):
-        return np.zeros(0)
+        return np.zeros(0), np.zeros(0)
 
     evaluator = model.evaluator(measurement)
     population = model.population(evaluator, model.initial_states)
+    clean = np.asarray(evaluator.simulate(population)[0][0])
 
-    def response(forcing_basis=None) -> np.ndarray:
-        return np.asarray(evaluator.simulate(population, forcing_basis=forcing_basis)[0][0])
+    def square(noise: dict, scale: float) -> np.ndarray:
+        noisy = {name: values + scale * noise[name] for name, values in measurement.inputs.items()}
+        basis = evaluator.forcing_basis_as(inputs=noisy)
+        difference = np.asarray(evaluator.simulate(population, forcing_basis=basis)[0][0]) - clean
+        return np.mean(np.reshape(difference, (model.n_coordinates, -1)) ** 2, axis=1)
 
-    rng, clean, squares = np.random.default_rng(0), response(), []
-    for _ in range(INPUT_NOISE_DRAWS):
-        noisy = {name: values + sigmas[name] * rng.standard_normal(values.size)
-                 for name, values in measurement.inputs.items()}
-        difference = response(evaluator.forcing_basis_as(inputs=noisy)) - clean
-        squares.append(np.mean(np.reshape(difference, (model.n_coordinates, -1)) ** 2, axis=1))
-    if not np.all(np.isfinite(squares)):
-        return np.zeros(0)
-    return np.sqrt(np.mean(squares, axis=0))
+    rng = np.random.default_rng(0)
+    draws = [{name: sigmas[name] * rng.standard_normal(values.size)
+              for name, values in measurement.inputs.items()} for _ in range(INPUT_NOISE_DRAWS)]
+    squares = np.array([square(noise, 1.0) for noise in draws])
+    halved = np.array([square(noise, 0.5) for noise in draws[:SCALING_DRAWS]])
+    if not (np.all(np.isfinite(squares)) and np.all(np.isfinite(halved))):
+        return np.zeros(0), np.zeros(0)
+    scaling = np.sqrt(np.sum(squares[:SCALING_DRAWS], axis=0) / np.fmax(np.sum(halved, axis=0),
+                                                                       1e-300))
+    return np.sqrt(np.mean(squares, axis=0)), scaling
 
 
 def hint(functions: tuple[str, ...] = ()) -> str:
@@ -158,7 +182,13 @@ def summary_line(name: str, statistics: dict, functions: tuple[str, ...] = (), *
              f"; below the {FAR_ABOVE:g}× gate, so not flagged")
     rung = ("" if floor is None or "input_sigma" not in floor else
             f"; with the measured input's noise rung through the model (RMS "
-            f"{floor['input_sigma']:.3g}) {floor['ratio_with_input']:.2f}×")
+            f"{floor['input_sigma']:.3g}) {floor['ratio_with_input']:.2f}×"
+            if "ratio_with_input" in floor else
+            f"; the measured input's noise moves the simulated response by RMS "
+            f"{floor['input_sigma']:.3g}, half that noise by about as much (×"
+            f"{floor['input_scaling']:.2f}, not 2): the response is not a smooth function "
+            "of its input here (chaotic or near a jump), so neither the residual nor the "
+            "constants' intervals can be read against the noise")
     noise = ("noise floor not estimable (record too short)" if floor is None else
              f"{floor['ratio']:.2f}× its noise floor σ̂ = {floor['sigma']:.3g}{rung} "
              f"(in-band excess p = {floor['p_excess']:.2g}{small})")

@@ -228,10 +228,39 @@ def test_the_measured_inputs_noise_rung_through_a_true_model_is_not_flagged():
 
     truth = residual_statistics(model(state), measurement)["x"]
     assert truth["noise"]["ratio"] > 1.5  # the input's noise, not a missing term
+    assert truth["noise"]["input_scaling"] > 1.9  # proportional: a linear propagation
     assert truth["noise"]["ratio_with_input"] < 1.25 and truth["unexplained"] is None
     linear = model({f: value for f, value in state.items() if f != x ** 3})
     missing = residual_statistics(linear, measurement)["x"]
     assert missing["noise"]["ratio_with_input"] > 3 and missing["unexplained"] is not None
+
+
+def test_a_response_the_input_noise_moves_chaotically_is_not_excused_by_it():
+    """The driven double-well Duffing (x'' + 0.25·x' − x + x³ = u, Holmes's chaotic
+    oscillator): the measured input's noise moves the true model's response by about as
+    much at half the noise, so its share is not counted (no ``ratio_with_input``) and the
+    line says why."""
+    import dataclasses
+
+    import sympy as sp
+
+    from gpjax import Model
+    from gpjax._coefficients import Coefficients
+    from gpjax._synthetic import generate
+    from gpjax._system_diagnose import residual_statistics, summary_line
+    from gpjax.systems import Excitation, get_system
+
+    system = dataclasses.replace(
+        get_system("duffing"), constants={"m": 1.0, "c": 0.25, "k": -1.0, "k3": 1.0},
+        excitation=Excitation(low=0.1, high=0.3, rms=0.3), sample_rate=10.0, duration=300.0)
+    record = generate(system, seed=0, noise=0.02, input_noise=0.02).fit
+    x, v = sp.symbols("x x_dot")
+    y0 = (float(record.response_true[0, 0]), float(record.velocity_true[0, 0]))
+    model = Model.from_equations(("x",), "t", ("u",), [Coefficients(
+        1.0, {v: 0.25, x: -1.0, x ** 3: 1.0}, {sp.Symbol("u"): 1.0}, y0)], substeps=4)
+    statistics = residual_statistics(model, record.measurement())["x"]
+    assert statistics["noise"]["input_scaling"] < 1.5 and "ratio_with_input" not in statistics["noise"]
+    assert "not a smooth function of its input" in summary_line("x", statistics)
 
 
 def test_the_console_script_is_main_without_the_last_collection(monkeypatch):
