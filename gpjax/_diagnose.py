@@ -114,6 +114,7 @@ from ._effects import Effect, effects
 from ._errors import ModelFileError, UserInputError
 from ._coefficients import to_population
 from ._model import Model
+from ._system_diagnose import count_input_noise, gate_ratio, input_noise_response
 from ._uncertainty import Uncertainty, model_names, sandwich_covariance
 from ._weak_form import design, scaled_lstsq
 
@@ -545,15 +546,21 @@ def _noise(d: Diagnosis, problem: FitProblem) -> dict:
         floor = noise_floor(d.measurement.response - problem.derivatives.x, d.measurement.dt,
                             band)
         return {"response": floor}
-    return {when: noise_floor(d.measurement.response - fit.simulated, d.measurement.dt, band)
-            for when, fit in (("after", d.after), ("before", d.before))}
+    floors = {when: noise_floor(d.measurement.response - fit.simulated, d.measurement.dt, band)
+              for when, fit in (("after", d.after), ("before", d.before))}
+    if floors["after"] is not None:  # the measured input's noise in the final residual
+        count_input_noise(floors["after"], input_noise_response(_integrated(d.after, problem),
+                                                                d.measurement), 0)
+    return floors
 
 
 def _unexplained(d: Diagnosis, problem: FitProblem, alpha: float) -> dict | None:
     """The final residual described, where it stays far above its noise floor (simulation
-    mode: :data:`FAR_ABOVE` × σ̂ and a significant in-band excess)."""
+    mode: :data:`FAR_ABOVE` × σ̂, and the measured input's noise rung through the model
+    where it is counted, :func:`gpjax._system_diagnose.gate_ratio`; and a significant
+    in-band excess)."""
     floor = (d.noise or {}).get("after")
-    if floor is None or floor["ratio"] < FAR_ABOVE or floor["p_excess"] >= alpha:
+    if floor is None or gate_ratio(floor) < FAR_ABOVE or floor["p_excess"] >= alpha:
         return None
     noise = list((d.settings["input_noise"] or {}).values())
     lines = ([f for entry in noise for f in entry["lines_hz"]]

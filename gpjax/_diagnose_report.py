@@ -14,6 +14,7 @@ import numpy as np
 
 from ._diagnose import CRITERION, Diagnosis
 from ._objective import amplitude_spectrum
+from ._system_diagnose import input_noise_words
 from ._report import png_bytes, write_bytes_atomic, write_text_atomic
 
 
@@ -159,8 +160,8 @@ def _noise_lines(d: Diagnosis) -> list[str]:
                else "the residual's in-band excess over the floor is significant")
     return out + [f"Noise floor (the final residual's spectrum above {floor['band_hz']:.4g} "
                   f"Hz): σ̂ = {floor['sigma']:.4g}; final RMS {floor['rms']:.4g} = "
-                  f"{floor['ratio']:.3g} σ̂ (in-band excess p = {floor['p_excess']:.3g}: "
-                  f"{verdict}).", ""]
+                  f"{floor['ratio']:.3g} σ̂{input_noise_words(floor)} (in-band excess p = "
+                  f"{floor['p_excess']:.3g}: {verdict}).", ""]
 
 
 def _stop_lines(d: Diagnosis) -> list[str]:

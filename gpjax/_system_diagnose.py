@@ -93,12 +93,7 @@ def residual_statistics(model: Model, measurement: Measurement, *, alpha: float 
         floor = noise_floor(residual, single.dt, smoothing_cutoff_hz(single))
         if floor is not None:
             rung = input_noise_response(model, measurement) if rung is None else rung
-            if rung[0].size:
-                floor["input_sigma"], floor["input_scaling"] = map(float, (rung[0][d],
-                                                                           rung[1][d]))
-                if floor["input_scaling"] >= PROPORTIONAL_FROM:
-                    floor["ratio_with_input"] = floor["rms"] / float(np.hypot(
-                        floor["sigma"], rung[0][d]))
+            count_input_noise(floor, rung, d)
         unexplained = None
         if floor is not None and gate_ratio(floor) >= FAR_ABOVE and floor["p_excess"] < alpha:
             states = smoothed_derivatives(single)
@@ -107,6 +102,18 @@ def residual_statistics(model: Model, measurement: Measurement, *, alpha: float 
         out[name] = {"rms": rms, "nrms": rms / float(np.std(single.response) or 1.0),
                      "noise": floor, "unexplained": unexplained}
     return out
+
+
+def count_input_noise(floor: dict, rung: tuple[np.ndarray, np.ndarray], d: int) -> None:
+    """Give a noise floor (:func:`gpjax._diagnose_noise.noise_floor` of coordinate ``d``'s
+    residual) the measured input's share ``rung`` (:func:`input_noise_response`), in place:
+    ``input_sigma``, ``input_scaling`` and, where the scaling is proportional,
+    ``ratio_with_input``; nothing where ``rung`` is empty."""
+    if not rung[0].size:
+        return
+    floor["input_sigma"], floor["input_scaling"] = float(rung[0][d]), float(rung[1][d])
+    if floor["input_scaling"] >= PROPORTIONAL_FROM:
+        floor["ratio_with_input"] = floor["rms"] / float(np.hypot(floor["sigma"], rung[0][d]))
 
 
 def gate_ratio(floor: dict) -> float:
@@ -153,6 +160,21 @@ def input_noise_response(model: Model, measurement: Measurement
     return np.sqrt(np.mean(squares, axis=0)), scaling
 
 
+def input_noise_words(floor: dict) -> str:
+    """The measured input's share of a noise floor in words (\"; …\"), or \"\" where it has
+    none (:func:`count_input_noise`)."""
+    if "input_sigma" not in floor:
+        return ""
+    if "ratio_with_input" in floor:
+        return (f"; with the measured input's noise rung through the model (RMS "
+                f"{floor['input_sigma']:.3g}) {floor['ratio_with_input']:.2f}×")
+    return (f"; the measured input's noise moves the simulated response by RMS "
+            f"{floor['input_sigma']:.3g}, half that noise by about as much (×"
+            f"{floor['input_scaling']:.2f}, not 2): the response is not a smooth function of "
+            "its input here (chaotic or near a jump), so neither the residual nor the "
+            "constants' intervals can be read against the noise")
+
+
 def hint(functions: tuple[str, ...] = ()) -> str:
     """What to try where a coordinate's residual is far above its noise floor or the model
     diverges; widening ``--functions`` only where the run's ``functions`` lack part of
@@ -180,15 +202,7 @@ def summary_line(name: str, statistics: dict, functions: tuple[str, ...] = (), *
     small = ("" if floor is None or flag or gate_ratio(floor) >= FAR_ABOVE
              or floor["p_excess"] >= alpha else
              f"; below the {FAR_ABOVE:g}× gate, so not flagged")
-    rung = ("" if floor is None or "input_sigma" not in floor else
-            f"; with the measured input's noise rung through the model (RMS "
-            f"{floor['input_sigma']:.3g}) {floor['ratio_with_input']:.2f}×"
-            if "ratio_with_input" in floor else
-            f"; the measured input's noise moves the simulated response by RMS "
-            f"{floor['input_sigma']:.3g}, half that noise by about as much (×"
-            f"{floor['input_scaling']:.2f}, not 2): the response is not a smooth function "
-            "of its input here (chaotic or near a jump), so neither the residual nor the "
-            "constants' intervals can be read against the noise")
+    rung = "" if floor is None else input_noise_words(floor)
     noise = ("noise floor not estimable (record too short)" if floor is None else
              f"{floor['ratio']:.2f}× its noise floor σ̂ = {floor['sigma']:.3g}{rung} "
              f"(in-band excess p = {floor['p_excess']:.2g}{small})")
