@@ -11,25 +11,25 @@ hysteresis, with suggestions (:func:`gpjax._diagnose_residual.describe_residual`
 coordinate whose residual is far above its noise points at the equation that misses
 something (the equations are coupled, so a neighbour's residual may rise with it).
 
-**The measured input's noise.** A simulation is driven by the *measured* input, whose
-sensor noise rings through the model's dynamics into the residual, in the response's own
-band: a correct model's residual is then above the response's floor σ̂ by that share, and
-more so the coarser the sampling (the same noise per sample has a larger density at the
-resonance). On a Duffing oscillator sampled at 20 Hz with 2 % noise on response and input
-(a record outside the repository) the true model's residual was 2.6× σ̂, all of it the
-input noise's, and the run flagged it and suggested physics it did not miss. So each
-input's own white-noise floor σ_u is estimated much as the response's is (its Hann-windowed
-periodogram above its own 99 %-energy band, :func:`gpjax._diagnose_noise.input_noise_sigma`),
-seeded draws of it are added to the input, and the model is simulated with and without them
-(RK4 at its step count): the RMS difference σ_in is the input noise's share, and the gate compares the
-residual with √(σ̂² + σ_in²) (``ratio_with_input``). That share is a linear propagation
-only where the response moves in proportion to the noise: the same draws halved must move
-it about half as much (a scaling of 2). On a strongly driven hardening Duffing (a record
-outside the repository) the noise moved the response by 43 % of its RMS and half of it by
-as much (scaling 0.98; 1.98–2.00 on four smooth records): the response is not a smooth
-function of its input there, the share is not counted and the line says so. An input
-without bins above its band (a broadband drive) has no floor and counts for nothing, as
-before.
+**The measured input's noise.** A simulation is driven by the *measured* input, whose sensor
+noise rings through the model's dynamics into the residual, in the response's own band: a
+correct model's residual is then above the response's floor σ̂ by that share, and more so
+the coarser the sampling (the same noise per sample has a larger density at the resonance).
+On a Duffing oscillator sampled at 20 Hz with 2 % noise on response and input (a record
+outside the repository) the true model's residual (its input reconstructed band-limited) was
+2.7× σ̂, all of it the input noise's, and the run flagged it and suggested physics it did
+not miss. So each input's own white-noise floor σ_u is estimated much as the response's is
+(its Hann-windowed periodogram above its own 99 %-energy band,
+:func:`gpjax._diagnose_noise.input_noise_sigma`), seeded draws of it are added to the input,
+and the model is simulated with and without them (RK4 at its step count): the RMS difference
+σ_in is the input noise's share, and the gate compares the residual with √(σ̂² + σ_in²)
+(``ratio_with_input``). That share is a linear propagation only where the response moves in
+proportion to the noise: the same draws halved must move it about half as much (a scaling of
+2). On a strongly driven hardening Duffing (a record outside the repository) the noise moved
+the response by 43 % of its RMS and half of it by as much (scaling 0.96; 1.98–2.00 on four
+smooth records): the response is not a smooth function of its input there, the share is not
+counted and the line says so. An input without bins above its band (a broadband drive) has
+no floor and counts for nothing, as before.
 """
 
 from __future__ import annotations
