@@ -61,12 +61,8 @@ class Dynamics:
                                   extras=extras)
         bounds = self.record.bounds
         if self.n_coordinates > 1:  # (D, P) arrays in and out
-            def clipped(z, which):  # row by row: faster than one broadcast clip in scan_jvp
-                return [jnp.clip(z[e], -bounds[e, which], bounds[e, which])
-                        for e in range(self.n_coordinates)]
-
             def system_acceleration(xs, vs, forces, t):
-                r = rows(clipped(xs, 0), clipped(vs, 1), t)
+                r = rows(self._clipped_rows(xs, 0), self._clipped_rows(vs, 1), t)
                 return jnp.stack([(forces[e] - r_e) * inverse_mass[e] for e, r_e in enumerate(r)])
 
             return system_acceleration
@@ -77,6 +73,14 @@ class Dynamics:
             return [(forces[0] - r) * inverse_mass[0]]
 
         return acceleration
+
+    def _clipped_rows(self, z, which: int):
+        """The D rows of positions (``which`` 0) or velocities (1) ``z`` clipped to the
+        record's bounds, as a list: row by row is faster than one broadcast clip in
+        :meth:`scan_jvp`."""
+        bounds = self.record.bounds
+        return [jnp.clip(z[e], -bounds[e, which], bounds[e, which])
+                for e in range(self.n_coordinates)]
 
     def _restoring_fn(self, state, inner, *, stacked: bool = True, families: bool = True,
                       extras: bool = True):
@@ -212,7 +216,7 @@ class Dynamics:
                        if fused else None)
         inverse_mass = 1.0 / mass
         count = self.n_coordinates
-        system_partials = self._system_partials(state) if count > 1 else None
+        system_forces = self._system_forces(state) if count > 1 else None
 
         def partials(xs, vs, t, which):
             """∂r/∂x_j (which 0) or ∂r/∂x_j' (1), (D, P) each, for every coordinate j."""
@@ -230,10 +234,13 @@ class Dynamics:
             (y,) = y
             x, v, s, w = y[0, 0], y[1, 0], y[0, 1:], y[1, 1:]
             f, df = force
-            a = acceleration(x, v, f, t) if count > 1 else jnp.stack(acceleration(x, v, f, t))
             xs, vs = [x[e] for e in range(count)], [v[e] for e in range(count)]
-            r_x, r_v = (system_partials(xs, vs) if count > 1 else
-                        (partials(xs, vs, t, 0), partials(xs, vs, t, 1)))
+            if count > 1:  # r and its D × D partials from one pass, at the clipped state
+                r, r_x, r_v = system_forces(self._clipped_rows(x, 0), self._clipped_rows(v, 1))
+                a = (f - r) * inverse_mass
+            else:
+                a = jnp.stack(acceleration(x, v, f, t))
+                r_x, r_v = partials(xs, vs, t, 0), partials(xs, vs, t, 1)
             explicit = df
             for one_pass in (family_pass, extra_pass):
                 if one_pass is None:
