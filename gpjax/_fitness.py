@@ -95,8 +95,12 @@ class Record:
 
 
 def structure_key(form: CanonicalForm, with_coefficients: bool) -> str:
-    """Text key of a canonical form: its features, and its coefficients if asked."""
+    """Text key of a canonical form: its features, and its coefficients if asked, each part
+    in feature-text order whatever the form's (a neighbour built from a model's terms in
+    another order is the same record: before, the final selection scored and refined a
+    duffing record's eight ends a second time under reordered keys)."""
     def part(pairs):
+        pairs = sorted(pairs, key=lambda p: feature_name(p[0]))
         if with_coefficients:
             return ", ".join(f"{feature_name(f)}:{c!r}" for f, c in pairs)
         return ", ".join(feature_name(f) for f, _ in pairs)
