@@ -45,7 +45,18 @@ SUMMARIES = (re.compile(r"([\d.]+) s in all, ([\d.]+) s of it compiling or loadi
 #: The summary's stages (seconds), where it names them.
 STAGES = {"search_s": re.compile(r"search \([^)]*\) ([\d.]+) s"),
           "selection_s": re.compile(r"final model selection ([\d.]+) s"),
-          "convergence_s": re.compile(r"convergence check ([\d.]+) s")}
+          "convergence_s": re.compile(r"convergence check ([\d.]+) s"),
+          "intervals_s": re.compile(r"standard errors and residuals ([\d.]+) s")}
+#: The reported row of the printed Pareto table (marked ``*``): its equation.
+REPORTED = re.compile(r"^\*\s+\d+\s+\S+\s+(Eq\(.*\))\s*$", re.MULTILINE)
+NUMBER = re.compile(r"(?<![\w.])-?\d+\.\d+(e-?\d+)?")
+
+
+def _structure(stdout: str) -> str | None:
+    """The reported equation with its numbers replaced by ``c``: the structure, whatever the
+    names the constants get (``k1``, ``k2`` follow the terms' order in the record)."""
+    found = REPORTED.search(stdout)
+    return NUMBER.sub("c", found[1]) if found else None
 
 
 def _write_records(folder: Path, count: int) -> list[Path]:
@@ -91,7 +102,8 @@ def _fit_all(tree: Path, records: list[Path], cache: Path, args,
         rows.append({"record": path.stem, "exit": run.returncode, "whole_s": whole,
                      "fit_s": float(found[1]) if found else None,
                      "compile_s": float(found[2]) if found else None,
-                     "programs": int(found[3]) if found else None, "equation": equation}
+                     "programs": int(found[3]) if found else None, "equation": equation,
+                     "structure": _structure(run.stdout)}
                     | stages)
     return rows
 

@@ -718,13 +718,20 @@ def _new_record(data: dict) -> str:
                  if after.get("selection_s") is not None and after.get("fit_s") else "–")
         converge = (f"{after['convergence_s']:.0f}" if after.get("convergence_s") is not None
                     else "–")
+        if after.get("intervals_s") is not None:
+            converge += f" + {after['intervals_s']:.0f}"
+
+        def structure(r):  # the reported row's equation without its numbers, where recorded
+            if r.get("structure") and before.get("structure"):
+                return r["structure"]
+            return r["equation"].split("   with")[0]
         same = ("–" if "timeout" in (before["exit"], after["exit"]) else "yes"
-                if before["equation"].split("   with")[0] == after["equation"].split(
-                    "   with")[0] else "no")
+                if structure(before) == structure(after) else "no")
         rows.append([after["record"], cell(before), cell(after), ratio, share, converge, same])
     return (_table(["record", f"{baseline}: s (compiling)", f"{current}: s (compiling)",
-                    "speed-up", "selection s (share of the fit)", "convergence s",
-                    "same structure"], rows, "lrrrrrl") + "\n\n" + _stamp(data))
+                    "speed-up", "selection s (share of the fit)",
+                    "convergence s (+ standard errors)", "same structure"], rows, "lrrrrrl")
+            + "\n\n" + _stamp(data))
 
 
 def call_cost() -> str:

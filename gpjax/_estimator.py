@@ -52,7 +52,9 @@ class Identifier:
     and :meth:`latex` take a row index), ``history_`` (per generation),
     ``stopped_by`` (``"epsilon"``, ``"generations"`` or ``"interrupted"``), timings in
     ``timings_`` (seconds: ``total_s``, ``compile_s``, ``selection_s`` the final model
-    selection, ``convergence_s``; ``compiles``, ``generations``), and ``convergence_``:
+    selection, ``convergence_s``, ``intervals_s`` the standard errors and residual
+    statistics (a system's ``convergence_s`` holds them), ``writing_s``; ``compiles``,
+    ``generations``), and ``convergence_``:
     each check of the reported model's RK4 integration against the reference solve
     (:class:`~gpjax._convergence.Convergence`), the last one passed unless a fixed
     ``substeps`` was too coarse (then a warning says so); the model's smoothed-sign width
@@ -178,6 +180,7 @@ class Identifier:
         self._select(fitness, seed, state)
         converging = time.perf_counter()
         fitness = self._converge(fitness, seed, state)
+        intervals = time.perf_counter()
         self._set_uncertainty(fitness)
         self._set_residuals()
         writing = time.perf_counter()
@@ -188,7 +191,8 @@ class Identifier:
         self.timings_ = {"total_s": ended - began,
                          "search_s": selecting - began,
                          "selection_s": converging - selecting,
-                         "convergence_s": writing - converging,  # uncertainty, residuals
+                         "convergence_s": intervals - converging,
+                         "intervals_s": writing - intervals,  # standard errors, residuals
                          "writing_s": ended - writing, **compiled_since(compiled),
                          "generations": state.generation, "finished_at": time.time()}
         return self

@@ -258,8 +258,10 @@ def _timings(identifier, out) -> None:
               f"{seconds[0]:.2f} s"
               f"{later})", t["search_s"]),
              ("final model selection", t["selection_s"]),
-             ("convergence check", t["convergence_s"]), ("writing results", t["writing_s"]),
-             ("printing", now - t["finished_at"])]
+             ("convergence check", t["convergence_s"]),
+             *([("standard errors and residuals", t["intervals_s"])] if "intervals_s" in t
+               else []),
+             ("writing results", t["writing_s"]), ("printing", now - t["finished_at"])]
     print(f"\nStopped by {identifier.stopped_by} after generation {t['generations']}. "
           f"{now - started:.1f} s in all: "
           + "; ".join(f"{name} {value:.1f} s" for name, value in parts)

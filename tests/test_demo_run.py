@@ -30,8 +30,10 @@ def demo_fit(tmp_path_factory):
 def test_timings_split_the_run_into_its_stages(demo_fit):
     t = demo_fit[0].timings_
     assert 0 < t["selection_s"] and 0 < t["convergence_s"] and 0 <= t["compile_s"]
+    assert 0 < t["intervals_s"]  # the standard errors and residual statistics
     assert t["selection_s"] + t["convergence_s"] < t["total_s"]
-    parts = t["search_s"] + t["selection_s"] + t["convergence_s"] + t["writing_s"]
+    parts = (t["search_s"] + t["selection_s"] + t["convergence_s"] + t["intervals_s"]
+             + t["writing_s"])
     assert parts == pytest.approx(t["total_s"], rel=1e-9)  # every second accounted for
     assert t["compiles"] >= 1 and t["generations"] >= 0
 
