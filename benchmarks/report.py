@@ -728,9 +728,12 @@ def _new_record(data: dict) -> str:
         same = ("–" if "timeout" in (before["exit"], after["exit"]) else "yes"
                 if structure(before) == structure(after) else "no")
         rows.append([after["record"], cell(before), cell(after), ratio, share, converge, same])
+    split = any(r.get("intervals_s") is not None for r in data["results"][current])
     return (_table(["record", f"{baseline}: s (compiling)", f"{current}: s (compiling)",
                     "speed-up", "selection s (share of the fit)",
-                    "convergence s (+ standard errors)", "same structure"], rows, "lrrrrrl")
+                    "convergence s (+ standard errors)" if split else
+                    "convergence s (with the standard errors)", "same structure"], rows,
+                   "lrrrrrl")
             + "\n\n" + _stamp(data))
 
 
