@@ -45,6 +45,7 @@ from ._aot import Program, fingerprint
 from ._coefficients import Coefficients
 from ._data import BANDLIMITED_FACTOR, bandlimited_spline
 from ._integrate import enable_float64
+from ._record import padded_length
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -145,9 +146,11 @@ def _lifted(expression: sp.Expr, constant) -> sp.Expr:
 @lru_cache(maxsize=64)
 def _solve_program(expressions: tuple[sp.Expr, ...], names: tuple, constants: tuple,
                    method: str, solver: ReferenceSolver) -> Program:
-    """The compiled reference solve of one structure, shared by its models:
-    ``program(values, path, ts, y0, scale) -> (x / scale at ts (N, D), succeeded)`` with
-    ``path`` from :func:`input_path`, ``ts`` the sample times (s), ``y0`` and ``scale``
+    """The compiled reference solve of one structure, shared by its models and by every
+    record of a length bucket: ``program(values, path, ts, n, y0, scale) -> (x / scale at
+    ts (N', D), succeeded)`` with ``path`` from :func:`input_path` and ``ts`` the sample
+    times (s), both padded to the bucket's N' samples (:func:`gpjax._record.padded_length`),
+    ``n`` the record's samples (the intervals past them are skipped), ``y0`` and ``scale``
     (2, D): each coordinate's (x, x') at the first sample and their typical sizes."""
     rhs = sp.lambdify((*names, constants), list(expressions), modules="jax")
     n_inputs = len(names) - 2 * len(expressions) - 1
@@ -165,7 +168,7 @@ def _solve_program(expressions: tuple[sp.Expr, ...], names: tuple, constants: tu
                                      *(u[k] for k in range(n_inputs)), values))
         return jnp.stack([velocity, acceleration]) / scale
 
-    def solve(values, path, ts, y0, scale):
+    def solve(values, path, ts, n, y0, scale):
         import diffrax  # traced only when compiled (gpjax._integrate.rk4_solver)
 
         term = diffrax.ODETerm(field)
@@ -189,9 +192,11 @@ def _solve_program(expressions: tuple[sp.Expr, ...], names: tuple, constants: tu
                 jnp.isfinite(solution.ys[-1]))
             return solution.ys[-1], ok
 
-        def interval(carry, k):  # after a failure the rest is skipped (NaN)
+        def interval(carry, k):  # after a failure the rest is skipped (NaN), as is padding
             y, ok = carry
-            y, succeeded = jax.lax.cond(ok, advance, lambda y, k: (y * jnp.nan, False), y, k)
+            y, succeeded = jax.lax.cond(ok & (k < n - 1), advance,
+                                        lambda y, k: (y * jnp.where(ok, 1.0, jnp.nan), ok),
+                                        y, k)
             return (y, ok & succeeded), y[0]
 
         start = y0 / scale
@@ -227,11 +232,17 @@ def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
         sp.Symbol(n) for n in model.inputs)
     program = _solve_program(expressions, names, constants, model.input_interpolation, solver)
     path = input_path(time, [inputs[name] for name in model.inputs], model.input_interpolation)
+    # Padded to the length bucket, so a record of another length in it loads this program:
+    # the times go on uniformly, the pieces repeat the last interval's (never solved).
+    n, padded = time.size, padded_length(time.size)
+    dt = (time[-1] - time[0]) / (n - 1)
+    ts = np.concatenate([time, time[-1] + dt * np.arange(1, padded - n + 1)])
+    path = jnp.concatenate([path, jnp.repeat(path[-1:], padded - n, axis=0)])
     scale = np.ones((len(coordinates), 2)) if scale is None else np.asarray(scale, float)
     scale = jnp.asarray(np.where(scale > 0, scale, 1.0).T)
     y0 = np.reshape(np.asarray(initial_states, float), (len(coordinates), 2))
-    scaled, succeeded = program(jnp.asarray(values), path, jnp.asarray(time, dtype=float),
-                                jnp.asarray(y0.T), scale)
-    x = np.asarray(scaled) * np.asarray(scale[0])
+    scaled, succeeded = program(jnp.asarray(values), path, jnp.asarray(ts, dtype=float),
+                                jnp.asarray(n), jnp.asarray(y0.T), scale)
+    x = np.asarray(scaled)[:n] * np.asarray(scale[0])
     ok = bool(succeeded) and bool(np.all(np.isfinite(x)))
     return (x if ok else np.full(x.shape, np.nan)), ok
