@@ -120,6 +120,26 @@ def test_models_differing_only_in_a_features_numbers_share_one_reference_solve()
     assert a[0].has(S.x ** 3)
 
 
+def test_records_of_one_length_bucket_share_one_reference_solve():
+    """The record enters the reference solve padded to its length bucket: a record of
+    another length in the bucket takes the executable the first one got (none compiled or
+    loaded), and its response is the longer record's first samples (each interval is
+    solved on its own, the padding never)."""
+    from gpjax import _aot
+    from gpjax._record import padded_length
+    from gpjax._reference import reference_response
+
+    record, model = _held_record(n=400), _model("linear")
+    assert padded_length(400) == padded_length(390)
+    long, ok_long = reference_response(model, record.time, record.inputs, [(0.01, -0.2)])
+    executables = _aot._LEDGER[1]
+    short, ok_short = reference_response(model, record.time[:390],
+                                         {"u": record.inputs["u"][:390]}, [(0.01, -0.2)])
+    assert _aot._LEDGER[1] == executables
+    assert ok_long and ok_short and long.shape == (400, 1) and short.shape == (390, 1)
+    np.testing.assert_array_equal(short, long[:390])
+
+
 def test_a_sticking_mass_needs_a_stable_step_and_a_crossing_does_not():
     """tanh(43799·x') on a 2 kg mass: rate 3·43799/2 ≈ 65,700 /s, so dt = 1 ms needs
     ceil(65.7 / 2.785) = 24 steps while the mass sticks (x' = 0 for many samples); a

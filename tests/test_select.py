@@ -307,3 +307,21 @@ def test_the_walk_keeps_a_viscous_term_beside_a_smooth_friction_law():
     law, = [f for f in state if f.func == sp.tanh]
     assert set(state) == {X, V, law}, [r.key for r in path]
     assert state[V] / chosen.coefficients.mass == pytest.approx(0.75, rel=0.1)
+
+
+def test_a_neighbour_in_another_term_order_is_the_same_record():
+    """A walk builds neighbours from a model's terms in their stored order; the record key
+    lists them in feature-text order, so a reordered model is found, not scored and
+    refined again."""
+    from gpjax._fitness import structure_key
+    from gpjax._select_moves import Move, move_key
+
+    x, x_dot, u = sp.symbols("x x_dot u")
+    one = Move(state={x_dot: 2.0, x ** 3: 400.0, x: 40.0}, forcing={u: 1.0}, held=())
+    other = Move(state={x: 39.0, x_dot: 2.1, x ** 3: 401.0}, forcing={u: 1.0}, held=())
+    assert move_key(one, 1.0, False) == move_key(other, 1.0, False)
+    sorted_form = CanonicalForm(mass=1.0, state=((x, 40.0), (x ** 3, 400.0), (x_dot, 2.0)),
+                                forcing=((u, 1.0),))
+    assert structure_key(one.form(1.0), False) == structure_key(sorted_form, False)
+    assert (structure_key(one.form(1.0), True)
+            == structure_key(CanonicalForm(1.0, sorted_form.state, ((u, 1.0),)), True))
