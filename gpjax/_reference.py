@@ -235,7 +235,7 @@ def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
     # Padded to the length bucket, so a record of another length in it loads this program:
     # the times go on uniformly, the pieces repeat the last interval's (never solved).
     n, padded = time.size, padded_length(time.size)
-    dt = (time[-1] - time[0]) / (n - 1)
+    dt = (time[-1] - time[0]) / max(n - 1, 1)
     ts = np.concatenate([time, time[-1] + dt * np.arange(1, padded - n + 1)])
     path = jnp.concatenate([path, jnp.repeat(path[-1:], padded - n, axis=0)])
     scale = np.ones((len(coordinates), 2)) if scale is None else np.asarray(scale, float)

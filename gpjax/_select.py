@@ -85,11 +85,11 @@ goes to 2.0 and the objective below the stand-in's, and the walk reaches k·tanh
 So when no neighbour replaces the current model, the simpler neighbours that were refined
 and the current model itself are refined to convergence (:meth:`Fitness.refine` with
 ``to_convergence``: rounds until one lowers the objective by less than 0.1 %) and the test
-is run again; only then does the walk end. (In a walk from another front member, a current
-model further than :data:`REFINE_WITHIN` from the best member's objective is left as it is,
-as such neighbours are: on the Duffing record of issue 43 the walks from m·x'' = 0 and its
-neighbours spent three refinement calls, 1 s, converging a model 100× worse than the best.) The test compares models at their best
-constants on the record, not at a step count.
+is run again; only then does the walk end. The test compares models at their best
+constants on the record, not at a step count. In a walk from another front member, a
+current model whose objective exceeds :data:`REFINE_WITHIN` × the best member's is left as
+it is, as such neighbours are: it competes with no end (on the Duffing record of issue 43
+three refinement calls, 1 s, went to converging a model 100× worse than the best).
 
 **Where the walk starts.** A walk only removes, swaps and replaces terms, so it cannot
 reach a simpler law that is not a few moves from its start: from the stand-in
@@ -358,8 +358,8 @@ def _walk(fitness: Fitness, best: Record, alpha: float, path: list[Record], *, w
             # Before the walk ends here: the simpler neighbours' constants (and the current
             # model's) refined to convergence, then the same test again — a swapped
             # function's inner constant can stop short of its basin after one round.
-            # A current model further than ``refine_below`` from the best member's objective
-            # is not converged: like such a neighbour, it competes with no end.
+            # A current model above ``refine_below`` (REFINE_WITHIN × the best member's
+            # objective) is not converged: like such a neighbour, it competes with no end.
             unconverged = [r for r in candidates if r.refined and not r.converged]
             if not unconverged:
                 return current, path
