@@ -363,8 +363,8 @@ def _walk(fitness: Fitness, best: Record, alpha: float, path: list[Record], *, w
             unconverged = [r for r in candidates if r.refined and not r.converged]
             if not unconverged:
                 return current, path
-            yield _Refine(unconverged + [current] * (current.objective <= refine_below),
-                          to_convergence=True)
+            near = [current] if current.objective <= refine_below else []
+            yield _Refine(unconverged + near, to_convergence=True)
             base = held_out_residual(fitness, current, weak)
             chosen = yield from _first_replacing(fitness, candidates, rest, current, base,
                                                  alpha, simulated, below, weak)
