@@ -231,8 +231,8 @@ class Fitness:
     def records_for(self, trees: list[Tree]) -> list[Record]:
         """Score every tree (new structures in one batch) and return their records."""
         new: dict[str, CanonicalForm] = {}
-        for tree in trees:
-            key, form, reason = self.classify(tree)
+        classified = [self.classify(tree) for tree in trees]
+        for key, form, reason in classified:
             if key in self.records or key in new:
                 continue
             if form is None:
@@ -241,7 +241,7 @@ class Fitness:
                 new[key] = form
         if new:
             self.score_forms(new)
-        return [self.records[self.classify(tree)[0]] for tree in trees]
+        return [self.records[key] for key, _, _ in classified]
 
     def score_forms(self, forms: dict[str, CanonicalForm],
                     held: dict[str, tuple[int, ...]] | None = None,

@@ -89,7 +89,8 @@ is run again; only then does the walk end. The test compares models at their bes
 constants on the record, not at a step count. In a walk from another front member, a
 current model whose objective exceeds :data:`REFINE_WITHIN` × the best member's is left as
 it is, as such neighbours are: it competes with no end (on the Duffing record of issue 43
-three refinement calls, 1 s, went to converging a model 100× worse than the best).
+three refinement calls, 1 s, went to converging a model 100× worse than the best); so is
+such an end in the walk among the ends (there m·x'' = 0 was converged, twice).
 
 **Where the walk starts.** A walk only removes, swaps and replaces terms, so it cannot
 reach a simpler law that is not a few moves from its start: from the stand-in
@@ -306,6 +307,7 @@ def select(fitness: Fitness, front: list[Record], alpha: float) -> tuple[Record,
     first = walks[0][1][-1]
     return _drive(fitness, _walk(fitness, first, alpha, [first],
                                  options=lambda current: list(ends.values()),
+                                 refine_below=REFINE_WITHIN * best.objective,
                                  simulated=True, weak=weak))
 
 
@@ -358,9 +360,11 @@ def _walk(fitness: Fitness, best: Record, alpha: float, path: list[Record], *, w
             # Before the walk ends here: the simpler neighbours' constants (and the current
             # model's) refined to convergence, then the same test again — a swapped
             # function's inner constant can stop short of its basin after one round.
-            # A current model above ``refine_below`` (REFINE_WITHIN × the best member's
-            # objective) is not converged: like such a neighbour, it competes with no end.
-            unconverged = [r for r in candidates if r.refined and not r.converged]
+            # A model above ``refine_below`` (REFINE_WITHIN × the best member's objective),
+            # the current one or a candidate (an end of a walk from a poor member), is not
+            # converged: like such a neighbour, it competes with no end.
+            unconverged = [r for r in candidates
+                           if r.refined and not r.converged and r.objective <= refine_below]
             if not unconverged:
                 return current, path
             near = [current] if current.objective <= refine_below else []

@@ -16,6 +16,7 @@ Node forms:
 
 from __future__ import annotations
 
+from functools import lru_cache
 from typing import Iterator
 
 Tree = tuple
@@ -35,6 +36,7 @@ def arity(name: str) -> int:
     return 1 if name in UNARY_NODES else 2
 
 
+@lru_cache(maxsize=1 << 16)  # a population is ranked by size every generation
 def size(tree: Tree) -> int:
     """Number of nodes."""
     if is_function(tree):
