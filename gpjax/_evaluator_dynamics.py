@@ -220,17 +220,11 @@ class Dynamics:
                        if fused else None)
         inverse_mass = 1.0 / mass
 
-        def partials(xs, vs, t, which):
-            """∂r/∂x_j (which 0) or ∂r/∂x_j' (1), (D, P) each, for every coordinate j."""
-            ones = jnp.ones_like(xs[0])
-            out = []
-            for j in range(count):
-                def moved(z, j=j):
-                    states = [list(xs), list(vs)]
-                    states[which][j] = z
-                    return restoring(*states, t)
-                out.append(jax.jvp(moved, ((xs, vs)[which][j],), (ones,))[1])
-            return out
+        def partials(x, v, t):
+            """One coordinate's ∂r/∂x and ∂r/∂x', [(1, P)] each, by autodiff of r."""
+            ones = jnp.ones_like(x)
+            return ([jax.jvp(lambda z: restoring([z], [v], t), (x,), (ones,))[1]],
+                    [jax.jvp(lambda z: restoring([x], [z], t), (v,), (ones,))[1]])
 
         def rates(y, force, t):
             (y,) = y
@@ -241,7 +235,7 @@ class Dynamics:
                 a = (f - r) * inverse_mass
             else:
                 a = jnp.stack(acceleration(x, v, f, t))
-                r_x, r_v = partials([x[0]], [v[0]], t, 0), partials([x[0]], [v[0]], t, 1)
+                r_x, r_v = partials(x[0], v[0], t)
             explicit = df
             for one_pass in (family_pass, extra_pass):
                 if one_pass is None:

@@ -121,7 +121,6 @@ class WeakForm:
             self.centres = self.centres[self._kept]
         self.kernel_area = float(np.sum(self._kernels[0]))
         self._cache: dict[sp.Expr, np.ndarray] = {}
-        self._acceleration: np.ndarray | None = None
 
     def _windows(self, values: np.ndarray) -> np.ndarray:
         """(K, 2h + 1) strided windows of ``values`` (a view), all centres."""
@@ -136,16 +135,17 @@ class WeakForm:
         return integrals if self._kept is None else integrals[self._kept]
 
     def acceleration(self) -> np.ndarray:
-        """∫ψ_k''·x: the inertia column (no derivative of the data needed; cached, every
-        least-squares problem of the run has it)."""
-        if self._acceleration is None:
-            self._acceleration = self._integrate(self.measurement.response, 2)
-        return self._acceleration
+        """∫ψ_k''·x: the inertia column (no derivative of the data needed; cached, as every
+        column is: every least-squares problem of the run has it)."""
+        return self.column(self.symbols.x_ddot)
 
     def column(self, feature: sp.Expr) -> np.ndarray:
-        """∫ψ_k·feature(x, x', t, u) for every window (cached)."""
+        """∫ψ_k·feature(x, x', x'', t, u) for every window (cached); x' and x'' are
+        integrated by parts against the measured x."""
         if feature not in self._cache:
-            if feature == self.symbols.x_dot:
+            if feature == self.symbols.x_ddot:
+                self._cache[feature] = self._integrate(self.measurement.response, 2)
+            elif feature == self.symbols.x_dot:
                 self._cache[feature] = -self._integrate(self.measurement.response, 1)
             else:
                 self._cache[feature] = self._integrate(
