@@ -39,14 +39,15 @@ RECORD_ARRAYS = 32
 BASE_BYTES = 700 * 2 ** 20
 
 
-def fit_bytes(*, n_samples: int, substeps: int, population: int) -> int:
-    """Estimated peak memory of a fit, in bytes (see the module docstring)."""
+def fit_bytes(*, n_samples: int, substeps: int, population: int, coordinates: int = 1) -> int:
+    """Estimated peak memory of a fit of ``coordinates`` responses, in bytes (see the
+    module docstring: every per-coordinate array is held once per coordinate)."""
     stages = 2 * (n_samples - 1) * substeps + 1
     batch = max(1, min(population, 512, STAGE_ELEMENTS_PER_CALL // stages))
     models = refine_batch(BATCH, n_samples=n_samples, substeps=substeps, max_free=MAX_FREE)
-    held = 2 * stages * first_forcing_capacity(stages) + RECORD_ARRAYS * n_samples
-    evaluator = EVALUATOR_ARRAYS * stages * batch + n_samples * batch
-    refiner = REFINER_COPIES * models * MAX_FREE * (stages + n_samples)
+    held = 2 * stages * first_forcing_capacity(stages) + RECORD_ARRAYS * n_samples * coordinates
+    evaluator = coordinates * (EVALUATOR_ARRAYS * stages * batch + n_samples * batch)
+    refiner = coordinates * REFINER_COPIES * models * MAX_FREE * (stages + n_samples)
     return BASE_BYTES + FLOAT_BYTES * (held + max(evaluator, refiner))
 
 
@@ -63,10 +64,11 @@ def available_bytes() -> int:
     return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
 
 
-def check_fit_memory(*, n_samples: int, substeps: int, population: int) -> None:
+def check_fit_memory(*, n_samples: int, substeps: int, population: int,
+                     coordinates: int = 1) -> None:
     """Raise :class:`UserInputError` if a fit's estimated need exceeds available memory."""
-    need, free = fit_bytes(n_samples=n_samples, substeps=substeps,
-                           population=population), available_bytes()
+    need, free = fit_bytes(n_samples=n_samples, substeps=substeps, population=population,
+                           coordinates=coordinates), available_bytes()
     if need > free:
         raise UserInputError(
             f"this run needs about {_gb(need)} of memory but {_gb(free)} are available "

@@ -92,11 +92,13 @@ import sympy as sp
 from . import _progress, _trees
 from ._canonical import Symbols, feature_name
 from ._config import GPConfig, check_system_config
+from ._convergence import initial_substeps
 from ._data import Measurement
 from ._evaluator import PENALTY, PopulationEvaluator
 from ._evolve import GenerationStats, RunState
 from ._expressions import parse_expression
 from ._features import SIGN_WIDTH
+from ._memory import check_fit_memory
 from ._objective import stop_objective
 from ._operators import crossover, initial_population, mutation, perturbation
 from ._sign_width import NARROWING, next_narrowing, sharpened, width_check
@@ -174,9 +176,14 @@ class SystemEvolution:
                                    config.functions, scales, config.input_forcing)
         self.grammars = [self.equations.grammar(i, config)
                          for i in range(len(self.equations.names))]
+        #: RK4 steps per sample of the search, as one coordinate's (``GPConfig.substeps``)
+        self.substeps = (initial_substeps(measurement) if config.substeps == "auto"
+                         else config.substeps)
+        check_fit_memory(n_samples=measurement.n_samples, substeps=self.substeps,
+                         population=config.population, coordinates=measurement.n_coordinates)
         evaluator = PopulationEvaluator(
             measurement, Symbols(self.equations.names[0], measurement.time_name,
-                                 measurement.input_names),
+                                 measurement.input_names), substeps=self.substeps,
             max_degree=config.max_degree, fit_initial_conditions=True, n_bins=config.n_bins,
             w_time=config.w_time, w_freq=config.w_freq,
             input_interpolation=config.input_interpolation, batch=config.population,
@@ -301,6 +308,7 @@ class SystemEvolution:
         fitting = time.perf_counter()
         settings = dict(max_degree=config.max_degree, third_law=config.third_law,
                         input_interpolation=config.input_interpolation,
+                        substeps=None if config.substeps == "auto" else config.substeps,
                         tolerance=config.convergence_tolerance,
                         kinds=kinds_for(config.functions))
         best, fit = reported(best, scorer, measurement, settings, config.selection_alpha)

@@ -147,6 +147,27 @@ def test_system_search_takes_the_one_gpconfig_and_refuses_one_coordinate_fields(
         GPConfig.from_toml(path)
 
 
+def test_system_search_takes_the_substeps_setting_and_guards_its_memory(monkeypatch):
+    """``substeps`` acts on a system search as on one coordinate's: a number is its RK4
+    steps per sample, ``"auto"`` the data's bandwidth rule; a search the machine cannot
+    hold is refused before it allocates, with the one-line fix."""
+    from gpjax import GPConfig, UserInputError
+    from gpjax import _memory
+    from gpjax._convergence import initial_substeps
+    from gpjax._system_search import SystemEvolution
+
+    _, _, measurement = _chain(duration=1.0)
+    fixed = SystemEvolution(measurement, GPConfig(population=20, substeps=3))
+    assert fixed.substeps == fixed.scorer.evaluator.substeps == 3
+    auto = SystemEvolution(measurement, GPConfig(population=20))
+    assert auto.scorer.evaluator.substeps == initial_substeps(measurement)
+    two = _memory.fit_bytes(n_samples=10_000, substeps=1, population=500, coordinates=2)
+    assert two > _memory.fit_bytes(n_samples=10_000, substeps=1, population=500)
+    monkeypatch.setattr(_memory, "available_bytes", lambda: 10 ** 6)
+    with pytest.raises(UserInputError, match="lower population or substeps"):
+        SystemEvolution(measurement, GPConfig(population=20))
+
+
 def test_system_config_errors_are_one_line_exit_2(tmp_path, capsys):
     from gpjax.cli import main
 
