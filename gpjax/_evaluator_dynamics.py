@@ -188,7 +188,7 @@ class Dynamics:
                 d_forcing). Directions come first so the population axis stays the minor
                 one that XLA vectorises.
             fold: ``(fn, acc)``: return only ``acc`` folded over the samples by
-                ``fn(acc, y, k)`` at step k, y the carried (2, 1 + Q, D, P) array
+                ``fn(acc, y, k)`` at sample k, y the carried (2, 1 + Q, D, P) array
                 [[x, s], [x', w]], from ``fn(acc, start, 0)``; nothing is saved.
         """
         inner = _no_inner(inner, mass)

@@ -31,7 +31,7 @@ def system_state_features(names: tuple[str, ...], max_degree: int, kinds: tuple[
 
 class SystemTerms:
     """Mixin of :class:`gpjax._evaluator.PopulationEvaluator` (uses its ``max_degree``,
-    ``n_coordinates``, ``record`` (:mod:`gpjax._record`), ``substeps`` and :meth:`scan_jvp`)."""
+    ``n_coordinates``, ``record`` (:mod:`gpjax._record`) and :meth:`scan_jvp`)."""
 
     def _system_coefficients(self, state):
         """(max_degree, D·2D, ..., P) coefficients of every equation's variables (the
@@ -148,7 +148,7 @@ class SystemTerms:
         integrates the sensitivities (:meth:`scan_jvp`'s ``fold``): the (N, D, 2D, P)
         sensitivities are never written, which was half the step's time (P = 500, D = 2)
         and a fifth of a family model's evaluation for D = 1."""
-        count, substeps = self.n_coordinates, self.substeps
+        count = self.n_coordinates
         q = 2 * count
         directions = jnp.broadcast_to(jnp.eye(q).reshape((q,) + y0.shape[1:])[:, None],
                                       (q,) + y0.shape)
@@ -157,16 +157,14 @@ class SystemTerms:
 
         upper = np.triu_indices(q)  # SᵀS is symmetric: its upper triangle is summed
 
-        def add(acc, y, k):  # y: (2, 1 + Q, D, P); a sample every `substeps` steps
+        def add(acc, y, k):  # y: (2, 1 + Q, D, P) at sample k
             a, b = acc
-            row = jax.lax.dynamic_index_in_dim(measured, k // substeps, keepdims=False)
+            row = jax.lax.dynamic_index_in_dim(measured, k, keepdims=False)
             residual = (row[:, None] - y[0, 0]) * weights  # (D, P)
             s = y[0, 1:] * weights  # (Q, D, P)
             da = jnp.sum(s[upper[0]] * s[upper[1]], axis=1)
             db = jnp.sum(s * residual, axis=1)
-            on = valid[k // substeps] > 0  # a sample of the record, not of its padding
-            if substeps > 1:
-                on = on & ((k % substeps) == 0)
+            on = valid[k] > 0  # a sample of the record, not of its padding
             da, db = jnp.where(on, da, 0.0), jnp.where(on, db, 0.0)
             return a + da, b + db
 

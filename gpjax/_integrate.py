@@ -138,7 +138,9 @@ def rk4_solver():
 
 def rk4_scan(rates, y0, forces, saved, *, h: float, t0: float, substeps: int,
              split_stages: bool, fold=None):
-    """Classical RK4 over a stage grid in ``lax.scan`` for a tuple of states.
+    """Classical RK4 over a stage grid in ``lax.scan`` for a tuple of states, one scan step
+    per sample interval (its ``substeps`` RK4 steps an inner scan): what is saved or
+    folded is computed at the samples only.
 
     Args:
         rates: ``rates(y, force, t)`` gives dy/dt for the tuple of states y.
@@ -148,8 +150,9 @@ def rk4_scan(rates, y0, forces, saved, *, h: float, t0: float, substeps: int,
             step's start, middle and end-left-limit rows (3·steps).
         saved: ``saved(y)`` picks what is returned at the sample times.
         h: step (s); t0: time of the first row (s); substeps: steps per sample interval.
-        fold: ``(fn, acc)``: also carry ``acc = fn(acc, y, k)`` after every step k = 1, 2,
-            … (a running sum instead of a saved path: no (N, …) array is written).
+        fold: ``(fn, acc)``: also carry ``acc = fn(acc, y, k)`` at every sample k = 1, 2,
+            … after the first (a running sum instead of a saved path: no (N, …) array is
+            written).
 
     Returns:
         The tuple ``saved`` picks, each at the sample times with the initial value first;
@@ -158,8 +161,8 @@ def rk4_scan(rates, y0, forces, saved, *, h: float, t0: float, substeps: int,
     def along(y, k, c):
         return tuple(a + c * b for a, b in zip(y, k))
 
-    def step(carry, stage):
-        y, i, acc = carry
+    def rk4_step(carry, stage):
+        y, i = carry
         f0, f_half, f1 = stage
         t = t0 + i * h
         k1 = rates(y, f0, t)
@@ -168,18 +171,28 @@ def rk4_scan(rates, y0, forces, saved, *, h: float, t0: float, substeps: int,
         k4 = rates(along(y, k3, h), f1, t + h)
         y = tuple(a + h / 6 * (b1 + 2 * b2 + 2 * b3 + b4)
                   for a, b1, b2, b3, b4 in zip(y, k1, k2, k3, k4))
+        return (y, i + 1), None
+
+    def sample_step(carry, stage):
+        y, i, acc = carry
+        if substeps == 1:
+            (y, i), _ = rk4_step((y, i), stage)
+        else:
+            (y, i), _ = jax.lax.scan(rk4_step, (y, i), stage)
         if fold is not None:
-            acc = fold[0](acc, y, i + 1)
-        return (y, i + 1, acc), saved(y)
+            acc = fold[0](acc, y, i // substeps)
+        return (y, i, acc), saved(y)
 
     if split_stages:
         stages = jax.tree_util.tree_map(lambda f: (f[0::3], f[1::3], f[2::3]), forces)
     else:
         stages = jax.tree_util.tree_map(lambda f: (f[0:-1:2], f[1::2], f[2::2]), forces)
+    if substeps > 1:  # (samples − 1, substeps, …): a sample interval's steps together
+        stages = jax.tree_util.tree_map(
+            lambda f: f.reshape((f.shape[0] // substeps, substeps) + f.shape[1:]), stages)
     stages = jax.tree_util.tree_transpose(
         jax.tree_util.tree_structure(forces), jax.tree_util.tree_structure((0, 0, 0)), stages)
-    (_, _, acc), path = jax.lax.scan(step, (y0, jnp.zeros((), jnp.int32),
-                                            () if fold is None else fold[1]), stages)
-    out = tuple(jnp.concatenate([first[None], p[substeps - 1:: substeps]])
-                for first, p in zip(saved(y0), path))
+    (_, _, acc), path = jax.lax.scan(sample_step, (y0, jnp.zeros((), jnp.int32),
+                                                   () if fold is None else fold[1]), stages)
+    out = tuple(jnp.concatenate([first[None], p]) for first, p in zip(saved(y0), path))
     return out if fold is None else (out, acc)
