@@ -122,6 +122,12 @@ def initial_substeps(measurement: Measurement) -> int:
     return int(min(MAX_SUBSTEPS, max(1, math.ceil(phase / STEP_PHASE))))
 
 
+def search_substeps(measurement: Measurement, setting: int | str) -> int:
+    """RK4 steps per sample of a search with ``GPConfig.substeps`` = ``setting``: a number
+    as given, ``"auto"`` the data's bandwidth rule (:func:`initial_substeps`)."""
+    return initial_substeps(measurement) if setting == "auto" else int(setting)
+
+
 def stable_substeps(model, measurement: Measurement, responses: np.ndarray) -> int:
     """The fewest RK4 steps per sample with h·ρ ≤ :data:`RK4_STABILITY` wherever the
     model's ``responses`` (N,) or (N, D) on ``measurement`` dwell (module docstring).

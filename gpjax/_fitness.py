@@ -18,7 +18,7 @@ import sympy as sp
 from ._canonical import CanonicalForm, Symbols, check_tree, feature_name
 from ._coefficients import Coefficients, Population, from_population, to_population
 from ._config import GPConfig
-from ._convergence import initial_substeps
+from ._convergence import search_substeps
 from ._data import Measurement
 from ._evaluator import INVALID_STRUCTURE, OK, PENALTY, PopulationEvaluator, Scores
 from ._features import INNER_GRID, SIGN_WIDTH, Family, families_for, match, smoothed_sign
@@ -121,7 +121,7 @@ class Fitness:
         measurement: the data.
         config: the run's settings.
         substeps: RK4 steps per sample interval (default: the config's; for ``"auto"``,
-            the data's bandwidth rule, :func:`gpjax._convergence.initial_substeps`).
+            the data's bandwidth rule, :func:`gpjax._convergence.search_substeps`).
         sign_width: width ε of the smoothed sign tanh(z/ε), as a fraction of RMS z
             (:mod:`gpjax._features`; narrowed by :mod:`gpjax._sign_width`).
         single: the fitness refits one model only (the reported model at a narrower
@@ -137,8 +137,7 @@ class Fitness:
                  substeps: int | None = None, sign_width: float = SIGN_WIDTH,
                  single: bool = False):
         if substeps is None:
-            substeps = (initial_substeps(measurement) if config.substeps == "auto"
-                        else config.substeps)
+            substeps = search_substeps(measurement, config.substeps)
         check_fit_memory(n_samples=measurement.n_samples, substeps=substeps,
                          population=config.population)
         self.measurement = measurement

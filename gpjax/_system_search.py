@@ -92,7 +92,7 @@ import sympy as sp
 from . import _progress, _trees
 from ._canonical import Symbols, feature_name
 from ._config import GPConfig, check_system_config
-from ._convergence import initial_substeps
+from ._convergence import search_substeps
 from ._data import Measurement
 from ._evaluator import PENALTY, PopulationEvaluator
 from ._evolve import GenerationStats, RunState
@@ -177,8 +177,7 @@ class SystemEvolution:
         self.grammars = [self.equations.grammar(i, config)
                          for i in range(len(self.equations.names))]
         #: RK4 steps per sample of the search, as one coordinate's (``GPConfig.substeps``)
-        self.substeps = (initial_substeps(measurement) if config.substeps == "auto"
-                         else config.substeps)
+        self.substeps = search_substeps(measurement, config.substeps)
         check_fit_memory(n_samples=measurement.n_samples, substeps=self.substeps,
                          population=config.population, coordinates=measurement.n_coordinates)
         evaluator = PopulationEvaluator(
