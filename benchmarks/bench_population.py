@@ -109,7 +109,7 @@ def refinement(symbols, truth, measurement, iterations, count):
     single = Refiner(ev, iterations=iterations, batch=count, horizons=(1.0,))
     continuation = Refiner(ev, iterations=iterations, batch=count, horizons=(0.25, 1.0))
     derivatives = smoothed_derivatives(clean, ev.n_bins / (clean.n_samples * clean.dt))
-    weak = WeakForm(clean, symbols, derivatives.x_dot, derivatives.window)
+    weak = WeakForm(clean, derivatives.x_dot, derivatives.window)
     mass, (k1, k2), _, _ = least_squares(weak, (symbols.x, symbols.x ** 2), (symbols.u[0],))
     u = ev.forcing_index(symbols.u[0])
     estimate = ev.empty(1)

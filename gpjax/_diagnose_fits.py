@@ -140,10 +140,10 @@ class FitProblem:
         train_derivatives = (self.derivatives if self.n_train == measurement.n_samples
                              else smoothed_derivatives(self.train, cutoff))
         resting = at_rest(measurement.response) if rate_band else None
-        self.weak_full = WeakForm(measurement, symbols, self.derivatives.x_dot, window,
+        self.weak_full = WeakForm(measurement, self.derivatives.x_dot, window,
                                   excluded=resting)
         self.weak = (self.weak_full if self.n_train == measurement.n_samples
-                     else WeakForm(self.train, symbols, train_derivatives.x_dot, window,
+                     else WeakForm(self.train, train_derivatives.x_dot, window,
                                    excluded=None if resting is None
                                    else resting[: self.n_train]))
         self.u0 = symbols.u[0] if symbols.u else None
@@ -165,9 +165,9 @@ class FitProblem:
         d, c, m = self.derivatives, fit.coefficients, self.measurement
         force = c.mass * d.x_ddot
         for feature, value in c.state.items():
-            force = force + value * evaluate(feature, self.symbols, m, d.x, d.x_dot)
+            force = force + value * evaluate(feature, m, d.x, d.x_dot)
         for feature, value in c.forcing.items():
-            force = force - value * evaluate(feature, self.symbols, m, d.x, d.x_dot)
+            force = force - value * evaluate(feature, m, d.x, d.x_dot)
         return force
 
     def fit_equation_error(self, structures: list[Structure]) -> list[Fit]:

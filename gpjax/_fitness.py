@@ -155,7 +155,7 @@ class Fitness:
             input_interpolation=config.input_interpolation)
         self.derivatives = smoothed_derivatives(
             measurement, smoothing_cutoff_hz(measurement, self.evaluator.n_bins))
-        self.weak_form = WeakForm(measurement, self.symbols, self.derivatives.x_dot,
+        self.weak_form = WeakForm(measurement, self.derivatives.x_dot,
                                   self.derivatives.window)
         # Least squares starts refinement inside the basin, where the short-horizon
         # continuation (for poor starts) would only double the compile. Tree constants are

@@ -172,8 +172,7 @@ def selection_weak_form(fitness: Fitness, reference: Record) -> WeakForm:
     if not np.all(np.isfinite(position)):
         return fitness.weak_form
     velocity = np.gradient(position, fitness.measurement.dt, edge_order=2)
-    return WeakForm(fitness.measurement, fitness.symbols, velocity,
-                    fitness.weak_form.half_width)
+    return WeakForm(fitness.measurement, velocity, fitness.weak_form.half_width)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -140,7 +140,7 @@ def tie_columns(ties, evaluator) -> list[tuple[int, int, int, int, float]]:
 
 def coupled_least_squares(weak, structure, ties) -> list:
     """Weak-form equation-error least squares of all equations at once with every tie
-    imposed (:class:`gpjax._system_fit.SystemWeakForm`'s columns, one block of rows per
+    imposed (:class:`gpjax._weak_form.WeakForm`'s columns, one block of rows per
     equation); normalised as :func:`fixed_columns` says; a component whose normalising
     equation comes out with a negative mass has all its signs flipped. Returns one
     :class:`gpjax._coefficients.Coefficients` per equation."""
@@ -183,7 +183,7 @@ def _solve(weak, structure, mirrors, held):
     parameters: dict[tuple, int] = {}
     blocks, targets = [], []
     for e, (state, forcing) in enumerate(structure):
-        rows = weak.rows(e)
+        rows = weak.rows
         entries: list[tuple[tuple, float, np.ndarray]] = []
         acceleration = weak.acceleration(e)
         target = np.zeros(rows)
@@ -193,12 +193,12 @@ def _solve(weak, structure, mirrors, held):
             entries.append((("mass", e), 1.0, acceleration))
         for feature in state:
             source, sign = mirrors.get((e, feature), ((e, feature), 1.0))
-            entries.append((("state",) + source, sign, weak.column(e, feature)))
+            entries.append((("state",) + source, sign, weak.column(feature)))
         for feature, value in forcing.items():
             if value is None:
-                entries.append((("forcing", e, feature), -1.0, weak.column(e, feature)))
+                entries.append((("forcing", e, feature), -1.0, weak.column(feature)))
             else:
-                target = target + value * weak.column(e, feature)
+                target = target + value * weak.column(feature)
         for key, _, _ in entries:
             parameters.setdefault(key, len(parameters))
         blocks.append(entries)

@@ -79,7 +79,8 @@ from ._system_couplings import held_structure
 from ._report import write_text_atomic
 from ._system_diagnose import residual_statistics, summary_line
 from ._system_final import added_terms_p
-from ._system_fit import SystemFit, SystemWeakForm, fit_system
+from ._system_fit import SystemFit, fit_system
+from ._weak_form import WeakForm, design, smoothed_weak_form
 
 #: Placeholder symbol of a relative coordinate while an effect builds its terms.
 _RELATIVE = "gpjax_relative"
@@ -198,7 +199,7 @@ def diagnose_system(measurement: Measurement, model: Model, *,
     n_train = int(round((1.0 - holdout) * measurement.n_samples))
     train = measurement.segment(0, n_train)
     scale = train.responses.std(axis=0)
-    weak = SystemWeakForm(train)
+    weak = smoothed_weak_form(train)
     # Every bank kind in every fit's evaluator: the candidates' refits share its programs.
     settings = dict(third_law=model.third_law, max_degree=_max_degree(model),
                     input_interpolation=input_interpolation or model.input_interpolation,
@@ -294,7 +295,7 @@ def _plus(key, candidate: SystemCandidate):
                  for i, (state, forcing) in enumerate(key))
 
 
-def _candidates(key, weak: SystemWeakForm, train: Measurement,
+def _candidates(key, weak: WeakForm, train: Measurement,
                 library: dict[str, Effect]) -> list[SystemCandidate]:
     """Every effect on every coordinate and relative coordinate whose terms the equations
     can hold and lack, ranked by the equation-error residual they explain (step 1)."""
@@ -362,7 +363,7 @@ def _in_equations(terms: Terms, equations: tuple[int, ...], key, names, variable
     return out or None
 
 
-def _explained(weak: SystemWeakForm, key, i: int, state, forcing) -> float:
-    matrix, target = weak._mass_normalised(i, key[i][0], key[i][1])
-    new = [weak.column(i, f) for f in state] + [-weak.column(i, f) for f in forcing]
+def _explained(weak: WeakForm, key, i: int, state, forcing) -> float:
+    matrix, target, _ = design(weak, tuple(key[i][0]), tuple(key[i][1]), equation=i, held={})
+    new = [weak.column(f) for f in state] + [-weak.column(f) for f in forcing]
     return projected_share(matrix, target, new)

@@ -26,7 +26,6 @@ import numpy as np
 import sympy as sp
 
 from . import _progress
-from ._canonical import Symbols
 from ._coefficients import Coefficients, from_system_population, to_system_population
 from ._convergence import fit_converged
 from ._data import Measurement
@@ -36,7 +35,8 @@ from ._model import Model
 from ._refine import Refiner, free_width, refit_horizons
 from ._uncertainty import Uncertainty, model_names, uncertainty_of
 from ._system_couplings import couple, coupled_least_squares, fixed_columns, tie_columns
-from ._weak_form import WeakForm, smoothed_derivatives
+from ._weak_form import (WeakForm, design, least_squares_residual, scaled_lstsq,
+                         smoothed_weak_form)
 
 #: Per equation: (state features, forcing features with their fixed coefficient or None).
 Structure = tuple[tuple[tuple[sp.Expr, ...], dict[sp.Expr, float | None]], ...]
@@ -44,144 +44,58 @@ Structure = tuple[tuple[tuple[sp.Expr, ...], dict[sp.Expr, float | None]], ...]
 
 def weak_form_start(measurement: Measurement, structure: Structure,
                     ties=()) -> list[Coefficients]:
-    """Per equation, constants by weak-form equation-error least squares
-    (:class:`SystemWeakForm`); with ``ties`` (Newton's third law) all equations at once."""
-    weak = SystemWeakForm(measurement)
+    """Per equation, constants by weak-form equation-error least squares on the smoothed
+    states (:func:`gpjax._weak_form.smoothed_weak_form`, :func:`equation_constants`); with
+    ``ties`` (Newton's third law) all equations at once."""
+    weak = smoothed_weak_form(measurement)
     if ties:
         return coupled_least_squares(weak, structure, ties)
-    return [weak.equation(d, state, forcing) for d, (state, forcing) in enumerate(structure)]
+    return [equation_constants(weak, d, state, forcing)
+            for d, (state, forcing) in enumerate(structure)]
 
 
-class SystemWeakForm:
-    """Weak-form equation-error least squares for the equations of a system: features are
-    evaluated on Savitzky–Golay-smoothed states of all coordinates and integrated against
-    :class:`gpjax._weak_form.WeakForm`'s test functions (one width for all coordinates);
-    the inertia column is exact (∫ψ''·x_i). Columns are cached per equation and feature."""
+def equation_constants(weak: WeakForm, d: int, state, forcing: dict) -> Coefficients:
+    """Constants of equation ``d`` with ``state`` features and ``forcing`` features
+    (feature -> held value or ``None``) by :func:`gpjax._weak_form.design`'s least
+    squares: a held value is kept (the normalisation; the signs flip if the mass comes
+    out negative), with none held the mass is 1. y0: the weak form's first state."""
+    held = {f: v for f, v in forcing.items() if v is not None}
+    free = [f for f in forcing if f not in held]
+    matrix, target, _ = design(weak, tuple(state), tuple(forcing), equation=d, held=held)
+    solution = scaled_lstsq(matrix, target)
+    sign = -1.0 if held and solution[0] < 0 else 1.0
+    k = 1 if held else 0
+    return Coefficients(
+        mass=sign * float(solution[0]) if held else 1.0,
+        state={f: sign * float(v) for f, v in zip(state, solution[k:k + len(state)])},
+        forcing={**{f: sign * v for f, v in held.items()},
+                 **{f: sign * float(v) for f, v in zip(free, solution[k + len(state):])}},
+        y0=weak.initial_state(d))
 
-    def __init__(self, measurement: Measurement):
-        names = measurement.response_names
-        self.measurement = measurement
-        single = [measurement.coordinate(d) for d in range(len(names))]
-        smooth = [smoothed_derivatives(m) for m in single]
-        self._states = [s.initial_state for s in smooth]
-        values = {sp.Symbol(n): s.x for n, s in zip(names, smooth)}
-        values |= {sp.Symbol(f"{n}_dot"): s.x_dot for n, s in zip(names, smooth)}
-        values |= {sp.Symbol(measurement.time_name): measurement.time}
-        self._values = values | {sp.Symbol(k): v for k, v in measurement.inputs.items()}
-        width = max(s.window for s in smooth)
-        self._weak = [WeakForm(single[d], Symbols(names[d], measurement.time_name,
-                                                  measurement.input_names), smooth[d].x_dot,
-                               width) for d in range(len(names))]
-        self._columns: dict[tuple[int, sp.Expr], np.ndarray] = {}
-        self._velocities = {sp.Symbol(f"{n}_dot"): d for d, n in enumerate(names)}
 
-    def exact_column(self, equation: int, feature: sp.Expr) -> np.ndarray:
-        """:meth:`column`, but a feature linear in the velocities (x_i', x_i' − x_j')
-        integrated by parts against the measured positions (∫ψ·x' = −∫ψ'·x), as one
-        coordinate's weak form does: no velocity estimate blurs a damping term's column."""
-        symbols = feature.free_symbols
-        if (not symbols or not symbols <= set(self._velocities)
-                or not feature.is_polynomial(*self._velocities)):
-            return self.column(equation, feature)
-        linear = sp.Poly(feature, *self._velocities)
-        if linear.total_degree() != 1 or linear.coeff_monomial(1):
-            return self.column(equation, feature)
-        position = sum(float(linear.coeff_monomial(v)) * self.measurement.responses[:, d]
-                       for v, d in self._velocities.items())
-        return -self._weak[equation]._integrate(position, 1)
+def equation_residual(weak: WeakForm, d: int, state, forcing) -> float:
+    """Relative weak-form equation error of equation ``d`` with ``state`` and ``forcing``
+    features, mass 1: how much of its inertia column ∫ψ''·x_d the features leave
+    unexplained."""
+    return least_squares_residual(weak, tuple(state), tuple(forcing), equation=d,
+                                  held={}) / float(np.linalg.norm(weak.acceleration(d)))
 
-    def column(self, equation: int, feature: sp.Expr) -> np.ndarray:
-        """∫ψ_k·feature for every window of ``equation``'s coordinate (cached)."""
-        key = (equation, feature)
-        if key not in self._columns:
-            self._columns[key] = self._weak[equation]._integrate(self.values(feature), 0)
-        return self._columns[key]
 
-    def values(self, expression: sp.Expr) -> np.ndarray:
-        """(N,) a function of the states, time and inputs on the smoothed record."""
-        numbers = sp.lambdify(list(self._values), expression, modules="numpy")(
-            *self._values.values())
-        return np.broadcast_to(numbers, self.measurement.time.shape)
-
-    def rms(self, expression: sp.Expr) -> float:
-        """RMS of a function of the states on the smoothed record."""
-        return float(np.sqrt(np.mean(np.square(self.values(expression)))))
-
-    def rows(self, d: int) -> int:
-        """Test-function windows of equation ``d``."""
-        return self._weak[d].centres.size
-
-    def acceleration(self, d: int) -> np.ndarray:
-        """∫ψ''·x_d per window (the inertia column)."""
-        return self._weak[d].acceleration()
-
-    def initial_state(self, d: int) -> tuple[float, float]:
-        """(x_d, x_d') at the first sample, from the smoothed record."""
-        return self._states[d]
-
-    def _mass_normalised(self, d: int, state, forcing, *, exact: bool = False
-                         ) -> tuple[np.ndarray, np.ndarray]:
-        """(columns, target) of equation ``d`` with mass 1: ``state`` and ``forcing``
-        features against −∫ψ''·x_d (``exact``: state columns by :meth:`exact_column`)."""
-        target = -self._weak[d].acceleration()
-        column = self.exact_column if exact else self.column
-        columns = [column(d, f) for f in state] + [-self.column(d, f) for f in forcing]
-        return (np.stack(columns, axis=1) if columns else np.zeros((target.size, 0))), target
-
-    def residual(self, d: int, state, forcing) -> float:
-        """Relative weak-form equation error of equation ``d`` with ``state`` and
-        ``forcing`` features (mass 1): how much of ∫ψ''·x_d the features leave unexplained."""
-        matrix, target = self._mass_normalised(d, state, forcing)
-        if not matrix.shape[1]:
-            return 1.0
-        norm = np.linalg.norm(matrix, axis=0)
-        norm[norm == 0] = 1.0
-        solution = np.linalg.lstsq(matrix / norm, target, rcond=None)[0]
-        return float(np.linalg.norm(target - matrix / norm @ solution) / np.linalg.norm(target))
-
-    def held_out(self, structure) -> np.ndarray:
-        """Held-out weak-form residual of a system, one number per window: per equation the
-        blocked cross-validation residual of its mass-normalised least squares
-        (:func:`gpjax._diagnose_fits.blocked_cv_residual`; damping columns by parts,
-        :meth:`exact_column`) relative to the RMS of its inertia column, combined over the equations as a root sum of squares, so the
-        square that :func:`gpjax._diagnose_acceptance.predictive_test` compares is the
-        sum of the equations' squares. Mass-normalised, so the equations' own
-        normalisation (an input or the mass) does not change it; couplings are not tied
-        (each equation is predicted by its own least squares)."""
-        total = np.zeros(self.rows(0))
-        for d, (state, forcing) in enumerate(structure):
-            matrix, target = self._mass_normalised(d, state, forcing, exact=True)
-            residual = blocked_cv_residual(matrix, target, self._weak[d])
-            total += (residual * self._weak[d].kernel_area / np.sqrt(np.mean(target ** 2))) ** 2
-        return np.sqrt(total)
-
-    def equation(self, d: int, state, forcing: dict) -> Coefficients:
-        """Constants of equation ``d`` with ``state`` and ``forcing`` features; a forcing
-        feature given a number keeps it (the normalisation; the signs flip if the mass
-        comes out negative), with none the mass is 1. y0: the smoothed first sample."""
-        weak = self._weak[d]
-        fixed = {f: v for f, v in forcing.items() if v is not None}
-        free = [f for f in forcing if f not in fixed]
-        target = sum((v * self.column(d, f) for f, v in fixed.items()),
-                     np.zeros(weak.centres.size))
-        columns = [self.column(d, f) for f in state] + [-self.column(d, f) for f in free]
-        acceleration = weak.acceleration()
-        if fixed:
-            columns = [acceleration] + columns
-        else:
-            target = -acceleration
-        matrix = np.stack(columns, axis=1) if columns else np.zeros((target.size, 0))
-        norm = np.linalg.norm(matrix, axis=0)
-        norm[norm == 0] = 1.0
-        solution = np.linalg.lstsq(matrix / norm, target, rcond=None)[0] / norm
-        sign = -1.0 if fixed and solution[0] < 0 else 1.0
-        k = 1 if fixed else 0
-        return Coefficients(
-            mass=sign * float(solution[0]) if fixed else 1.0,
-            state={f: sign * float(v) for f, v in zip(state, solution[k:k + len(state)])},
-            forcing={**{f: sign * v for f, v in fixed.items()},
-                     **{f: sign * float(v) for f, v in zip(free, solution[k + len(state):])}},
-            y0=self._states[d])
+def held_out(weak: WeakForm, structure) -> np.ndarray:
+    """Held-out weak-form residual of a system, one number per window: per equation the
+    blocked cross-validation residual of its mass-normalised least squares
+    (:func:`gpjax._diagnose_fits.blocked_cv_residual`) relative to the RMS of its inertia
+    column, combined over the equations as a root sum of squares, so the square that
+    :func:`gpjax._diagnose_acceptance.predictive_test` compares is the sum of the
+    equations' squares. Mass-normalised, so the equations' own normalisation (an input or
+    the mass) does not change it; couplings are not tied (each equation is predicted by
+    its own least squares)."""
+    total = np.zeros(weak.rows)
+    for d, (state, forcing) in enumerate(structure):
+        matrix, target, _ = design(weak, tuple(state), tuple(forcing), equation=d, held={})
+        residual = blocked_cv_residual(matrix, target, weak)
+        total += (residual * weak.kernel_area / np.sqrt(np.mean(target ** 2))) ** 2
+    return np.sqrt(total)
 
 
 @dataclasses.dataclass(frozen=True)

@@ -24,14 +24,15 @@ from ._refine import HORIZONS, REFIT_HORIZONS, Refiner, free_width
 from ._select import simulates_better
 from ._system_couplings import (couple, coupled_least_squares, coupled_residual,
                                 fixed_columns, held_structure, tie_columns)
-from ._system_fit import SystemWeakForm
+from ._system_fit import equation_constants, equation_residual, held_out
+from ._weak_form import WeakForm
 from ._system_grammar import Equations
 
 
 class SystemScorer:
     """Objective of systems by structure, with least-squares and refined constants cached."""
 
-    def __init__(self, weak: SystemWeakForm, equations: Equations,
+    def __init__(self, weak: WeakForm, equations: Equations,
                  evaluator: PopulationEvaluator, *, batch: int):
         self.equations, self.evaluator, self.weak = equations, evaluator, weak
         self.batch = max(1, batch)  # systems per compiled refinement call
@@ -59,11 +60,12 @@ class SystemScorer:
 
     def residual(self, key, i: int, part) -> float:
         """Weak-form equation error of ``key`` with equation ``i`` as ``part`` (state,
-        forcing features): that equation's own (:meth:`SystemWeakForm.residual`), or with
+        forcing features): that equation's own
+        (:func:`gpjax._system_fit.equation_residual`), or with
         the third law that of all equations together
         (:func:`gpjax._system_couplings.coupled_residual`)."""
         if not self.equations.third_law:
-            return self.weak.residual(i, *part)
+            return equation_residual(self.weak, i, *part)
         changed = key[:i] + (tuple(tuple(p) for p in part),) + key[i + 1:]
         if changed not in self._residuals:
             self._residuals[changed] = coupled_residual(self.weak, changed,
@@ -72,8 +74,8 @@ class SystemScorer:
 
     def held_out(self, key) -> np.ndarray:
         """Held-out weak-form residual of ``key`` with every coupling's mirror
-        (:meth:`gpjax._system_fit.SystemWeakForm.held_out`)."""
-        return self.weak.held_out(self.coupled(key)[0])
+        (:func:`gpjax._system_fit.held_out`)."""
+        return held_out(self.weak, self.coupled(key)[0])
 
     def simulates_better(self, current, simpler, alpha: float, resolution: float) -> bool:
         """Whether ``current``'s simulated responses fit the measured ones significantly
@@ -103,7 +105,7 @@ class SystemScorer:
         structure, ties = self.coupled(self.normalised(key))
         if ties:
             return coupled_least_squares(self.weak, structure, ties)
-        return [self.weak.equation(i, state, forcing)
+        return [equation_constants(self.weak, i, state, forcing)
                 for i, (state, forcing) in enumerate(structure)]
 
     def __call__(self, systems) -> np.ndarray:

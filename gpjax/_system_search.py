@@ -13,7 +13,7 @@ sums of valid terms (1–4 state features, inputs): with several variables per e
 random trees are valid (a product of two variables is a cross term).
 
 Constants are GP's structure's, set by least squares: each equation's by weak-form equation
-error on its own (:class:`gpjax._system_fit.SystemWeakForm`, normalised by its first input,
+error on its own (:func:`gpjax._system_fit.equation_constants`, normalised by its first input,
 else by its mass), the initial states by the evaluator's Gauss–Newton step. The best
 ``refine_top`` new systems of a generation are refined by Levenberg–Marquardt on all
 coordinates together and keep the refined constants. Fitness is eqs. 7–9 summed over the
@@ -33,7 +33,7 @@ The reported system is chosen as one coordinate's is (:mod:`gpjax._select`), by 
 held-out predictive test at level ``selection_alpha``: from the best system found, a
 system one term smaller replaces it unless the larger one predicts the held-out windows of
 the weak-form equation error significantly better (blocked cross-validation,
-:meth:`gpjax._system_fit.SystemWeakForm.held_out`; Diebold–Mariano by batch means), the
+:func:`gpjax._system_fit.held_out`; Diebold–Mariano by batch means), the
 removals tried in the order of their held-out mean square, until none qualifies; a power
 swap (a bank term for its polynomial stand-in near 0), a bank swap (the reverse, where it
 removes a term) and a mirror swap (one end of a coupling given the law of its other end:
@@ -104,7 +104,8 @@ from ._operators import crossover, initial_population, mutation, perturbation
 from ._sign_width import NARROWING, next_narrowing, sharpened, width_check
 from ._system_bank import kinds_for, sign_scales
 from ._system_final import reported
-from ._system_fit import SystemFit, SystemWeakForm, fit_system
+from ._system_fit import SystemFit, fit_system
+from ._weak_form import smoothed_weak_form
 from ._system_grammar import Equations
 from ._system_scorer import SystemScorer, as_trees, key_text
 from ._system_select import removals, simplest
@@ -168,7 +169,7 @@ class SystemEvolution:
         check_system_config(config)
         self.measurement, self.config = measurement, config
         self.stop_objective = stop_objective(measurement, config)
-        weak = SystemWeakForm(measurement)
+        weak = smoothed_weak_form(measurement)
         kinds = kinds_for(config.functions)
         scales = (sign_scales(measurement.response_names, weak.rms) if "sign" in kinds
                   else None)

@@ -1,12 +1,20 @@
-"""Weak-form equation error: derivatives, window integrals and the least-squares solve.
+"""Weak-form equation error: derivatives, window integrals and the least-squares solve,
+for any number of coordinates.
 
 Given x, x' and x'' estimated from the smoothed measurement (Savitzky–Golay, scipy), the
-canonical form ``m·x'' + Σ c·φ(x, x') − Σ g·ψ(t, u) = 0`` is linear in (m, c, g).
-Integrated against compact test functions ψ_k = (1 − s²)^4 it needs no second derivative
-of the noisy response (``∫ψ_k·x'' = ∫ψ_k''·x``, ``∫ψ_k·x' = −∫ψ_k'·x``). Fixing the first
-input's forcing coefficient to 1 (or m = 1 without it) leaves an ordinary linear
-least-squares problem: GP's coefficient setter (``coefficients="least_squares"``), the
-start of every output-error refinement and the diagnosis's evidence.
+canonical form ``m·x'' + Σ c·φ(x, x') − Σ g·ψ(t, u) = 0`` is linear in (m, c, g); a
+system's equation i (eqs. 21–22) is, in m_i and its own c and g, with features of every
+coordinate. Integrated against compact test functions ψ_k = (1 − s²)^4 it needs no second
+derivative of the noisy response (``∫ψ_k·x'' = ∫ψ_k''·x``, ``∫ψ_k·x' = −∫ψ_k'·x``). Holding
+one forcing coefficient (one coordinate: the first input's, at 1) or the mass at 1 leaves
+an ordinary linear least-squares problem: GP's coefficient setter
+(``coefficients="least_squares"``), the start of every output-error refinement, the
+selection's held-out test and the diagnosis's evidence, for one coordinate and for
+systems alike (:class:`WeakForm`, :func:`design`).
+
+The features nonlinear in the states are evaluated on state estimates the caller chooses:
+one coordinate's fit and selection take the measured x (and the smoothed or simulated x'),
+a system's the smoothed x_i and x_i' of every coordinate (:func:`smoothed_weak_form`).
 
 Memory and time are O(N): window k covers samples ``c_k ± h``, centres every h//2 samples,
 so each sample lies in about four windows, and each integral is a dot product of a
@@ -23,7 +31,6 @@ import sympy as sp
 from numpy.lib.stride_tricks import sliding_window_view
 from scipy.signal import savgol_filter
 
-from ._canonical import Symbols
 from ._data import Measurement
 from ._objective import default_n_bins
 
@@ -89,38 +96,57 @@ def smoothed_derivatives(measurement: Measurement, cutoff_hz: float | None = Non
 
 
 class WeakForm:
-    """Weak-form integrals ∫ψ_k·f dt for test functions ψ_k = (1 − s²)^4 of half width h.
+    """Weak-form integrals ∫ψ_k·f dt for test functions ψ_k = (1 − s²)^4 of half width h,
+    for a record of D ≥ 1 coordinates (one set of windows serves every equation).
 
     Windows span ±h samples around centres h, h + h//2, … < N − h; ψ and ψ' vanish at the
-    window ends, so integration by parts has no boundary terms.
+    window ends, so integration by parts has no boundary terms. A feature linear in the
+    states (x_i, x_i', x_i'' and their differences, e.g. a coupling's x_1' − x_2') is
+    integrated exactly against the measured positions (∫ψ·x' = −∫ψ'·x, ∫ψ·x'' = ∫ψ''·x):
+    no estimate of a derivative enters its column. Any other feature is evaluated on the
+    state estimates given (``positions``, ``velocities``) and integrated.
 
     Args:
-        measurement: the data.
-        symbols: names of response, time and inputs.
-        x_dot: smoothed x' at the samples (for features nonlinear in x').
+        measurement: the data (D coordinates).
+        velocities: x_i' estimates at the samples (N,) or (N, D), m/s, for the features
+            nonlinear in them (e.g. smoothed, or a model's simulated velocity).
         half_width: h in samples (clipped to 2 … (N − 1)/2).
+        positions: x_i estimates (N,) or (N, D) for the features nonlinear in them;
+            default the measured responses.
         excluded: samples (N,) bool whose windows are left out (e.g. a stage at rest,
             where dry friction is set-valued); default none.
     """
 
-    def __init__(self, measurement: Measurement, symbols: Symbols, x_dot: np.ndarray,
-                 half_width: int, *, excluded: np.ndarray | None = None):
-        self.measurement, self.symbols, self.x_dot = measurement, symbols, x_dot
-        self.u0 = symbols.u[0] if symbols.u else None
-        h = max(2, min(half_width, (measurement.n_samples - 1) // 2))
+    def __init__(self, measurement: Measurement, velocities: np.ndarray, half_width: int, *,
+                 positions: np.ndarray | None = None, excluded: np.ndarray | None = None):
+        self.measurement = measurement
+        n, count = measurement.n_samples, measurement.n_coordinates
+        self.positions = np.reshape(measurement.responses if positions is None else positions,
+                                    (n, count))
+        self.velocities = np.reshape(velocities, (n, count))
+        self.u0 = sp.Symbol(measurement.input_names[0]) if measurement.input_names else None
+        self._states = {sp.Symbol(name + suffix): (d, order)
+                        for d, name in enumerate(measurement.response_names)
+                        for order, suffix in enumerate(("", "_dot", "_ddot"))}
+        h = max(2, min(half_width, (n - 1) // 2))
         self.half_width, self.step = h, max(1, h // 2)
         s = np.arange(-h, h + 1) / h
         scale, dt = h * measurement.dt, measurement.dt
         self._kernels = ((1 - s ** 2) ** 4 * dt, -8 * s * (1 - s ** 2) ** 3 / scale * dt,
                          (-8 * (1 - s ** 2) ** 3 + 48 * s ** 2 * (1 - s ** 2) ** 2)
                          / scale ** 2 * dt)
-        self.centres = np.arange(h, measurement.n_samples - h, self.step)
+        self.centres = np.arange(h, n - h, self.step)
         self._kept = (None if excluded is None else
                       ~self._windows(np.asarray(excluded, dtype=bool)).any(axis=1))
         if self._kept is not None:
             self.centres = self.centres[self._kept]
         self.kernel_area = float(np.sum(self._kernels[0]))
         self._cache: dict[sp.Expr, np.ndarray] = {}
+
+    @property
+    def rows(self) -> int:
+        """Test-function windows (rows of every equation's least squares)."""
+        return self.centres.size
 
     def _windows(self, values: np.ndarray) -> np.ndarray:
         """(K, 2h + 1) strided windows of ``values`` (a view), all centres."""
@@ -134,59 +160,118 @@ class WeakForm:
             integrals = self._windows(values) @ self._kernels[kernel]
         return integrals if self._kept is None else integrals[self._kept]
 
-    def acceleration(self) -> np.ndarray:
-        """∫ψ_k''·x: the inertia column (no derivative of the data needed; cached, as every
-        column is: every least-squares problem of the run has it)."""
-        return self.column(self.symbols.x_ddot)
+    def acceleration(self, equation: int = 0) -> np.ndarray:
+        """∫ψ_k''·x_i of coordinate ``equation``: its inertia column (exact; cached, as
+        every column is: every least-squares problem of the run has it)."""
+        name = self.measurement.response_names[equation]
+        return self.column(sp.Symbol(f"{name}_ddot"))
 
     def column(self, feature: sp.Expr) -> np.ndarray:
-        """∫ψ_k·feature(x, x', x'', t, u) for every window (cached); x' and x'' are
-        integrated by parts against the measured x."""
+        """∫ψ_k·feature(states, t, u) for every window (cached; class docstring)."""
         if feature not in self._cache:
-            if feature == self.symbols.x_ddot:
-                self._cache[feature] = self._integrate(self.measurement.response, 2)
-            elif feature == self.symbols.x_dot:
-                self._cache[feature] = -self._integrate(self.measurement.response, 1)
-            else:
-                self._cache[feature] = self._integrate(
-                    evaluate(feature, self.symbols, self.measurement, self.measurement.response,
-                             self.x_dot), 0)
+            linear = self._linear(feature)
+            if linear is None:
+                column = self._integrate(self.values(feature), 0)
+            else:  # by parts against the measured positions, one derivative order at a time
+                column = None
+                for order, samples in linear.items():
+                    part = self._integrate(samples, order) * (-1.0 if order == 1 else 1.0)
+                    column = part if column is None else column + part
+            self._cache[feature] = column
         return self._cache[feature]
 
+    def _linear(self, feature: sp.Expr) -> dict[int, np.ndarray] | None:
+        """{derivative order: Σ a_i·x_i (N,) measured} of a feature linear in the states
+        without a constant term; ``None`` for any other feature."""
+        symbols = feature.free_symbols
+        if not symbols or not symbols <= self._states.keys():
+            return None
+        if feature in self._states:
+            terms = {feature: 1.0}
+        else:
+            if not feature.is_polynomial(*symbols):
+                return None
+            poly = sp.Poly(feature, *symbols)
+            if poly.total_degree() != 1 or poly.coeff_monomial(1):
+                return None
+            terms = {s: float(poly.coeff_monomial(s)) for s in symbols}
+        measured = self.measurement.responses
+        out: dict[int, np.ndarray] = {}
+        for symbol, coefficient in terms.items():
+            d, order = self._states[symbol]
+            samples = coefficient * measured[:, d]
+            out[order] = samples if order not in out else out[order] + samples
+        return {order: np.ascontiguousarray(v) for order, v in sorted(out.items())}
 
-def evaluate(feature: sp.Expr, symbols: Symbols, measurement: Measurement, x: np.ndarray,
-             x_dot: np.ndarray) -> np.ndarray:
-    """A feature's values at the samples, given x and x' (numpy)."""
-    fn = _lambdified(feature, symbols)
+    def values(self, expression: sp.Expr) -> np.ndarray:
+        """(N,) a function of the states, time and inputs at the samples, on the state
+        estimates (:func:`evaluate`)."""
+        return evaluate(expression, self.measurement, self.positions, self.velocities)
+
+    def rms(self, expression: sp.Expr) -> float:
+        """RMS of a function of the states on the state estimates."""
+        return float(np.sqrt(np.mean(np.square(self.values(expression)))))
+
+    def initial_state(self, equation: int) -> tuple[float, float]:
+        """(x_i, x_i') of coordinate ``equation`` at the first sample, from the state
+        estimates (eq. 13's robust estimate where they are smoothed)."""
+        return float(self.positions[0, equation]), float(self.velocities[0, equation])
+
+
+def smoothed_weak_form(measurement: Measurement) -> WeakForm:
+    """The weak form of a record of D coordinates on its smoothed states: every
+    coordinate's x and x' from :func:`smoothed_derivatives` (each its own band), the
+    windows of the widest smoothing window among them."""
+    smooth = [smoothed_derivatives(measurement.coordinate(d))
+              for d in range(measurement.n_coordinates)]
+    return WeakForm(measurement, np.stack([s.x_dot for s in smooth], axis=1),
+                    max(s.window for s in smooth),
+                    positions=np.stack([s.x for s in smooth], axis=1))
+
+
+def evaluate(feature: sp.Expr, measurement: Measurement, positions: np.ndarray,
+             velocities: np.ndarray) -> np.ndarray:
+    """A feature's values at the samples (N,), given every coordinate's x and x' ((N,) for
+    one coordinate, else (N, D)) and the measurement's time and inputs (numpy)."""
+    n, count = measurement.n_samples, measurement.n_coordinates
+    positions, velocities = np.reshape(positions, (n, count)), np.reshape(velocities, (n, count))
+    fn = _lambdified(feature, measurement.response_names, measurement.time_name,
+                     measurement.input_names)
     # A candidate's feature may overflow (exp(150·x')); the non-finite values make its
     # least squares NaN (:func:`scaled_lstsq`), so the candidate scores as diverged.
     with np.errstate(over="ignore", invalid="ignore", divide="ignore"):
-        values = fn(x, x_dot, measurement.time,
-                    *(measurement.inputs[name] for name in symbols.inputs))
-    return np.broadcast_to(np.asarray(values, dtype=np.float64), x.shape).copy()
+        values = fn(*positions.T, *velocities.T, measurement.time,
+                    *(measurement.inputs[name] for name in measurement.input_names))
+    return np.broadcast_to(np.asarray(values, dtype=np.float64), (n,)).copy()
 
 
 @lru_cache(maxsize=4096)
-def _lambdified(feature: sp.Expr, symbols: Symbols):
-    return sp.lambdify((symbols.x, symbols.x_dot, symbols.t, *symbols.u), feature,
-                       modules="numpy")
+def _lambdified(feature: sp.Expr, coordinates: tuple[str, ...], time: str,
+                inputs: tuple[str, ...]):
+    arguments = ([sp.Symbol(c) for c in coordinates] + [sp.Symbol(f"{c}_dot") for c in coordinates]
+                 + [sp.Symbol(time)] + [sp.Symbol(u) for u in inputs])
+    return sp.lambdify(arguments, feature, modules="numpy")
 
 
-def design(weak: WeakForm, lhs: tuple[sp.Expr, ...], forcing: tuple[sp.Expr, ...]
+def design(weak: WeakForm, lhs: tuple[sp.Expr, ...], forcing: tuple[sp.Expr, ...], *,
+           equation: int = 0, held: dict[sp.Expr, float] | None = None
            ) -> tuple[np.ndarray, np.ndarray, bool]:
-    """(matrix (K, p), target (K,), normalise) of the least-squares problem for left-hand
-    side features ``lhs`` (state and parametric) and ``forcing`` features. ``normalise``:
-    the first input is in ``forcing`` (its coefficient is 1; the first unknown is the
-    mass); otherwise the mass is 1."""
-    u0 = weak.u0
-    acceleration = weak.acceleration()
-    normalise = u0 is not None and u0 in forcing
-    columns = [acceleration] if normalise else []
+    """(matrix (K, p), target (K,), normalised) of equation ``equation``'s least-squares
+    problem for left-hand side features ``lhs`` (state and parametric) and ``forcing``
+    features. ``held``: forcing features whose coefficient is held at the value given (the
+    equation's normalisation: the first unknown is then the mass); default the first input
+    at 1 where it is in ``forcing``. With none held the mass is 1. ``normalised``: some
+    coefficient is held."""
+    if held is None:
+        held = {weak.u0: 1.0} if weak.u0 is not None and weak.u0 in forcing else {}
+    acceleration = weak.acceleration(equation)
+    columns = [acceleration] if held else []
     columns += [weak.column(f) for f in lhs]
-    columns += [-weak.column(g) for g in forcing if not (normalise and g == u0)]
-    target = weak.column(u0) if normalise else -acceleration
+    columns += [-weak.column(g) for g in forcing if g not in held]
+    target = (sum((v * weak.column(g) for g, v in held.items()), np.zeros(acceleration.size))
+              if held else -acceleration)
     matrix = np.stack(columns, axis=1) if columns else np.zeros((target.size, 0))
-    return matrix, target, normalise
+    return matrix, target, bool(held)
 
 
 def least_squares(weak: WeakForm, lhs: tuple[sp.Expr, ...], forcing: tuple[sp.Expr, ...]
@@ -206,10 +291,12 @@ def least_squares(weak: WeakForm, lhs: tuple[sp.Expr, ...], forcing: tuple[sp.Ex
 
 
 def least_squares_residual(weak: WeakForm, lhs: tuple[sp.Expr, ...],
-                           forcing: tuple[sp.Expr, ...]) -> float:
+                           forcing: tuple[sp.Expr, ...], *, equation: int = 0,
+                           held: dict[sp.Expr, float] | None = None) -> float:
     """Norm of the weak-form least-squares residual of a structure (how much of the data
-    its features leave unexplained), in the weak form's units."""
-    matrix, target, _ = design(weak, lhs, forcing)
+    its features leave unexplained), in the weak form's units (:func:`design`'s
+    arguments)."""
+    matrix, target, _ = design(weak, lhs, forcing, equation=equation, held=held)
     return float(np.linalg.norm(target - matrix @ scaled_lstsq(matrix, target)))
 
 

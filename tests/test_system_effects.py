@@ -13,7 +13,7 @@ import gpjax
 from gpjax._effects import effects
 from gpjax._system_bank import match_bank, system_variables
 from gpjax._system_effects import _candidates, _in_equations, diagnose_system
-from gpjax._system_fit import SystemWeakForm
+from gpjax._weak_form import smoothed_weak_form
 from gpjax.systems import generate, get_system
 from test_mdof import U, V1, V2, X1, X2, _equations
 
@@ -60,7 +60,7 @@ def test_relative_effects_enter_both_equations_mirrored_and_only_system_terms_ar
 
 def test_a_missing_friction_on_mass_two_explains_most_of_equation_two():
     measurement = _record("chain2_friction_x2", 100, duration=10.0)
-    ranked = _candidates(_chain_key(), SystemWeakForm(measurement), measurement, effects())
+    ranked = _candidates(_chain_key(), smoothed_weak_form(measurement), measurement, effects())
     first = ranked[0]
     assert (first.effect.name, first.where, sorted(first.added)) == ("coulomb_friction", "x2",
                                                                      [1])

@@ -46,13 +46,13 @@ def test_components_and_normalisation_hold_one_constant_per_coupled_group():
 def test_coupled_least_squares_ties_the_coupling_and_identifies_the_second_mass():
     """Without the third law equation 2 (no input) is known up to a factor; with it the
     shared coupling fixes that factor, so its mass comes out as m2."""
-    from gpjax._system_fit import SystemWeakForm
+    from gpjax._weak_form import smoothed_weak_form
 
     system, _, measurement = _chain(duration=5.0)
     c = system.constants
     structure = (((V1, X1, X1 - X2, (X1 - X2) ** 3), {U: 1.0}), ((V2, X2), {}))
     full, ties = couple(structure, ("x1", "x2"))
-    first, second = coupled_least_squares(SystemWeakForm(measurement), full, ties)
+    first, second = coupled_least_squares(smoothed_weak_form(measurement), full, ties)
     assert second.mass == pytest.approx(c["m2"], rel=0.01)
     assert first.state[X1 - X2] == second.state[X2 - X1] == pytest.approx(c["kc"], rel=0.01)
     assert first.state[(X1 - X2) ** 3] == second.state[(X2 - X1) ** 3]

@@ -83,7 +83,7 @@ def fit_linear_model(measurement: Measurement, *, iterations: int = 60) -> Linea
                       tuple(measurement.input_names))
     x, u = symbols.x, symbols.u[0]
     derivatives = smoothed_derivatives(measurement)
-    weak = WeakForm(measurement, symbols, derivatives.x_dot, derivatives.window)
+    weak = WeakForm(measurement, derivatives.x_dot, derivatives.window)
     mass, (stiffness,), _, _ = least_squares(weak, (x,), (u,))
     y0 = derivatives.initial_state
     start = _model(symbols, float(mass), float(stiffness), y0, refined=False)

@@ -159,7 +159,7 @@ class UndeclaredEffectCase:
             for parameters in effect.grid(context):
                 terms = effect.build(context, parameters)
                 if terms is not None:
-                    columns = [evaluate(f, symbols, self.measurement, x, x_dot)
+                    columns = [evaluate(f, self.measurement, x, x_dot)
                                for f in (*terms.state, *terms.parametric, *terms.forcing)]
                     best = min(best, left(base + columns))
             shares[name] = 1.0 - best / unexplained
