@@ -354,9 +354,11 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         if chosen_mode == "simulation" and automatic:  # integrate the current model
             def fit_at(steps: int, previous: Model | None) -> Model:
                 nonlocal problem, current
-                if previous is not None:  # a finer step: the problem again, and the last
-                    pools = problem.pool_lhs, problem.pool_forcing  # accepted structure
-                    problem = problem_at(steps)                      # refitted on it
+                if previous is not None:  # a finer step: the problem again (the old
+                    # one's arrays released first), the last accepted structure refitted on it
+                    pools = problem.pool_lhs, problem.pool_forcing
+                    problem.simulator = None
+                    problem = problem_at(steps)
                     problem.pool_lhs, problem.pool_forcing = pools
                     if current is not None:
                         current = fits[-1] = fit_structures(problem, chosen_mode, [structure])[0]
@@ -439,6 +441,10 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         sample (their diagnosis kept in ``last``); the last structure's model."""
         _progress.stage(f"diagnosis: refitting {len(fits)} model(s) on the whole record at "
                         f"{count} substeps")
+        # the steps' evaluators, and a coarser rung's, are done with: their arrays go
+        # before the whole record's are built
+        problem.simulator = None
+        last.pop("whole", None)
         whole = FitProblem(measurement, symbols, holdout=0.0, iterations=iterations,
                            substeps=count, batch=len(fits),
                            input_interpolation=input_interpolation, rate_band=drifting)

@@ -263,6 +263,8 @@ class FitProblem:
             if self.simulator is not None:
                 lhs = list(dict.fromkeys(self.simulator.lhs + tuple(lhs)))
                 forcing = list(dict.fromkeys(self.simulator.forcing + tuple(forcing)))
+            # the old evaluators' arrays go before the new ones are built, not after them
+            self.simulator = None
             self.simulator = _Simulator(self, tuple(lhs), tuple(forcing))
         return self.simulator
 
