@@ -108,8 +108,9 @@ class WeakForm:
 
     Args:
         measurement: the data (D coordinates).
-        velocities: x_i' estimates at the samples (N,) or (N, D), m/s, for the features
-            nonlinear in them (e.g. smoothed, or a model's simulated velocity).
+        velocities: x_i' estimates at the samples (N,) or (N, D), units of x per second,
+            for the features nonlinear in them (e.g. smoothed, or a model's simulated
+            velocity).
         half_width: h in samples (clipped to 2 … (N − 1)/2).
         positions: x_i estimates (N,) or (N, D) for the features nonlinear in them;
             default the measured responses.
