@@ -531,10 +531,21 @@ def _run(config, measurement, seed, out: Path, *, resume: bool, **islands):
 
 def console() -> int:
     """The ``gpjax`` console script and ``python -m gpjax``: :func:`main`'s exit status,
-    with the interpreter's last garbage collection skipped (:func:`gc.freeze`). At exit
-    it would traverse every object the run left behind (sympy's caches, the compiled
-    programs): about 0.5 s of a 5 s ``gpjax demo``. Every file is written and closed
-    before :func:`main` returns, and the memory goes back with the process."""
+    run on the CPU unless ``JAX_PLATFORMS`` names a platform, with the interpreter's last
+    garbage collection skipped (:func:`gc.freeze`).
+
+    The CPU: the engine's RK4 scan is sequential in time and each step's work is small,
+    so on a GPU every step costs a kernel launch, and a fit at the defaults runs slower
+    there than on the CPU (docs/performance.md: the GPU wins only from P ≈ 2,000 on short
+    records). ``JAX_PLATFORMS=cuda`` asks for the GPU; set before JAX starts, the choice
+    reaches the Dask workers of ``--islands`` and ``fit-many`` too (they inherit the
+    environment).
+
+    The collection: at exit it would traverse every object the run left behind (sympy's
+    caches, the compiled programs): about 0.5 s of a 5 s ``gpjax demo``. Every file is
+    written and closed before :func:`main` returns, and the memory goes back with the
+    process."""
+    os.environ.setdefault("JAX_PLATFORMS", "cpu")
     status = main()
     gc.freeze()
     return status

@@ -280,6 +280,23 @@ def test_the_console_script_is_main_without_the_last_collection(monkeypatch):
     assert "console()" in (Path(cli.__file__).parent / "__main__.py").read_text()
 
 
+@pytest.mark.parametrize("chosen", [None, "cuda"])
+def test_the_console_script_runs_on_the_cpu_unless_told(monkeypatch, chosen):
+    """``gpjax`` on a GPU machine ran on the GPU, where its sequential RK4 scan is slower
+    than on the CPU at every default setting (:func:`gpjax.cli.console`): the command line
+    now sets ``JAX_PLATFORMS=cpu`` before JAX starts, unless the user named a platform."""
+    from gpjax import cli
+
+    if chosen is None:
+        monkeypatch.delenv("JAX_PLATFORMS", raising=False)
+    else:
+        monkeypatch.setenv("JAX_PLATFORMS", chosen)
+    seen = []
+    monkeypatch.setattr(cli.gc, "freeze", lambda: None)
+    monkeypatch.setattr(cli, "main", lambda: seen.append(os.environ.get("JAX_PLATFORMS")) or 0)
+    assert cli.console() == 0 and seen == [chosen or "cpu"]
+
+
 def test_a_closed_stdout_ends_the_command_quietly():
     """``gpjax fit … | head -1``: once the reader has gone, printing the rest raised
     BrokenPipeError and a traceback followed the results."""
