@@ -22,6 +22,8 @@ import dataclasses
 import numpy as np
 import sympy as sp
 
+from ._weak_form import scaled_lstsq
+
 #: A fixed-forcing entry of :meth:`gpjax._refine.Refiner.refine`: neither the mass nor a
 #: forcing coefficient of this equation is held (its component is normalised elsewhere).
 NOTHING_FIXED = -2
@@ -209,12 +211,9 @@ def _solve(weak, structure, mirrors, held):
         for key, sign, column in entries:
             matrix[start:start + target.size, parameters[key]] += sign * column
         start += target.size
-    norm = np.linalg.norm(matrix, axis=0)
-    norm[norm == 0] = 1.0
     target = np.concatenate(targets)
     if not parameters:
         return {}, 1.0
-    solution = np.linalg.lstsq(matrix / norm, target, rcond=None)[0]
-    residual = np.linalg.norm(target - matrix / norm @ solution) / max(
-        np.linalg.norm(target), 1e-300)
-    return {key: float(solution[k] / norm[k]) for key, k in parameters.items()}, float(residual)
+    solution = scaled_lstsq(matrix, target)
+    residual = np.linalg.norm(target - matrix @ solution) / max(np.linalg.norm(target), 1e-300)
+    return {key: float(solution[k]) for key, k in parameters.items()}, float(residual)
