@@ -54,7 +54,8 @@ from bench_new_record import STAGES, SUMMARIES  # noqa: E402
 from bench_systems import scored  # noqa: E402
 from report import front_door_rows  # noqa: E402
 
-SYSTEMS = ("chain2", "chain2_free", "chain3", "chain3_free", "chain2_friction")
+SYSTEMS = ("chain2", "chain2_free", "chain3", "chain3_free", "chain2_friction",
+           "chain2_driven_free_end")
 #: The function set given where the truth has a term beyond add, sub, mul.
 FUNCTIONS = {"chain2_friction": "add,sub,mul,sign"}
 

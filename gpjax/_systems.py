@@ -5,8 +5,8 @@ Each :class:`System` holds its true equations (sympy, one per coordinate, in the
 excited; :data:`SYSTEMS` is the catalogue (the nine single-coordinate systems of the
 physics benchmark, :data:`PHYSICS_SUITE`, two and three masses in a chain with cubic
 coupling springs (with and without a ground spring on the last mass), two with dry
-friction between them, and a drifting positioning stage in a PD loop). Records are made by
-:mod:`gpjax._synthetic`.
+friction between them, two driven at the free end with a damper between them, and a
+drifting positioning stage in a PD loop). Records are made by :mod:`gpjax._synthetic`.
 
 Units: x in m (rad for the pendulum), u in N (N·m), t in s, constants in SI.
 """
@@ -216,6 +216,29 @@ def _friction_chain() -> System:
                   excitation=Excitation(low=0.1, high=3.0, rms=6.0), max_step=SIGN_MAX_STEP)
 
 
+def _chain_driven_at_the_free_end() -> System:
+    """Two masses driven on mass 2 only: mass 1 on a ground spring and damper, mass 2 with
+    no ground connection; the masses coupled by a spring kc·d + k3·d³ and a damper cr·d'
+    (d = x_i − x_j). Unlike the other chains, a damper acts between the masses and the
+    input enters the last equation."""
+    kc, k3, cr = sp.symbols("kc k3 cr")
+    names = ("x1", "x2")
+    equations = []
+    for i, name in enumerate(names):
+        x, x_dot, x_ddot = state_symbols(name)
+        other, other_dot, _ = state_symbols(names[1 - i])
+        lhs = (sp.Symbol(f"m{i + 1}") * x_ddot + kc * (x - other) + k3 * (x - other) ** 3
+               + cr * (x_dot - other_dot))
+        lhs += _c * x_dot + _k * x if i == 0 else 0
+        equations.append(sp.Eq(lhs, U if i == 1 else 0))
+    return System(name="chain2_driven_free_end", description="2-mass chain driven on the "
+                  "mass without a ground connection, a damper between the masses",
+                  equations=tuple(equations), coordinates=names,
+                  constants={"m1": 1.5, "m2": 0.6, "c": 1.0, "k": 50.0, "kc": 25.0,
+                             "k3": 500.0, "cr": 0.4},
+                  excitation=Excitation(low=0.1, high=3.0, rms=3.0))
+
+
 def _ground_friction(base: System, i: int) -> System:
     """``base`` with dry friction F·tanh(x_i'/v0), F = 1 N, v0 = 1 mm/s, between
     coordinate ``i`` (0-based) and the ground: an effect a model of ``base``'s structure
@@ -274,6 +297,7 @@ def _catalogue() -> dict[str, System]:
         _chain(2, grounded_last=False),
         _chain(3, grounded_last=False),
         _friction_chain(),
+        _chain_driven_at_the_free_end(),
         System(name="stage", description="drifting positioning stage: m·x'' + c·x' + "
                "F·sign(x') + f0 = u, PD loop on a quantised encoder",
                equations=(sp.Eq(_m * X_DDOT + _c * X_DOT + F * sign + f0, U),),

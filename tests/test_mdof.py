@@ -376,6 +376,44 @@ def test_system_gp_finds_the_two_mass_chain(tmp_path):
     assert np.all(inside > 0.9), inside
 
 
+@pytest.mark.slow  # ~1 min: one gpjax fit of a 2-mass record with the defaults
+def test_the_front_door_finds_a_chain_driven_at_its_free_end(tmp_path):
+    """``gpjax fit`` with the defaults on a topology the other chains lack: the input on
+    mass 2 (no ground connection), a damper between the masses, mass 1 on the ground. The
+    right terms in both equations (the input in equation 2 only), every constant within
+    2 % in the fit's normalisation (equation 1 by its mass, 2 by its input), and the
+    extrapolation record (input 20 % larger) simulated within 2 % NRMS."""
+    from gpjax import cli
+    from gpjax.systems import simulate_equations
+
+    data = generate("chain2_driven_free_end", seed=0)
+    path = tmp_path / "chain.csv"
+    write_csv(data.fit, path)
+    assert cli.main(["fit", str(path), "--time", "t", "--response", "x1,x2", "--input", "u",
+                     "--out", str(tmp_path / "run"), "--seed", "0"]) == 0
+    model = gpjax.Model.load(tmp_path / "run" / "model.json")
+    first, second = model.system
+    c = data.system.constants
+    assert set(first.state) == {X1, V1, X1 - X2, (X1 - X2) ** 3, V1 - V2} and not first.forcing
+    assert set(second.state) == {X2 - X1, (X2 - X1) ** 3, V2 - V1} and set(second.forcing) == {U}
+    m1 = c["m1"]
+    expected = [(first.state[X1], c["k"] / m1), (first.state[V1], c["c"] / m1),
+                (first.state[X1 - X2], c["kc"] / m1), (first.state[(X1 - X2) ** 3], c["k3"] / m1),
+                (first.state[V1 - V2], c["cr"] / m1), (second.mass, c["m2"]),
+                (second.state[X2 - X1], c["kc"]), (second.state[(X2 - X1) ** 3], c["k3"]),
+                (second.state[V2 - V1], c["cr"])]
+    errors = [found / truth - 1 for found, truth in expected]
+    print("relative errors:", np.round(errors, 4))
+    assert max(map(abs, errors)) < 0.02
+    record = data.extrapolation
+    simulated = simulate_equations(model.sympy(), record.coordinates, record.time,
+                                   record.input_true, state0=record.initial_state)
+    nrms = np.sqrt(np.mean((simulated - record.response_true) ** 2, axis=1)
+                   / np.mean(record.response_true ** 2, axis=1))
+    print("extrapolation NRMS:", nrms)
+    assert np.all(nrms < 0.02)
+
+
 @pytest.mark.slow  # ~35 s: a 5-second record with noise; the fast round trip runs the path
 def test_the_initial_state_is_fitted_to_the_measured_responses():
     """``gpjax simulate``'s initial state: eq. 13's estimate at the record's edge, refined by
