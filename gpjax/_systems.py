@@ -196,21 +196,29 @@ def _chain(n: int, grounded_last: bool = True) -> System:
                   excitation=Excitation(low=0.1, high=3.0, rms=6.0 if grounded_last else 4.0))
 
 
-def _friction_chain() -> System:
-    """Two masses on ground springs and dampers, coupled by a spring and by dry friction
-    F·tanh((x_i' − x_j')/v0) between them, v0 = 1 mm/s (a sign resolved by the truth's
-    integrator: the masses stick to each other for ~15 % of the time)."""
-    F, kc, v0 = sp.symbols("F kc v0")
+def _two_masses(ground, coupling, driven: int) -> tuple[sp.Eq, ...]:
+    """The equations of masses m1, m2 at x1, x2: m_i·x_i'' + ``ground(i, x_i, x_i')`` +
+    ``coupling(x_i − x_j, x_i' − x_j')`` = u on mass ``driven`` (0-based), 0 on the other."""
     names = ("x1", "x2")
     equations = []
     for i, name in enumerate(names):
         x, x_dot, x_ddot = state_symbols(name)
         other, other_dot, _ = state_symbols(names[1 - i])
-        lhs = (sp.Symbol(f"m{i + 1}") * x_ddot + _c * x_dot + _k * x + kc * (x - other)
-               + F * sp.tanh((x_dot - other_dot) / v0))
-        equations.append(sp.Eq(lhs, U if i == 0 else 0))
+        lhs = (sp.Symbol(f"m{i + 1}") * x_ddot + ground(i, x, x_dot)
+               + coupling(x - other, x_dot - other_dot))
+        equations.append(sp.Eq(lhs, U if i == driven else 0))
+    return tuple(equations)
+
+
+def _friction_chain() -> System:
+    """Two masses on ground springs and dampers, coupled by a spring and by dry friction
+    F·tanh((x_i' − x_j')/v0) between them, v0 = 1 mm/s (a sign resolved by the truth's
+    integrator: the masses stick to each other for ~15 % of the time)."""
+    F, kc, v0 = sp.symbols("F kc v0")
+    equations = _two_masses(lambda i, x, x_dot: _c * x_dot + _k * x,
+                            lambda d, d_dot: kc * d + F * sp.tanh(d_dot / v0), driven=0)
     return System(name="chain2_friction", description="2-mass chain, dry friction between "
-                  "the masses, input on mass 1", equations=tuple(equations), coordinates=names,
+                  "the masses, input on mass 1", equations=equations, coordinates=("x1", "x2"),
                   constants={"m1": 1.0, "m2": 0.8, "c": 0.5, "k": 30.0, "kc": 20.0, "F": 1.5,
                              "v0": 1e-3},
                   excitation=Excitation(low=0.1, high=3.0, rms=6.0), max_step=SIGN_MAX_STEP)
@@ -222,18 +230,11 @@ def _chain_driven_at_the_free_end() -> System:
     (d = x_i − x_j). Unlike the other chains, a damper acts between the masses and the
     input enters the last equation."""
     kc, k3, cr = sp.symbols("kc k3 cr")
-    names = ("x1", "x2")
-    equations = []
-    for i, name in enumerate(names):
-        x, x_dot, x_ddot = state_symbols(name)
-        other, other_dot, _ = state_symbols(names[1 - i])
-        lhs = (sp.Symbol(f"m{i + 1}") * x_ddot + kc * (x - other) + k3 * (x - other) ** 3
-               + cr * (x_dot - other_dot))
-        lhs += _c * x_dot + _k * x if i == 0 else 0
-        equations.append(sp.Eq(lhs, U if i == 1 else 0))
+    equations = _two_masses(lambda i, x, x_dot: _c * x_dot + _k * x if i == 0 else 0,
+                            lambda d, d_dot: kc * d + k3 * d ** 3 + cr * d_dot, driven=1)
     return System(name="chain2_driven_free_end", description="2-mass chain driven on the "
                   "mass without a ground connection, a damper between the masses",
-                  equations=tuple(equations), coordinates=names,
+                  equations=equations, coordinates=("x1", "x2"),
                   constants={"m1": 1.5, "m2": 0.6, "c": 1.0, "k": 50.0, "kc": 25.0,
                              "k3": 500.0, "cr": 0.4},
                   excitation=Excitation(low=0.1, high=3.0, rms=3.0))
