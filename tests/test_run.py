@@ -272,6 +272,7 @@ def test_the_console_script_is_main_without_the_last_collection(monkeypatch):
     from gpjax import cli
 
     frozen = []
+    monkeypatch.setenv("JAX_PLATFORMS", "cpu")  # console() sets it where unset: restored after
     monkeypatch.setattr(cli.gc, "freeze", lambda: frozen.append(True))
     monkeypatch.setattr(cli, "main", lambda: 2)
     assert cli.console() == 2 and frozen == [True]
