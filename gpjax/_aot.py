@@ -14,7 +14,9 @@ reference solve. A :class:`Program` keeps the *executable* itself
 
 A program that cannot be serialised or loaded is compiled as ``jax.jit`` would; a damaged
 file is compiled again and overwritten. ``GPJAX_COMPILATION_CACHE=off`` keeps programs in
-memory only.
+memory only. The folder holds at most :data:`MAX_PROGRAM_BYTES`: storing a program deletes
+the least recently used ones beyond it (a load marks a file used), since every change of
+gpjax's source or of the settings keys new files and the old ones would otherwise stay.
 
 Within one process the last :data:`KEPT` executables are also kept in memory under the same
 key, so a second record of the same shape and settings (``fit-many``'s next record on a
@@ -43,6 +45,9 @@ from ._jaxcache import cache_folder
 PROGRAMS = "programs"
 #: Executables a process keeps in memory across programs of the same key.
 KEPT = 32
+#: Most bytes the programs folder holds (module docstring). A fit of one length bucket
+#: and settings stores ~10–20 programs of at most ~4 MB: 2 GiB keeps dozens of them.
+MAX_PROGRAM_BYTES = 2 * 2 ** 30
 
 _KEPT: collections.OrderedDict = collections.OrderedDict()
 #: Seconds and executables that every :class:`Program` of this process compiled or loaded.
@@ -193,11 +198,13 @@ def _load(path: Path, n_inputs: int) -> Callable | None:
         devices = {d.id: d for d in jax.devices()}
         in_tree = jax.tree_util.tree_structure((tuple(range(n_inputs)), {}))
         out_tree = jax.tree_util.tree_structure(tuple(range(n_outputs)))
-        return serialize_executable.deserialize_and_load(
+        loaded = serialize_executable.deserialize_and_load(
             payload[8 + 4 * n_devices:], in_tree, out_tree,
             execution_devices=[devices[i] for i in ids])
     except Exception:  # noqa: BLE001 - a damaged or foreign file is compiled afresh
         return None
+    _touch(path)
+    return loaded
 
 
 def _compile_bypassing_persistent_cache(compile: Callable):
@@ -241,6 +248,39 @@ def _store(path: Path, compiled) -> None:
         os.replace(temporary, path)
     except Exception:  # noqa: BLE001 - caching is an optimisation, never a failure
         return
+    prune(path.parent, keep=path)
+
+
+def _touch(path: Path) -> None:
+    """Mark ``path`` used now (its modification time: the pruning's order)."""
+    try:
+        os.utime(path)
+    except OSError:  # a read-only folder: the file is used all the same
+        pass
+
+
+def prune(folder: Path, *, keep: Path, max_bytes: int = MAX_PROGRAM_BYTES) -> None:
+    """Delete the least recently used program files of ``folder`` (oldest modification
+    time first) until the rest hold at most ``max_bytes``; ``keep`` (the file just
+    stored) stays. Files another process deletes meanwhile are skipped."""
+    files = []
+    for path in folder.glob("*.bin"):
+        try:
+            status = path.stat()
+        except OSError:
+            continue
+        files.append((status.st_mtime, status.st_size, path))
+    total = sum(size for _, size, _ in files)
+    for _, size, path in sorted(files, key=lambda item: item[0]):
+        if total <= max_bytes:
+            break
+        if path == keep:
+            continue
+        try:
+            path.unlink()
+        except OSError:
+            continue
+        total -= size
 
 
 class CompileFigures:

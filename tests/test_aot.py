@@ -136,3 +136,20 @@ def test_bypassing_the_persistent_cache_restores_the_settings(tmp_path):
         lambda: jax.jit(lambda x: (x + 1,)).lower(jnp.ones(2)).compile())
     assert float(compiled(jnp.ones(2))[0].sum()) == 4.0
     assert jax.config.jax_enable_compilation_cache == enabled
+
+
+def test_the_programs_folder_keeps_its_most_recently_used_files_within_its_bound(tmp_path):
+    """Every change of gpjax's source or settings keys new program files: storing one
+    deletes the least recently used beyond the folder's bound (never the file just
+    stored), and loading a file marks it used."""
+    sizes = {"old": 400, "used": 300, "mid": 300, "new": 500}
+    for age, name in enumerate(["old", "used", "mid", "new"]):
+        path = tmp_path / f"{name}.bin"
+        path.write_bytes(b"x" * sizes[name])
+        os.utime(path, (1_000_000 + age, 1_000_000 + age))
+    _aot._touch(tmp_path / "used.bin")  # a load: now the most recent
+    (tmp_path / "other.txt").write_bytes(b"y" * 10_000)  # not a program: never counted
+    _aot.prune(tmp_path, keep=tmp_path / "new.bin", max_bytes=1_000)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new.bin", "other.txt", "used.bin"]
+    _aot.prune(tmp_path, keep=tmp_path / "new.bin", max_bytes=100)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["new.bin", "other.txt"]
