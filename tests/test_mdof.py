@@ -384,7 +384,7 @@ def test_the_front_door_finds_a_chain_driven_at_its_free_end(tmp_path):
     2 % in the fit's normalisation (equation 1 by its mass, 2 by its input), and the
     extrapolation record (input 20 % larger) simulated within 2 % NRMS."""
     from gpjax import cli
-    from gpjax.systems import simulate_equations
+    from gpjax.systems import nrms, simulate_equations
 
     data = generate("chain2_driven_free_end", seed=0)
     path = tmp_path / "chain.csv"
@@ -408,10 +408,9 @@ def test_the_front_door_finds_a_chain_driven_at_its_free_end(tmp_path):
     record = data.extrapolation
     simulated = simulate_equations(model.sympy(), record.coordinates, record.time,
                                    record.input_true, state0=record.initial_state)
-    nrms = np.sqrt(np.mean((simulated - record.response_true) ** 2, axis=1)
-                   / np.mean(record.response_true ** 2, axis=1))
-    print("extrapolation NRMS:", nrms)
-    assert np.all(nrms < 0.02)
+    spread = [nrms(path, truth) for path, truth in zip(simulated, record.response_true)]
+    print("extrapolation NRMS:", spread)
+    assert max(spread) < 0.02
 
 
 @pytest.mark.slow  # ~35 s: a 5-second record with noise; the fast round trip runs the path
