@@ -112,6 +112,7 @@ from ._diagnose_noise import input_lines_only, noise_floor
 from ._diagnose_residual import FAR_ABOVE, describe_residual
 from ._effects import Effect, effects
 from ._errors import ModelFileError, UserInputError
+from ._memory import release_memory
 from ._coefficients import to_population
 from ._model import Model
 from ._system_diagnose import count_input_noise, gate_ratio, input_noise_response
@@ -336,6 +337,7 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
     current = None
     steps, rankings, fits = [], [], []
     for round_number in range(max_steps + 1):
+        release_memory()  # the last round's candidates and simulators
         _progress.stage(f"diagnosis: step {round_number + 1}: ranking the effects")
         context = problem.context(structure, lines)
         taken = {c.effect.name for c in chosen}  # an effect enters once
@@ -445,6 +447,7 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         # before the whole record's are built
         problem.simulator = None
         last.pop("whole", None)
+        release_memory()
         whole = FitProblem(measurement, symbols, holdout=0.0, iterations=iterations,
                            substeps=count, batch=len(fits),
                            input_interpolation=input_interpolation, rate_band=drifting)

@@ -81,5 +81,22 @@ def check_fit_memory(*, n_samples: int, substeps: int, population: int,
             "shorten the record, or lower population or substeps")
 
 
+def release_memory() -> None:
+    """Hand memory a finished stage freed back to the system: a garbage collection (JAX
+    arrays in reference cycles), then glibc's ``malloc_trim`` (freed heap pages that the
+    allocator keeps otherwise: a later stage's arrays then land on top of the earlier ones'
+    holes, and the resident size grows stage by stage — the remedy Dask's workers apply
+    too, by ``MALLOC_TRIM_THRESHOLD_``). No-op for the allocator where libc has no
+    ``malloc_trim`` (macOS, musl)."""
+    import ctypes
+    import gc
+
+    gc.collect()
+    try:
+        ctypes.CDLL(None).malloc_trim(0)
+    except (AttributeError, OSError):
+        pass
+
+
 def _gb(count: int) -> str:
     return f"{count / 1e9:.1f} GB"

@@ -544,6 +544,12 @@ def _evaluator(measurement: Measurement, symbols: Symbols, **settings) -> Popula
     return evaluator
 
 
+def release_evaluators() -> None:
+    """Drop the evaluators kept for repeated simulations (their arrays and programs),
+    e.g. between a fit and a diagnosis of another record length or step count."""
+    _EVALUATORS.clear()
+
+
 def _check_inputs(model: Model, measurement: Measurement) -> None:
     if tuple(measurement.input_names) != tuple(model.inputs):
         raise ModelFileError(f"the model's inputs {list(model.inputs)} differ from the "

@@ -304,13 +304,24 @@ def _fit(args) -> int:
         return 130
     if args.diagnose:
         fitted = time.time()
-        diagnosis = _run_diagnosis(args, measurement, identifier.model_,
-                                   Path(args.out) / "diagnosis")
+        model = identifier.model_
+        del identifier  # the fit's arrays and evaluators go before the diagnosis builds its own
+        _release_fit()
+        diagnosis = _run_diagnosis(args, measurement, model, Path(args.out) / "diagnosis")
         now = time.time()
         print(f"Whole process {now - _process_started():.1f} s: the fit as above, "
               f"then {now - fitted:.1f} s: the diagnosis as above ({diagnosis:.1f} s) and "
               "printing.")
     return 0
+
+
+def _release_fit() -> None:
+    """The memory a finished fit held, back to the system (:func:`gpjax._memory.release_memory`)."""
+    from ._memory import release_memory
+    from ._model import release_evaluators
+
+    release_evaluators()
+    release_memory()
 
 
 def _print_residuals(model, functions: tuple[str, ...], *, diagnosing: bool = False) -> None:
