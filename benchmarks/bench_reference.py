@@ -5,11 +5,8 @@ The bundled example's model (eq. 14 with the paper's constants) is simulated on 
 (diffrax Dopri8 per sample interval, :mod:`gpjax._reference`) and, as the baseline measured
 in the same run, by the model's fixed-step RK4, once for each of ``--interpolations`` (how
 the input runs between samples; band-limited inputs make the solve's steps end on the
-spline's knots). Each is timed after one warm-up call (so compiling is excluded). A third
-column times the solve a convergence check asks for on a record whose RMS residual is
-``--check-residual`` of the response's spread (:func:`gpjax._convergence.reference_tolerance`
-at a 1 % check tolerance), with its RMS difference from the default solve. Prints a table
-and writes JSON.
+spline's knots). Each is timed after one warm-up call (so compiling is excluded). Prints a
+table and writes JSON.
 
     python benchmarks/bench_reference.py --sizes 10000 100000 --json benchmarks/reference_cost.json
 """
@@ -26,7 +23,6 @@ from pathlib import Path
 import numpy as np
 
 from gpjax import Measurement, Model, Symbols
-from gpjax._convergence import reference_tolerance
 from gpjax._data import INPUT_INTERPOLATIONS
 from gpjax.gear import PAPER_TRUTH, load_bundled_example
 
@@ -45,17 +41,13 @@ def main() -> None:
     parser.add_argument("--sizes", type=int, nargs="+", default=[10_000, 100_000])
     parser.add_argument("--interpolations", nargs="+", default=list(INPUT_INTERPOLATIONS),
                         choices=INPUT_INTERPOLATIONS)
-    parser.add_argument("--check-residual", type=float, default=0.01,
-                        help="RMS residual / spread of the checked record (default 0.01)")
     parser.add_argument("--json", help="write the results here")
     args = parser.parse_args()
-    check_tolerance = reference_tolerance(args.check_residual, 1.0, 0.01)
     example, _ = load_bundled_example()
     rows = []
-    print(f"| input between samples | samples | reference s | µs per sample | RK4 s | "
-          f"reference / RK4 | check's solve s (tolerance {check_tolerance:.0e}) | "
-          "reference / check's | difference / spread |")
-    print("| --- | --- | --- | --- | --- | --- | --- | --- | --- |")
+    print("| input between samples | samples | reference s | µs per sample | RK4 s | "
+          "reference / RK4 |")
+    print("| --- | --- | --- | --- | --- | --- |")
     for interpolation, n in itertools.product(args.interpolations, args.sizes):
         model = Model.single(symbols=Symbols("phi", "t", ("T",)), mass=PAPER_TRUTH["J"],
                              state={"phi": PAPER_TRUTH["K1"], "phi**2": PAPER_TRUTH["K2"]},
@@ -69,23 +61,16 @@ def main() -> None:
         reference_s, x = timed(lambda: model.simulate(record, initial_conditions=y0))
         rk4_s, x_rk4 = timed(lambda: model.simulate(record, initial_conditions=y0,
                                                     solver="rk4"))
-        check_s, x_check = timed(lambda: model.simulate(record, initial_conditions=y0,
-                                                        tolerance=check_tolerance))
         row = {"input_interpolation": interpolation, "samples": n,
                "reference_s": reference_s, "rk4_s": rk4_s,
                "us_per_sample": 1e6 * reference_s / n, "ratio_to_rk4": reference_s / rk4_s,
-               "check_tolerance": check_tolerance, "check_s": check_s,
-               "ratio_to_check": reference_s / check_s,
-               "check_difference_rms_over_spread": float(np.sqrt(np.mean((x - x_check) ** 2))
-                                                         / np.std(x)),
                "finite": bool(np.all(np.isfinite(x))),
                "rk4_difference_rms_over_spread": float(np.sqrt(np.mean((x - x_rk4) ** 2))
                                                        / np.std(x))}
         rows.append(row)
         print(f"| {interpolation} | {n} | {reference_s:.2f} | {row['us_per_sample']:.1f} | "
               f"{rk4_s:.3f} | "
-              f"{row['ratio_to_rk4']:.0f} | {check_s:.2f} | {row['ratio_to_check']:.1f} | "
-              f"{row['check_difference_rms_over_spread']:.1e} |", flush=True)
+              f"{row['ratio_to_rk4']:.0f} |", flush=True)
     if args.json:
         Path(args.json).write_text(json.dumps(
             {**provenance(), "load_average_after": os.getloadavg(), "rows": rows}, indent=1) + "\n",

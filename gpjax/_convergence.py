@@ -18,19 +18,6 @@ of the model against the data. Otherwise the step count grows and the model is r
   the check does not see, but the sensitivities that refinement and the standard errors
   integrate beside it grow without bound. So a check also needs h·ρ ≤ RK4_STABILITY, ρ
   the largest rate of the model's linearisation where its response dwells.
-* **The reference's own accuracy** (:func:`reference_tolerance`): the check resolves a
-  difference of ``tolerance`` × the RMS residual; the reference solve is asked for
-  :data:`REFERENCE_FRACTION` of that (relative to the response's spread, its rtol and atol
-  on the scaled state), between the solver's default 1e-12 and :data:`LOOSEST_REFERENCE`.
-  A noise-free record's tiny residual keeps the default; a measured one's lets the solve
-  take steps across a band-limited input's knots, which at 1e-12 it must end on
-  (:mod:`gpjax._reference`): Silverbox's estimation record (65,062 samples) solves in 1.9 s
-  instead of 9.6 s, the two responses 4.9e-8 of the spread apart, 9e-4 of the difference
-  the check resolves. On seven more fitted models (gear, pendulum, springs, Coulomb
-  friction, chains; linear inputs, 1.0–2.2× faster) the loosened solve moved the checked
-  ratio by at most 4e-3 of the difference resolved. The tolerance comes from RK4's residual
-  (known before the solve); where the reference's residual turns out more than 10× smaller,
-  the solve is repeated at the tolerance that one asks for.
 * **Window**: records longer than :data:`CHECK_SAMPLES` are checked on their first
   :data:`CHECK_SAMPLES` samples: the reference solve costs ~40–60 µs a sample on 2
   cores with held or linear inputs and ~200 µs with band-limited ones, whose steps end on
@@ -69,12 +56,6 @@ CHECK_SAMPLES = 65_536
 #: RK4's stability interval on the negative real axis: a mode λ is not amplified by a
 #: step h with h·|λ| ≤ 2.785.
 RK4_STABILITY = 2.785
-#: A check's reference solve is asked for this fraction of the difference the check
-#: resolves (:func:`reference_tolerance`).
-REFERENCE_FRACTION = 1e-3
-#: The loosest tolerance a check's reference solve is given (the loosest measured: at 1e-6
-#: Silverbox's reference moved 1.1e-7 of its spread).
-LOOSEST_REFERENCE = 1e-6
 
 
 @dataclasses.dataclass(frozen=True)
@@ -91,8 +72,6 @@ class Convergence:
         samples: the samples compared (the record's first, at most :data:`CHECK_SAMPLES`).
         stable_substeps: the fewest steps per sample at which RK4 is stable on the model
             along the record (:func:`stable_substeps`); fewer do not converge.
-        reference_tolerance: the reference solve's rtol and atol
-            (:func:`reference_tolerance`; None: not recorded).
     """
 
     substeps: int
@@ -103,7 +82,6 @@ class Convergence:
     tolerance: float
     samples: int = 0
     stable_substeps: int = 1
-    reference_tolerance: float | None = None
 
     @property
     def converged(self) -> bool:
@@ -118,9 +96,7 @@ def check_line(check: dict) -> str:
     stable = check.get("stable_substeps", 1)
     unstable = (f"; RK4 is stable from {stable} steps per sample on"
                 if check["substeps"] < stable else "")
-    solver = "diffrax Dopri8" + (f", tolerance {check['reference_tolerance']:.1e}"
-                                 if check.get("reference_tolerance") else "")
-    return (f"RMS by the reference solve ({solver}) {check['rms_reference']:.4g}; RK4 at "
+    return (f"RMS by the reference solve (diffrax Dopri8) {check['rms_reference']:.4g}; RK4 at "
             f"{check['substeps']} step(s) per sample differs by {check['ratio']:.2%} of it"
             f"{unstable} ({'converged' if check['converged'] else 'NOT converged'}, tolerance "
             f"{check['tolerance']:.0%})")
@@ -226,8 +202,7 @@ def needed_substeps(model, measurement: Measurement, check: Convergence,
     while steps < MAX_SUBSTEPS:
         trial, reference = check_model(dataclasses.replace(model, substeps=steps),
                                        measurement, tolerance=check.tolerance,
-                                       reference=reference, stable=check.stable_substeps,
-                                       reference_at=check.reference_tolerance)
+                                       reference=reference, stable=check.stable_substeps)
         if trial.ratio < 0.5 * check.tolerance and trial.converged:
             break
         steps = next_substeps(trial)
@@ -244,63 +219,39 @@ def coordinate_weights(measured: np.ndarray):
     return spread[0] / np.where(spread > 0, spread, 1.0)
 
 
-def reference_tolerance(rms_residual: float, spread: float, tolerance: float) -> float:
-    """rtol = atol of a check's reference solve: :data:`REFERENCE_FRACTION` of the
-    difference the check resolves, ``tolerance`` × ``rms_residual`` / ``spread`` (the
-    response's), within [the solver's default, :data:`LOOSEST_REFERENCE`]; the default where
-    the residual is not finite or the spread is zero (module docstring)."""
-    from ._reference import ReferenceSolver  # jax and sympy: not when the CLI reads settings
-
-    tightest = ReferenceSolver().rtol
-    if not (math.isfinite(rms_residual) and spread > 0):
-        return tightest
-    return float(min(LOOSEST_REFERENCE,
-                     max(tightest, REFERENCE_FRACTION * tolerance * rms_residual / spread)))
-
-
 def check_model(model, measurement: Measurement, *, tolerance: float,
-                reference: np.ndarray | None = None, stable: int | None = None,
-                reference_at: float | None = None) -> tuple[Convergence, np.ndarray]:
+                reference: np.ndarray | None = None,
+                stable: int | None = None) -> tuple[Convergence, np.ndarray]:
     """Simulate ``model`` (its fitted initial state, its ``substeps``) by RK4 and by the
     reference solve over the first :data:`CHECK_SAMPLES` samples at most, and compare
     them: (:class:`Convergence`, the reference response on those samples, NaN if that
     solve failed). A system's responses (N, D) are compared with coordinate d weighted
     by s_1/s_d as in the objective, so the figures are in the first response's units.
     ``reference``: that response from an earlier check of the same model (constants and
-    initial state), which the step count does not change, solved at tolerance
-    ``reference_at``; solved when ``None`` (at :func:`reference_tolerance`); likewise
+    initial state), which the step count does not change; solved when ``None``; likewise
     ``stable``, its :func:`stable_substeps`."""
     measurement = measurement.segment(0, min(measurement.n_samples, CHECK_SAMPLES))
     y0 = model.initial_states
     rk4 = model.simulate(measurement, initial_conditions=y0, solver="rk4")
-    measured = measurement.response if np.ndim(rk4) == 1 else measurement.responses
-    weights = coordinate_weights(measured)
-    spread = float(np.std(np.reshape(measured, (measurement.n_samples, -1))[:, 0]))
-
-    def rms(a, b) -> float:
-        return float(np.sqrt(np.mean(((a - b) * weights) ** 2)))
-
-    rms_rk4 = rms(measured, rk4)
     if reference is None:
-        reference_at = reference_tolerance(rms_rk4, spread, tolerance)
-        reference = model.simulate(measurement, initial_conditions=y0, tolerance=reference_at)
-        wanted = reference_tolerance(rms(measured, reference), spread, tolerance)
-        if wanted < reference_at / 10:  # RK4's residual overstated the reference's
-            reference_at = wanted
-            reference = model.simulate(measurement, initial_conditions=y0, tolerance=wanted)
+        reference = model.simulate(measurement, initial_conditions=y0)
     ok = bool(np.all(np.isfinite(reference)))
     if stable is None:
         stable = stable_substeps(model, measurement, reference if ok else rk4)
-    settings = dict(samples=measurement.n_samples, stable_substeps=stable,
-                    reference_tolerance=reference_at)
+    measured = measurement.response if np.ndim(rk4) == 1 else measurement.responses
+    returned = reference
+    weights = coordinate_weights(measured)
+    measured, rk4, reference = measured * weights, rk4 * weights, reference * weights
+    rms_rk4 = float(np.sqrt(np.mean((measured - rk4) ** 2)))
     if not ok:
         return Convergence(model.substeps, rms_rk4, math.inf, math.inf, math.inf,
-                           tolerance, **settings), reference
-    rms_reference, difference = rms(measured, reference), rms(rk4, reference)
+                           tolerance, measurement.n_samples, stable), returned
+    rms_reference = float(np.sqrt(np.mean((measured - reference) ** 2)))
+    difference = float(np.sqrt(np.mean((rk4 - reference) ** 2)))
     ratio = difference / rms_reference if rms_reference > 0 else (0.0 if difference == 0
                                                                   else math.inf)
     return Convergence(model.substeps, rms_rk4, rms_reference, difference, ratio,
-                       tolerance, **settings), reference
+                       tolerance, measurement.n_samples, stable), returned
 
 
 def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int | None,

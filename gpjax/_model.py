@@ -31,7 +31,7 @@ from ._errors import ModelFileError
 from ._evaluator import PopulationEvaluator, split_state_features
 from ._expressions import parse_expression
 from ._objective import default_n_bins
-from ._reference import ReferenceSolver, reference_response
+from ._reference import reference_response
 from ._system_bank import KINDS, bank_of
 from ._uncertainty import Uncertainty
 from ._weak_form import estimate_initial_conditions
@@ -388,7 +388,7 @@ class Model:
                          for d in range(measurement.n_coordinates)])
 
     def simulate(self, measurement: Measurement, *, initial_conditions=None,
-                 solver: str = "reference", tolerance: float | None = None) -> np.ndarray:
+                 solver: str = "reference") -> np.ndarray:
         """The response on ``measurement``'s time grid and inputs: (N,) for a single
         coordinate, else (N, D).
 
@@ -399,8 +399,6 @@ class Model:
                 from the measurement's first samples (eq. 13).
             solver: ``"reference"`` (adaptive diffrax Dopri8, :mod:`gpjax._reference`) or
                 ``"rk4"`` (the fixed-step integrator the model was fitted with).
-            tolerance: the reference solve's rtol and atol (on the state scaled to unit
-                spread); default :class:`~gpjax._reference.ReferenceSolver`'s.
 
         Raises:
             ModelFileError: the measurement's inputs differ from the model's.
@@ -416,11 +414,10 @@ class Model:
             responses, _ = evaluator.simulate(self.population(evaluator, y0))
             return _shaped(np.asarray(responses[0]).T)
         return self.simulate_inputs(measurement.time, measurement.inputs, y0,
-                                    scale=measurement_scale(measurement), tolerance=tolerance)
+                                    scale=measurement_scale(measurement))
 
     def simulate_inputs(self, time: np.ndarray, inputs: dict[str, np.ndarray],
-                        initial_conditions, *, scale=None,
-                        tolerance: float | None = None) -> np.ndarray:
+                        initial_conditions, *, scale=None) -> np.ndarray:
         """The response ((N,) for one coordinate, else (N, D)) to ``inputs``
         (name -> (N,)) at uniform sample ``time`` (s) from ``initial_conditions``
         ((x, x') or (D, 2)), by the reference solve; NaN if it fails.
@@ -429,8 +426,7 @@ class Model:
         tolerance applies to x/scale; :func:`measurement_scale` of a measured response).
         Default: the spread of a first solve scaled by the initial state, solved again at
         that spread where it is more than 10x away (a record started at rest has no scale
-        of its own). ``tolerance``: the solve's rtol and atol (default
-        :class:`~gpjax._reference.ReferenceSolver`'s).
+        of its own).
 
         Raises:
             ModelFileError: an input of the model is missing.
@@ -443,12 +439,8 @@ class Model:
         inputs = {u: np.asarray(inputs[u], dtype=np.float64) for u in self.inputs}
         y0 = np.reshape(np.asarray(initial_conditions, dtype=np.float64), (-1, 2))
 
-        solver = (ReferenceSolver() if tolerance is None
-                  else ReferenceSolver(rtol=tolerance, atol=tolerance))
-
         def solve(scale):
-            return _shaped(reference_response(self, time, inputs, y0, scale=scale,
-                                              solver=solver)[0])
+            return _shaped(reference_response(self, time, inputs, y0, scale=scale)[0])
 
         if scale is not None:
             return solve(np.reshape(np.asarray(scale, dtype=np.float64), (-1, 2)))

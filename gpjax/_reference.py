@@ -12,12 +12,9 @@ falls on an interval's end, and the inputs are functions of continuous time:
 * ``hold``: each interval sees its first sample's value (the left limit at its end);
 * ``bandlimited``: the cubic spline of :func:`gpjax._data.bandlimited_spline`, the same
   function the RK4 stage values are taken from. Its third derivative jumps at each of its
-  knots, :data:`~gpjax._data.BANDLIMITED_FACTOR` per interval, and at tolerances below
-  :data:`KNOT_TOLERANCE` the step control paid for every jump with rejected steps: the
-  steps end on the knots instead (diffrax ``ClipStepSizeController``), ~2× faster at
-  1e-12. At looser tolerances the steps cross the knots, fewer than the knots: on
-  Silverbox's first 16,384 samples 3.1 s at 1e-9 (3.2 s on the knots), 1.0 s at 1e-8,
-  0.5 s at 1e-7.
+  knots, :data:`~gpjax._data.BANDLIMITED_FACTOR` per interval, and at these tolerances the
+  step control paid for every jump with rejected steps: the steps end on the knots instead
+  (diffrax ``ClipStepSizeController``), ~3× faster.
 
 Each input is given to the solve as a table of polynomial pieces per sample interval
 (:func:`input_path`): one piece of degree 0 or 1 for ``hold`` and ``linear``, the spline's
@@ -29,9 +26,7 @@ over every knot of the record at every stage: Silverbox's first 16,384 samples s
 3.1 s instead of 5.0 s band-limited, 1.0 s instead of 1.3 s linear.
 
 The state is scaled by the response's and its derivative's spread, so one absolute
-tolerance serves both. The tolerances are arguments of the compiled solve, not constants of
-it: a convergence check that asks for a looser solve (:func:`gpjax._convergence.check_model`)
-loads the same program. A solve that fails (a model that blows up, or more steps than an
+tolerance serves both. A solve that fails (a model that blows up, or more steps than an
 interval allows) is returned as data (``ok`` false, NaN response), never raised. The
 solve of a structure is a :class:`gpjax._aot.Program`: a later process loads it.
 """
@@ -51,10 +46,6 @@ from ._coefficients import Coefficients
 from ._data import BANDLIMITED_FACTOR, bandlimited_spline
 from ._integrate import enable_float64
 from ._record import padded_length
-
-#: Tolerance below which a band-limited solve's steps end on the input spline's knots
-#: (module docstring).
-KNOT_TOLERANCE = 1e-9
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)
@@ -85,11 +76,6 @@ class ReferenceSolver:
     def to_json(self) -> dict:
         return {"method": "diffrax.Dopri8", "controller": "PID", "rtol": self.rtol,
                 "atol": self.atol}
-
-    @property
-    def steps_on_knots(self) -> bool:
-        """Whether a band-limited input's knots end the steps (module docstring)."""
-        return min(self.rtol, self.atol) < KNOT_TOLERANCE
 
 
 def input_path(time: np.ndarray, inputs: list[np.ndarray], method: str) -> jnp.ndarray:
@@ -159,15 +145,13 @@ def _lifted(expression: sp.Expr, constant) -> sp.Expr:
 
 @lru_cache(maxsize=64)
 def _solve_program(expressions: tuple[sp.Expr, ...], names: tuple, constants: tuple,
-                   method: str, on_knots: bool, max_steps: int) -> Program:
+                   method: str, solver: ReferenceSolver) -> Program:
     """The compiled reference solve of one structure, shared by its models and by every
-    record of a length bucket: ``program(values, path, ts, n, y0, scale, tolerances) ->
-    (x / scale at ts (N', D), succeeded)`` with ``path`` from :func:`input_path` and ``ts``
-    the sample times (s), both padded to the bucket's N' samples
-    (:func:`gpjax._record.padded_length`), ``n`` the record's samples (the intervals past
-    them are skipped), ``y0`` and ``scale`` (2, D): each coordinate's (x, x') at the first
-    sample and their typical sizes, ``tolerances`` (rtol, atol). ``on_knots``:
-    :attr:`ReferenceSolver.steps_on_knots`; ``max_steps``: steps allowed per interval."""
+    record of a length bucket: ``program(values, path, ts, n, y0, scale) -> (x / scale at
+    ts (N', D), succeeded)`` with ``path`` from :func:`input_path` and ``ts`` the sample
+    times (s), both padded to the bucket's N' samples (:func:`gpjax._record.padded_length`),
+    ``n`` the record's samples (the intervals past them are skipped), ``y0`` and ``scale``
+    (2, D): each coordinate's (x, x') at the first sample and their typical sizes."""
     rhs = sp.lambdify((*names, constants), list(expressions), modules="jax")
     n_inputs = len(names) - 2 * len(expressions) - 1
 
@@ -184,11 +168,11 @@ def _solve_program(expressions: tuple[sp.Expr, ...], names: tuple, constants: tu
                                      *(u[k] for k in range(n_inputs)), values))
         return jnp.stack([velocity, acceleration]) / scale
 
-    def solve(values, path, ts, n, y0, scale, tolerances):
+    def solve(values, path, ts, n, y0, scale):
         import diffrax  # traced only when compiled (gpjax._integrate.rk4_solver)
 
         term = diffrax.ODETerm(field)
-        controller = diffrax.PIDController(rtol=tolerances[0], atol=tolerances[1])
+        controller = diffrax.PIDController(rtol=solver.rtol, atol=solver.atol)
         count = path.shape[1]  # pieces per interval
         knots = jnp.arange(count + 1) / count  # of one interval
 
@@ -197,14 +181,13 @@ def _solve_program(expressions: tuple[sp.Expr, ...], names: tuple, constants: tu
             # interval apart, its third derivative jumping at each: steps end on them
             # (module docstring).
             length = (ts[k + 1] - ts[k]) / count
-            steps = controller if count == 1 or not on_knots else (
-                diffrax.ClipStepSizeController(controller,
-                                               step_ts=ts[k] + (ts[k + 1] - ts[k]) * knots))
+            steps = controller if count == 1 else diffrax.ClipStepSizeController(
+                controller, step_ts=ts[k] + (ts[k + 1] - ts[k]) * knots)
             solution = diffrax.diffeqsolve(
                 term, diffrax.Dopri8(), t0=ts[k], t1=ts[k + 1], dt0=None, y0=y,
                 args=(values, (ts[k], length, path[k]), scale),
                 saveat=diffrax.SaveAt(t1=True), stepsize_controller=steps,
-                max_steps=max_steps, throw=False)
+                max_steps=solver.max_steps_per_sample, throw=False)
             ok = (solution.result == diffrax.RESULTS.successful) & jnp.all(
                 jnp.isfinite(solution.ys[-1]))
             return solution.ys[-1], ok
@@ -221,7 +204,7 @@ def _solve_program(expressions: tuple[sp.Expr, ...], names: tuple, constants: tu
         return jnp.concatenate([start[:1], xs]), ok
 
     return Program(solve, name="reference", key=fingerprint(
-        [sp.srepr(e) for e in expressions], names, constants, method, on_knots, max_steps))
+        [sp.srepr(e) for e in expressions], names, constants, method, solver))
 
 
 def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
@@ -247,8 +230,7 @@ def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
     names = tuple(sp.Symbol(n) for n in coordinates) + tuple(
         sp.Symbol(f"{n}_dot") for n in coordinates) + (sp.Symbol(model.time),) + tuple(
         sp.Symbol(n) for n in model.inputs)
-    program = _solve_program(expressions, names, constants, model.input_interpolation,
-                             solver.steps_on_knots, solver.max_steps_per_sample)
+    program = _solve_program(expressions, names, constants, model.input_interpolation, solver)
     path = input_path(time, [inputs[name] for name in model.inputs], model.input_interpolation)
     # Padded to the length bucket, so a record of another length in it loads this program:
     # the times go on uniformly, the pieces repeat the last interval's (never solved).
@@ -260,8 +242,7 @@ def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
     scale = jnp.asarray(np.where(scale > 0, scale, 1.0).T)
     y0 = np.reshape(np.asarray(initial_states, float), (len(coordinates), 2))
     scaled, succeeded = program(jnp.asarray(values), path, jnp.asarray(ts, dtype=float),
-                                jnp.asarray(n), jnp.asarray(y0.T), scale,
-                                jnp.asarray([solver.rtol, solver.atol], dtype=float))
+                                jnp.asarray(n), jnp.asarray(y0.T), scale)
     x = np.asarray(scaled)[:n] * np.asarray(scale[0])
     ok = bool(succeeded) and bool(np.all(np.isfinite(x)))
     return (x if ok else np.full(x.shape, np.nan)), ok

@@ -9,10 +9,9 @@ import pytest
 from scipy.linalg import expm
 
 from gpjax import Model, Symbols
-from gpjax._convergence import (LOOSEST_REFERENCE, MAX_SUBSTEPS, REFERENCE_FRACTION,
-                                Convergence, bandwidth_hz, check_model, fit_converged,
-                                initial_substeps, needed_substeps, next_substeps,
-                                reference_tolerance, stable_substeps)
+from gpjax._convergence import (MAX_SUBSTEPS, Convergence, bandwidth_hz, check_model,
+                                fit_converged, initial_substeps,
+                                needed_substeps, next_substeps, stable_substeps)
 from gpjax._data import Measurement
 
 S = Symbols("x", "t", ("u",))
@@ -76,9 +75,6 @@ def test_a_coarse_model_fails_the_check_and_a_fine_one_passes():
                                     tolerance=0.01)
     # the exact data: the residual is the integrator's error alone, so any step fails 1 %
     assert not coarse.converged and coarse.ratio > 0.5
-    # RK4's large residual asked for a loose reference; the reference's own residual, far
-    # smaller, for the solve again at the default tolerance
-    assert coarse.reference_tolerance == 1e-12
     assert np.max(np.abs(reference - record.response)) < 1e-9 * np.ptp(record.response)
     noisy = Measurement(time=record.time, response=record.response + np.random.default_rng(0)
                         .normal(0, 0.02 * np.std(record.response), record.n_samples),
@@ -86,41 +82,6 @@ def test_a_coarse_model_fails_the_check_and_a_fine_one_passes():
     fine, _ = check_model(_model("hold", initial_conditions=(0.01, -0.2), substeps=8), noisy,
                           tolerance=0.01)
     assert fine.converged and fine.ratio < 0.01
-
-
-def test_a_checks_reference_solve_is_as_accurate_as_the_check_resolves():
-    """The reference of a check is asked for REFERENCE_FRACTION of the difference the check
-    resolves (tolerance x RMS residual / spread): on a noisy band-limited record it crosses
-    the input's knots at that looser tolerance, and its check reads as the default solve's;
-    the tolerance is an argument of the compiled solve, not a new program."""
-    from gpjax import _aot
-    from gpjax._reference import ReferenceSolver, reference_response
-
-    assert reference_tolerance(0.0, 1.0, 0.01) == 1e-12  # exact data: the default
-    assert reference_tolerance(math.nan, 1.0, 0.01) == 1e-12
-    assert reference_tolerance(1.0, 0.0, 0.01) == 1e-12
-    assert reference_tolerance(10.0, 1.0, 0.01) == LOOSEST_REFERENCE
-    assert math.isclose(reference_tolerance(0.02, 1.0, 0.01), REFERENCE_FRACTION * 2e-4)
-    record = _held_record()
-    model = _model("bandlimited", initial_conditions=(0.01, -0.2), substeps=4)
-    truth = model.simulate(record, initial_conditions=(0.01, -0.2))  # 1 % noise on it
-    noisy = Measurement(time=record.time, response=truth + np.random.default_rng(1).normal(
-        0, 0.01 * np.std(truth), record.n_samples), inputs=record.inputs, time_name="t",
-        response_name="x")
-    loose, _ = check_model(model, noisy, tolerance=0.01)
-    assert 1e-9 <= loose.reference_tolerance < 1e-6  # steps across the knots
-    assert not ReferenceSolver(rtol=loose.reference_tolerance,
-                               atol=loose.reference_tolerance).steps_on_knots
-    tight_response = model.simulate(noisy, initial_conditions=(0.01, -0.2))
-    tight, _ = check_model(model, noisy, tolerance=0.01, reference=tight_response,
-                           reference_at=1e-12)
-    assert abs(loose.ratio - tight.ratio) < 0.01 * loose.tolerance, (loose, tight)
-    assert math.isclose(loose.rms_reference, tight.rms_reference, rel_tol=1e-4)
-    executables = _aot._LEDGER[1]
-    for tolerance in (1e-7, 1e-8):
-        reference_response(model, noisy.time, noisy.inputs, [(0.01, -0.2)],
-                           solver=ReferenceSolver(rtol=tolerance, atol=tolerance))
-    assert _aot._LEDGER[1] == executables  # the check's loose solve compiled it
 
 
 def test_the_step_count_is_measured_where_the_fourth_order_law_does_not_hold_yet():

@@ -258,9 +258,9 @@ def test_a_systems_width_check_is_one_coordinates_check():
     assert 0 < check.ratio < np.inf and 0 < check.next_ratio < np.inf
     assert check.converged == (check.ratio < 0.01)
     weights = coordinate_weights(measurement.responses)
-    own = np.reshape(fit.reference, measurement.responses.shape)  # as the check solved it
-    sharper = np.reshape(sharpened(model, 4).simulate(
-        measurement, initial_conditions=model.initial_states), measurement.responses.shape)
+    own, sharper = (np.reshape(m.simulate(measurement, initial_conditions=model.initial_states),
+                               measurement.responses.shape)
+                    for m in (model, sharpened(model, 4)))
     change = np.sqrt(np.mean(((sharper - own) * weights) ** 2))
     assert check.ratio == pytest.approx(change / fit.checks[0].rms_reference, rel=1e-6)
     plain = [e.replace(state={f: v for f, v in e.state.items() if not f.has(sp.tanh)})
