@@ -352,9 +352,14 @@ class Model:
         """An RK4 evaluator on ``measurement`` whose basis holds this model's features
         (``substeps`` default: the model's; ``options``: :class:`PopulationEvaluator`'s; for
         a system, ``kinds`` are bank kinds it holds beside the model's own: a search's,
-        so that refits of its structures share the compiled programs)."""
+        so that refits of its structures share the compiled programs). Its forcing basis
+        starts with room for the model's own forcing features (the next power of two), not
+        a search's."""
+        forcing = {f for c in self.system for f in c.forcing}
         settings = dict(substeps=substeps or self.substeps,
-                        input_interpolation=self.input_interpolation)
+                        input_interpolation=self.input_interpolation,
+                        forcing_capacity=options.pop("forcing_capacity",
+                                                     1 << max(0, len(forcing) - 1).bit_length()))
         if self.n_coordinates == 1:
             degree, extra, families = split_state_features(self.coefficients.state,
                                                            self.symbols)
