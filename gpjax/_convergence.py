@@ -23,6 +23,20 @@ of the model against the data. Otherwise the step count grows and the model is r
   cores with held or linear inputs and ~200 µs with band-limited ones, whose steps end on
   the spline's knots (linear in the samples), and the ODE a model names is the same on any stretch of
   the record.
+* **Estimate on the way** (``estimate="doubling"``): a rung of the ladder that fails only
+  says how many steps to try next, and the checks of a diagnosis's rounds only choose the
+  steps its candidates are fitted at; none of them is reported. Their reference is RK4 at
+  twice the steps, extrapolated (Richardson: RK4's global error at h is, to leading order,
+  16/15 of the difference between its responses at h and h/2), a fraction of the Dopri8
+  solve's cost on a band-limited record, whose steps end on the spline's 16 knots per
+  sample (Silverbox's estimation part: 1.4 s against 12 s). That holds where RK4 is in its
+  h⁴ regime, so an estimate that passes is confirmed against the Dopri8 reference, which
+  then decides (:func:`fit_converged`'s ``confirm``; the diagnosis's rounds take the
+  estimate), and a rung that ends the ladder at its cap is checked against the reference
+  too: the check a model reports is always the reference's. Where a failed reference solve
+  ends the ladder (``unsolved_ends``), a failing estimate is checked against the reference
+  as well, as only it can say that it fails (a model that blows up can have RK4 responses
+  at h and h/2 that agree).
 * **Growth** (:func:`needed_substeps`): RK4's global error falls as h⁴, so a measured
   ratio r at s substeps needs s·(r / (tolerance/2))^(1/4) — half the tolerance as margin
   (:func:`next_substeps`). That law holds only once the steps resolve the model's
@@ -72,6 +86,8 @@ class Convergence:
         samples: the samples compared (the record's first, at most :data:`CHECK_SAMPLES`).
         stable_substeps: the fewest steps per sample at which RK4 is stable on the model
             along the record (:func:`stable_substeps`); fewer do not converge.
+        estimate: what the reference response was: ``"reference"`` the Dopri8 solve,
+            ``"doubling"`` RK4 at twice the steps, Richardson-extrapolated.
     """
 
     substeps: int
@@ -82,6 +98,7 @@ class Convergence:
     tolerance: float
     samples: int = 0
     stable_substeps: int = 1
+    estimate: str = "reference"
 
     @property
     def converged(self) -> bool:
@@ -96,7 +113,9 @@ def check_line(check: dict) -> str:
     stable = check.get("stable_substeps", 1)
     unstable = (f"; RK4 is stable from {stable} steps per sample on"
                 if check["substeps"] < stable else "")
-    return (f"RMS by the reference solve (diffrax Dopri8) {check['rms_reference']:.4g}; RK4 at "
+    by = ("RK4 at twice the steps, extrapolated" if check.get("estimate") == "doubling"
+          else "the reference solve (diffrax Dopri8)")
+    return (f"RMS by {by} {check['rms_reference']:.4g}; RK4 at "
             f"{check['substeps']} step(s) per sample differs by {check['ratio']:.2%} of it"
             f"{unstable} ({'converged' if check['converged'] else 'NOT converged'}, tolerance "
             f"{check['tolerance']:.0%})")
@@ -195,14 +214,16 @@ def needed_substeps(model, measurement: Measurement, check: Convergence,
     """RK4 steps per sample at which ``model`` itself (constants unchanged) passes the
     check of a failed ``check`` with half its tolerance as margin, measured (module
     docstring): :func:`next_substeps` of the last trial until one passes or the steps
-    reach :data:`MAX_SUBSTEPS`. ``reference``: the reference response that ``check``
-    solved (:func:`check_model`), which no step count changes, so it is not solved
-    again."""
+    reach :data:`MAX_SUBSTEPS`, each trial estimated as ``check`` was. ``reference``: the
+    Dopri8 response that ``check`` solved (:func:`check_model`), which no step count
+    changes, so it is not solved again (a doubling estimate is made anew per count)."""
     steps = next_substeps(check)
+    doubling = check.estimate == "doubling"  # its reference belongs to one step count
     while steps < MAX_SUBSTEPS:
         trial, reference = check_model(dataclasses.replace(model, substeps=steps),
                                        measurement, tolerance=check.tolerance,
-                                       reference=reference, stable=check.stable_substeps)
+                                       reference=None if doubling else reference,
+                                       stable=check.stable_substeps, estimate=check.estimate)
         if trial.ratio < 0.5 * check.tolerance and trial.converged:
             break
         steps = next_substeps(trial)
@@ -220,8 +241,8 @@ def coordinate_weights(measured: np.ndarray):
 
 
 def check_model(model, measurement: Measurement, *, tolerance: float,
-                reference: np.ndarray | None = None,
-                stable: int | None = None) -> tuple[Convergence, np.ndarray]:
+                reference: np.ndarray | None = None, stable: int | None = None,
+                estimate: str = "reference") -> tuple[Convergence, np.ndarray]:
     """Simulate ``model`` (its fitted initial state, its ``substeps``) by RK4 and by the
     reference solve over the first :data:`CHECK_SAMPLES` samples at most, and compare
     them: (:class:`Convergence`, the reference response on those samples, NaN if that
@@ -229,11 +250,21 @@ def check_model(model, measurement: Measurement, *, tolerance: float,
     by s_1/s_d as in the objective, so the figures are in the first response's units.
     ``reference``: that response from an earlier check of the same model (constants and
     initial state), which the step count does not change; solved when ``None``; likewise
-    ``stable``, its :func:`stable_substeps`."""
+    ``stable``, its :func:`stable_substeps`. ``estimate="doubling"``: the reference is RK4
+    at twice the steps, Richardson-extrapolated (module docstring), not the Dopri8 solve.
+
+    Raises:
+        ValueError: an unknown ``estimate``."""
+    if estimate not in ("reference", "doubling"):
+        raise ValueError(f"estimate must be 'reference' or 'doubling', got {estimate!r}")
     measurement = measurement.segment(0, min(measurement.n_samples, CHECK_SAMPLES))
     y0 = model.initial_states
     rk4 = model.simulate(measurement, initial_conditions=y0, solver="rk4")
-    if reference is None:
+    if reference is None and estimate == "doubling":
+        finer = dataclasses.replace(model, substeps=2 * model.substeps).simulate(
+            measurement, initial_conditions=y0, solver="rk4")
+        reference = finer + (finer - rk4) / 15.0  # RK4: error(h) ≈ 16·error(h/2)
+    elif reference is None:
         reference = model.simulate(measurement, initial_conditions=y0)
     ok = bool(np.all(np.isfinite(reference)))
     if stable is None:
@@ -245,21 +276,26 @@ def check_model(model, measurement: Measurement, *, tolerance: float,
     rms_rk4 = float(np.sqrt(np.mean((measured - rk4) ** 2)))
     if not ok:
         return Convergence(model.substeps, rms_rk4, math.inf, math.inf, math.inf,
-                           tolerance, measurement.n_samples, stable), returned
+                           tolerance, measurement.n_samples, stable, estimate), returned
     rms_reference = float(np.sqrt(np.mean((measured - reference) ** 2)))
     difference = float(np.sqrt(np.mean((rk4 - reference) ** 2)))
     ratio = difference / rms_reference if rms_reference > 0 else (0.0 if difference == 0
                                                                   else math.inf)
     return Convergence(model.substeps, rms_rk4, rms_reference, difference, ratio,
-                       tolerance, measurement.n_samples, stable), returned
+                       tolerance, measurement.n_samples, stable, estimate), returned
 
 
 def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int | None,
-                  tolerance: float, first: int | None = None, unsolved_ends: bool = False):
+                  tolerance: float, first: int | None = None, unsolved_ends: bool = False,
+                  confirm: bool = True):
     """(model, checks, reference): ``fit_at(steps, previous)`` (``previous``: the last fit,
-    ``None`` at first) at the record's initial step count (or ``first``), checked against the
-    reference solve and fitted again at :func:`needed_substeps` until the check passes or the
-    steps reach :data:`MAX_SUBSTEPS`; with ``substeps`` given, that count, checked once.
+    ``None`` at first) at the record's initial step count (or ``first``), checked, and fitted
+    again at :func:`needed_substeps` until the check passes or the steps reach
+    :data:`MAX_SUBSTEPS`; with ``substeps`` given, that count, checked once. A rung is
+    checked by the doubling estimate first; one that it passes, and the last, against the
+    Dopri8 reference solve, whose check then stands (module docstring). ``confirm=False``
+    (a diagnosis's rounds, whose checks choose steps and are not reported): an estimate
+    that passes stands.
     ``fit_at`` returning ``None`` is a failed fit: the last model, its checks and reference
     are returned as they stand (``None`` and no checks where the first fit failed).
     ``unsolved_ends``: a check whose reference solve failed (ratio not finite) ends the
@@ -275,9 +311,16 @@ def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int |
         if fitted is None:
             return model, checks, reference
         model = fitted
-        check, reference = check_model(model, measurement, tolerance=tolerance)
+        ends = bool(substeps) or steps >= MAX_SUBSTEPS
+        check = None
+        if not (ends and confirm):
+            check, reference = check_model(model, measurement, tolerance=tolerance,
+                                           estimate="doubling")
+        if (check is None or (confirm and check.converged)
+                or (unsolved_ends and not check.converged)):
+            check, reference = check_model(model, measurement, tolerance=tolerance)
         checks.append(check)
-        if (substeps or check.converged or steps >= MAX_SUBSTEPS
+        if (ends or check.converged
                 or (unsolved_ends and not math.isfinite(check.ratio))):
             return model, checks, reference
         steps = needed_substeps(model, measurement, check, reference)

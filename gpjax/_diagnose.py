@@ -58,7 +58,11 @@ Before each round's test the current model's integration is converged (``substep
 "auto": the check of :mod:`gpjax._convergence` on the current fit, or on the starting
 structure's weak-form fit in the first round, before anything is compiled): an RK4 error
 of a fraction of the noise is a systematic residual that a flexible term absorbs and then
-really predicts better. Inputs reduced to their lines are simulated band-limited unless an
+really predicts better. These checks only choose the steps a round fits at: one that RK4's
+step-doubling estimate of its own error passes ends there, one that it fails is made against
+the Dopri8 reference, which alone can say that a model does not integrate
+(:mod:`gpjax._convergence`); the reported model's check, after the whole-record refit, is
+always against the reference. Inputs reduced to their lines are simulated band-limited unless an
 interpolation is given: a sum of lines is exact between samples that way, where linear
 interpolation leaves a systematic force error near the resonance (several σ on a stiff
 case).
@@ -370,7 +374,7 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
                                    problem)  # the equation-error fit is converged
 
             fit_converged(fit_at, problem.train, substeps=None, first=substeps,
-                          tolerance=convergence_tolerance, unsolved_ends=True)
+                          tolerance=convergence_tolerance, unsolved_ends=True, confirm=False)
             substeps = problem.substeps
         also = f" and {len(pairs)} pair(s)" if pairs else ""
         _progress.stage(f"diagnosis: step {round_number + 1}: fitting {len(candidates)} "

@@ -54,9 +54,10 @@ class Identifier:
     ``timings_`` (seconds: ``total_s``, ``compile_s``, ``selection_s`` the final model
     selection, ``convergence_s``, ``intervals_s`` the standard errors and residual
     statistics (a system's ``convergence_s`` holds them), ``writing_s``; ``compiles``,
-    ``generations``), and ``convergence_``:
-    each check of the reported model's RK4 integration against the reference solve
-    (:class:`~gpjax._convergence.Convergence`), the last one passed unless a fixed
+    ``generations``), and ``convergence_``: each check of the reported model's RK4
+    integration (:class:`~gpjax._convergence.Convergence`; its ``estimate`` says whether
+    against the reference solve or, on a failed rung of the step ladder, RK4's
+    step-doubling estimate), the last one the reference's and passed unless a fixed
     ``substeps`` was too coarse (then a warning says so); the model's smoothed-sign width
     check (:mod:`gpjax._sign_width`) is ``model_.convergence["sign_width"]``.
     """

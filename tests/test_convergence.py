@@ -84,6 +84,23 @@ def test_a_coarse_model_fails_the_check_and_a_fine_one_passes():
     assert fine.converged and fine.ratio < 0.01
 
 
+def test_the_doubling_estimate_measures_rk4s_error_as_the_reference_does():
+    """Richardson: 16/15 of RK4's change from h to h/2 is its error at h, to leading order,
+    so the estimate's ratio is the Dopri8 check's where RK4 is in its h⁴ regime."""
+    record = _held_record()
+    noisy = Measurement(time=record.time, response=record.response + np.random.default_rng(0)
+                        .normal(0, 0.02 * np.std(record.response), record.n_samples),
+                        inputs=record.inputs, time_name="t", response_name="x")
+    for steps in (2, 4):
+        model = _model("linear", initial_conditions=(0.01, -0.2), substeps=steps)
+        exact, _ = check_model(model, noisy, tolerance=0.01)
+        estimated, _ = check_model(model, noisy, tolerance=0.01, estimate="doubling")
+        assert exact.estimate == "reference" and estimated.estimate == "doubling"
+        assert abs(estimated.ratio / exact.ratio - 1) < 0.1, (steps, estimated, exact)
+    with pytest.raises(ValueError, match="estimate"):
+        check_model(model, noisy, tolerance=0.01, estimate="halving")
+
+
 def test_the_step_count_is_measured_where_the_fourth_order_law_does_not_hold_yet():
     """A sharp smoothed sign (tanh(200·x')): the h⁴ law from the check at one step asks for
     2 steps, which still fail; the measured count passes with half the tolerance."""
@@ -175,7 +192,19 @@ def test_the_fit_ladder_refits_until_the_check_passes_and_stops_on_a_failed_fit(
     model, checks, reference = fit_converged(fit_at, noisy, substeps=None, tolerance=0.01,
                                              first=1)
     assert [c.converged for c in checks] == [False] * (len(checks) - 1) + [True]
+    # the failing rungs by the doubling estimate, the one that passes by the reference
+    assert [c.estimate for c in checks] == ["doubling"] * (len(checks) - 1) + ["reference"]
     assert asked[0] == (1, False) and all(again for _, again in asked[1:])
+    # unconfirmed, the passing estimate stands; with unsolved_ends the failing rungs are
+    # the reference's; the ladder is the same
+    del asked[:]
+    _, unconfirmed, _ = fit_converged(fit_at, noisy, substeps=None, tolerance=0.01, first=1,
+                                      confirm=False, unsolved_ends=True)
+    assert [c.substeps for c in unconfirmed] == [c.substeps for c in checks]
+    assert [c.estimate for c in unconfirmed] == ["reference"] * (len(checks) - 1) + ["doubling"]
+    passing, _, _ = fit_converged(fit_at, noisy, substeps=None, tolerance=0.01,
+                                  first=checks[-1].substeps, confirm=False)
+    assert len(asked) == len(checks) + 1 and passing.substeps == checks[-1].substeps
     assert model.substeps == checks[-1].substeps > 1 and reference.shape == (noisy.n_samples,)
 
     failing = iter([_model("hold", initial_conditions=(0.01, -0.2), substeps=1), None])
@@ -196,6 +225,8 @@ def test_the_fit_ladder_refits_until_the_check_passes_and_stops_on_a_failed_fit(
 
         _, checks, _ = fit_converged(fit_unsolved, noisy, substeps=None, tolerance=0.01,
                                      first=1, unsolved_ends=ends)
-        assert not math.isfinite(checks[0].ratio)
+        # the reference cannot integrate it (its RK4 responses at h and h/2 agree, on a
+        # response 1e16 large, but not at a stable step): the last check is the reference's
+        assert not math.isfinite(checks[-1].ratio) and checks[-1].estimate == "reference"
         ladders[ends] = steps_asked
     assert ladders[True] == [1] and ladders[False][-1] == MAX_SUBSTEPS
