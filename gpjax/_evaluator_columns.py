@@ -123,7 +123,7 @@ class Columns:
                 raise ValueError(f"forcing feature {feature} is not finite on the data")
             column = self._forcing_index[feature] = len(self._forcing_features)
             self._forcing_features.append(feature)
-            capacity = _capacity(column + 1, self._first_forcing_capacity)
+            capacity = grown_capacity(column + 1, self._first_forcing_capacity)
             if capacity > self.forcing_capacity:  # a wider basis: the old columns copied once
                 basis = np.zeros((self.stage_times.size, capacity))
                 basis[:, :column] = self._forcing_basis[:, :column]
@@ -238,7 +238,7 @@ class Columns:
         return np.broadcast_to(np.asarray(values, dtype=np.float64), times.shape).copy()
 
 
-def _capacity(count: int, first: int) -> int:
+def grown_capacity(count: int, first: int) -> int:
     """Forcing columns for ``count`` features: ``first``, doubled as often as needed."""
     capacity = max(1, first)
     while capacity < count:

@@ -29,6 +29,7 @@ from ._coefficients import Coefficients, Population, to_population, to_system_po
 from ._data import Measurement
 from ._errors import ModelFileError
 from ._evaluator import PopulationEvaluator, split_state_features
+from ._evaluator_columns import grown_capacity
 from ._expressions import parse_expression
 from ._objective import default_n_bins
 from ._reference import reference_response
@@ -359,7 +360,7 @@ class Model:
         settings = dict(substeps=substeps or self.substeps,
                         input_interpolation=self.input_interpolation,
                         forcing_capacity=options.pop("forcing_capacity",
-                                                     1 << max(0, len(forcing) - 1).bit_length()))
+                                                     grown_capacity(len(forcing), 1)))
         if self.n_coordinates == 1:
             degree, extra, families = split_state_features(self.coefficients.state,
                                                            self.symbols)
