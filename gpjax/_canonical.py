@@ -65,6 +65,20 @@ class Symbols:
         return {self.response, f"{self.response}_dot", f"{self.response}_ddot", self.time,
                 *self.inputs}
 
+    #: No reading of unary nodes in the ring (:func:`expanded_tree`): sympy's functions.
+    read_unary = None
+
+    @property
+    def generators(self) -> tuple[sp.Symbol, ...]:
+        """The polynomial generators of a tree's expansion (:func:`expanded_tree`)."""
+        return (self.x, self.x_dot, self.x_ddot, self.t, *self.u)
+
+    @property
+    def leaves(self) -> tuple[tuple[tuple, int], ...]:
+        """(terminal node, index into :attr:`generators`) of every variable terminal."""
+        return ((("x",), 0), (("x_dot",), 1), (("x_ddot",), 2), (("t",), 3),
+                *((("u", k), 4 + k) for k in range(len(self.inputs))))
+
 
 @dataclasses.dataclass(frozen=True)
 class CanonicalForm:
@@ -104,7 +118,7 @@ class StructureCheck:
 
 def tree_to_sympy(tree: Tree, symbols: Symbols, constants: dict[str, float]) -> sp.Expr:
     """The expression a tree denotes, expanded; named constants take their numeric values."""
-    return _as_expr(_expanded(tree, symbols, tuple(sorted(constants.items()))))
+    return _as_expr(expanded_tree(tree, symbols, tuple(sorted(constants.items()))))
 
 
 def check_tree(tree: Tree, symbols: Symbols, constants: dict[str, float], *,
@@ -118,7 +132,7 @@ def check_tree(tree: Tree, symbols: Symbols, constants: dict[str, float], *,
     Every subtree's result is cached (crossover and mutation reuse most of their parents'
     subtrees), so a new tree costs the work along its changed path.
     """
-    value = _expanded(tree, symbols, tuple(sorted(constants.items())))
+    value = expanded_tree(tree, symbols, tuple(sorted(constants.items())))
     if isinstance(value, sp.Expr):  # already expanded: not expanded again (idempotent)
         return _check_expanded(value, symbols, max_degree, bank, linear_inputs)
     terms = tuple((float(c), _monomial(symbols, exponents)) for exponents, c in value.terms())
@@ -126,26 +140,39 @@ def check_tree(tree: Tree, symbols: Symbols, constants: dict[str, float], *,
 
 
 @lru_cache(maxsize=64)
-def _ring(symbols: Symbols):
-    return sp.ring((symbols.x, symbols.x_dot, symbols.x_ddot, symbols.t, *symbols.u), sp.RR)
+def _ring(symbols):
+    """(ring, {terminal node: its generator}) of ``symbols`` (:func:`expanded_tree`)."""
+    ring, *generators = sp.ring(symbols.generators, sp.RR)
+    return ring, {node: generators[index] for node, index in symbols.leaves}
 
 
 @lru_cache(maxsize=100_000)
 def _monomial(symbols: Symbols, exponents: tuple[int, ...]) -> sp.Expr:
-    generators = (symbols.x, symbols.x_dot, symbols.x_ddot, symbols.t, *symbols.u)
-    return sp.Mul(*(g ** e for g, e in zip(generators, exponents) if e))
+    return sp.Mul(*(g ** e for g, e in zip(symbols.generators, exponents) if e))
 
 
 @lru_cache(maxsize=500_000)
-def _expanded(tree: Tree, symbols: Symbols, constants: tuple):
-    """A subtree as a ring polynomial (no division below it) or an expanded expression."""
-    ring, x, x_dot, x_ddot, t, *u = _ring(symbols)
+def expanded_tree(tree: Tree, symbols, constants: tuple = ()):
+    """A tree (or subtree) multiplied out: a polynomial of sympy's ``ring`` over the reals in
+    ``symbols.generators`` where no unary function or division lies below it, else an
+    expanded expression. ``symbols``: hashable, with ``generators`` (sympy symbols) and
+    ``leaves`` ((terminal node, generator index) pairs: :class:`Symbols`, or a system
+    equation's terminals) and ``read_unary``: ``None`` (sympy's functions) or
+    ``read_unary(head, argument, ring)``, a unary node of a polynomial argument as a
+    polynomial, or ``None`` where the tree has no valid reading (then so has the whole
+    tree); ``constants``: (name, value) pairs of named constants."""
+    ring, leaves = _ring(symbols)
     head = tree[0]
     if head in UNARY_NODES:
-        return _unary(head, _as_expr(_expanded(tree[1], symbols, constants)))
+        argument = expanded_tree(tree[1], symbols, constants)
+        if symbols.read_unary is not None:
+            return None if argument is None else symbols.read_unary(head, argument, ring)
+        return _unary(head, _as_expr(argument))
     if is_function(tree):
-        a = _expanded(tree[1], symbols, constants)
-        b = _expanded(tree[2], symbols, constants)
+        a = expanded_tree(tree[1], symbols, constants)
+        b = expanded_tree(tree[2], symbols, constants)
+        if a is None or b is None:
+            return None
         if head == "div":  # protected division
             if b == 0:
                 return ring.one
@@ -155,16 +182,8 @@ def _expanded(tree: Tree, symbols: Symbols, constants: tuple):
             if head == "mul":
                 return sp.expand(a * b)
         return a + b if head == "add" else a - b if head == "sub" else a * b
-    if head == "x":
-        return x
-    if head == "x_dot":
-        return x_dot
-    if head == "x_ddot":
-        return x_ddot
-    if head == "t":
-        return t
-    if head == "u":
-        return u[tree[1]]
+    if tree in leaves:
+        return leaves[tree]
     if head == "c":
         value = dict(constants)[tree[1]]
     elif head == "k":

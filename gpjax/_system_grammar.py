@@ -11,11 +11,13 @@ state variable up to ``max_degree``, a bank term of one, or a function of time a
 
 from __future__ import annotations
 
+import dataclasses
 from functools import lru_cache
 
 import numpy as np
 import sympy as sp
 
+from ._canonical import expanded_tree
 from ._data import Measurement
 from ._operators import Grammar
 from ._system_bank import (MAKERS, SYSTEM_FUNCTIONS, bank_feature, kinds_for, match_bank,
@@ -50,6 +52,9 @@ class Equations:
                     meaning[dv] = v - sp.Symbol(f"{other}_dot")
             self.tables.append(table)
             self.meaning.append(meaning)
+        #: Per equation, its terminals as polynomial generators (:func:`expanded_tree`).
+        self.terminals = [_Terminals.of(table, meaning, self.kinds, self.t, self.inputs, name)
+                          for table, meaning, name in zip(self.tables, self.meaning, names)]
         variables = system_variables(names)
         scales = np.ones(2 * len(names) ** 2) if scales is None else scales
         #: Per equation, the sign's θ of each of its variables.
@@ -112,54 +117,70 @@ class Equations:
         return state, list(self.inputs) + [sp.Integer(1)]
 
 
-#: A tree's unary functions as sympy functions.
-_UNARY = {"sign": sp.sign, "tanh": sp.tanh, "abs": sp.Abs, "sin": sp.sin, "cos": sp.cos}
+#: Per unary node: the bank kind it makes and its float64 value at a constant.
+_UNARY = {"sign": ("sign", np.sign), "tanh": ("sign", np.tanh), "abs": ("abs", np.abs),
+          "sin": ("sin", np.sin), "cos": ("cos", np.cos)}
 
 
-def _bank_placeholders(expression: sp.Expr, states) -> tuple | None:
-    """``expression`` with every function of one state variable s (sign(c·s),
-    tanh(c·s): the smoothed sign of s times sign(c); |c·s|; sin(±s), cos(±s)) replaced by
-    a placeholder symbol, and {placeholder: (kind, s)}; ``None`` where a function has
-    another argument."""
-    replacements, table = {}, {}
-    for atom in expression.atoms(*_UNARY.values()):
-        argument = atom.args[0]
-        if len(argument.free_symbols) != 1 or not argument.free_symbols <= states:
+@dataclasses.dataclass(frozen=True)
+class _Terminals:
+    """One equation's reading of a tree as a polynomial (:func:`gpjax._canonical.expanded_tree`)
+    in x_i'', the state variables s (x_i, d_ij, x_i', d_ij'), one placeholder per bank kind
+    and s, t and the inputs; ``leaves``: each terminal node's generator; ``bank``: per
+    placeholder (its generator, kind, its variable's generator)."""
+
+    generators: tuple[sp.Symbol, ...]
+    leaves: tuple[tuple[tuple, int], ...]
+    bank: tuple[tuple[int, str, int], ...]
+
+    @classmethod
+    def of(cls, table: dict, meaning: dict, kinds, t: sp.Symbol, inputs: tuple, name: str):
+        states = list(meaning)
+        placeholders = [(sp.Symbol(f"_{kind}_{s}"), kind, s) for kind in kinds for s in states]
+        generators = (table[f"{name}_ddot"], *states, *(p for p, _, _ in placeholders), t,
+                      *inputs)
+        index = {g: k for k, g in enumerate(generators)}
+        leaves = (*((("s", n), index[g]) for n, g in table.items()), (("t",), index[t]),
+                  *((("u", k), index[u]) for k, u in enumerate(inputs)))
+        return cls(generators, leaves,
+                   tuple((index[p], kind, index[s]) for p, kind, s in placeholders))
+
+    def read_unary(self, head: str, argument, ring):
+        """A unary node of the polynomial ``argument``: of a constant, its value; of c·s (s
+        a state variable), the bank's term — sign(c)·sign s for sign and tanh (the smoothed
+        sign), |c|·|s| for abs, ±sin s, cos s for c = ±1 — and sign(c·sign s) = sign(c)·sign s;
+        otherwise ``None`` (invalid)."""
+        kind, function = _UNARY[head]
+        if argument.is_ground:
+            with np.errstate(all="ignore"):
+                value = float(function(float(argument.LC)))
+            return ring.ground_new(sp.RR(value)) if np.isfinite(value) else None
+        if len(argument) != 1:
             return None
-        (s,) = argument.free_symbols
-        factor = sp.expand(argument / s)
-        if not factor.is_number or factor == 0:
+        ((exponents, c),) = argument.terms()
+        c = float(c)
+        if sum(exponents) != 1 or (kind in ("sin", "cos") and abs(c) != 1):
             return None
-        if isinstance(atom, (sp.sign, sp.tanh)):
-            kind, value = "sign", sp.sign(factor)
-        elif isinstance(atom, sp.Abs):
-            kind, value = "abs", abs(factor)
-        elif factor in (1, -1):
-            kind = "sin" if isinstance(atom, sp.sin) else "cos"
-            value = factor if kind == "sin" else 1
-        else:
+        position = exponents.index(1)
+        if head == "sign" and any(p == position and k == "sign" for p, k, _ in self.bank):
+            position = next(s for p, _, s in self.bank if p == position)  # sign(c·sign s)
+        placeholder = next((p for p, k, s in self.bank if k == kind and s == position), None)
+        if placeholder is None:
             return None
-        placeholder = sp.Symbol(f"_{kind}_{s}")
-        replacements[atom] = value * placeholder
-        table[placeholder] = (kind, s)
-    return expression.xreplace(replacements), table
+        factor = {"sign": np.sign(c), "abs": abs(c), "sin": c, "cos": 1.0}[kind]
+        return ring.gens[placeholder] * ring.ground_new(sp.RR(float(factor)))
 
 
 @lru_cache(maxsize=200_000)
 def _structure(equations: Equations, i: int, tree) -> tuple | None:
-    table, meaning = equations.tables[i], equations.meaning[i]
-    expression = sp.expand(_expression(tree, table, equations.inputs, equations.t))
-    ddot = table[f"{equations.names[i]}_ddot"]
-    states = list(meaning)
-    replaced = _bank_placeholders(expression, set(states))
-    if replaced is None:
+    terminals, meaning = equations.terminals[i], equations.meaning[i]
+    value = expanded_tree(tree, terminals)
+    if value is None:
         return None
-    expression, bank = sp.expand(replaced[0]), replaced[1]
-    generators = [ddot, *states, *bank, equations.t, *equations.inputs]
-    try:
-        terms = sp.Poly(expression, *generators).terms()
-    except sp.PolynomialError:
-        return None
+    generators, states = terminals.generators, set(meaning)
+    ddot = generators[0]
+    bank = {generators[p]: (kind, generators[s]) for p, kind, s in terminals.bank}
+    terms = value.terms()
     mass, state, forcing = 0.0, [], []
     for exponents, coefficient in terms:
         used = [g for g, e in zip(generators, exponents) if e]
@@ -190,19 +211,3 @@ def _structure(equations: Equations, i: int, tree) -> tuple | None:
     if mass == 0.0 or len(set(state)) < len(state):
         return None
     return tuple(sorted(state, key=str)), tuple(sorted(forcing, key=str))
-
-
-def _expression(tree, table, inputs, t):
-    head = tree[0]
-    if head in ("add", "sub", "mul"):
-        a, b = (_expression(c, table, inputs, t) for c in tree[1:])
-        return a + b if head == "add" else a - b if head == "sub" else a * b
-    if head in _UNARY:
-        return _UNARY[head](_expression(tree[1], table, inputs, t))
-    if head == "s":
-        return table[tree[1]]
-    if head == "u":
-        return inputs[tree[1]]
-    if head == "t":
-        return t
-    return sp.Float(tree[-1])

@@ -114,6 +114,9 @@ def test_a_new_sign_scale_compiles_nothing():
     (("add", ("s", "x1_ddot"), ("tanh", ("mul", ("n", -3.0), ("s", "d_x1_x2_dot")))), "-sign"),
     (("add", ("s", "x1_ddot"), ("mul", ("s", "x1_dot"), ("abs", ("s", "x1_dot")))), "abs"),
     (("add", ("s", "x1_ddot"), ("sin", ("s", "x1"))), "sin"),
+    (("add", ("s", "x1_ddot"), ("sin", ("mul", ("n", -1.0), ("s", "x1")))), "sin"),
+    (("add", ("s", "x1_ddot"),
+      ("sign", ("mul", ("n", -2.0), ("sign", ("s", "d_x1_x2_dot"))))), "-sign"),
     (("add", ("s", "x1_ddot"), ("sin", ("mul", ("n", 2.0), ("s", "x1")))), None),
     (("add", ("s", "x1_ddot"), ("abs", ("s", "x1_dot"))), None),
     (("add", ("s", "x1_ddot"), ("mul", ("s", "x1"), ("sign", ("s", "x1_dot")))), None),
@@ -134,6 +137,15 @@ def test_structure_rules_read_bank_terms(tree, expected):
                "sin": sp.sin(X1)}[expected]
     assert state == (feature,) and forcing == ()
     assert equations.structure(0, equations.tree(0, state, forcing)) == found
+
+
+def test_a_function_of_a_constant_is_a_constant_force():
+    """sin(2) reads as a constant force; a constant beyond float64 makes no equation."""
+    equations = Equations(_record(duration=1.0), 3, functions=("add", "sub", "mul", "sin"))
+    assert equations.structure(0, ("add", ("s", "x1_ddot"), ("sin", ("n", 2.0)))) == (
+        (), (sp.Integer(1),))
+    huge = ("mul", ("n", 1e200), ("n", 1e200))
+    assert equations.structure(0, ("add", ("s", "x1_ddot"), ("sin", huge))) is None
 
 
 def test_a_system_input_enters_linearly_unless_input_forcing_is_any():
