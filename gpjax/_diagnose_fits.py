@@ -23,6 +23,7 @@ from ._coefficients import Coefficients, Population, from_population, to_populat
 from ._data import Measurement
 from ._effects import Context, Terms
 from ._evaluator import OK, PopulationEvaluator, split_state_features
+from ._memory import check_fit_memory
 from ._model import Model
 from ._objective import amplitude_spectrum, default_n_bins
 from ._refine import Refiner
@@ -117,7 +118,12 @@ class FitProblem:
     """Data, split and settings shared by all fits of one diagnosis (``holdout`` = 0: fits
     on the whole record, with criterion 0; ``rate_band``: for drifting models, derivatives
     and weak-form windows sized by the wider of the response's band and its rate's, and
-    windows where the response is at rest left out (:func:`at_rest`))."""
+    windows where the response is at rest left out (:func:`at_rest`)).
+
+    Raises:
+        UserInputError: the fits' estimated memory at ``substeps`` exceeds what is available
+            (:func:`gpjax._memory.check_fit_memory`).
+    """
 
     def __init__(self, measurement: Measurement, symbols: Symbols, *, holdout: float,
                  iterations: int, substeps: int, batch: int,
@@ -154,6 +160,8 @@ class FitProblem:
         self.pool_lhs: tuple[sp.Expr, ...] = ()
         self.pool_forcing: tuple[sp.Expr, ...] = ()
         self.simulator: _Simulator | None = None
+        check_fit_memory(n_samples=measurement.n_samples, substeps=substeps, population=batch,
+                         stage="the diagnosis's fits")
 
     def context(self, structure: Structure, frequencies: tuple[float, ...]) -> Context:
         return Context(symbols=self.symbols, x=self.train.response, x_dot=self.train_x_dot,

@@ -16,6 +16,17 @@ what stays for the whole fit plus the larger of one evaluator call and one refin
   constants) and the Jacobian, N × Q, each held ``REFINER_COPIES`` times (stage slices,
   tangents, Levenberg–Marquardt's copies).
 
+A later stage of the same process (the diagnosis's fits, :class:`gpjax._diagnose_fits.FitProblem`)
+is checked when it starts, at its own substeps and batch, for :func:`fit_bytes` less
+``BASE_BYTES`` (which the process holds already), its simulator's evaluator arrays held
+beside its refiner's (a diagnosis keeps the current model's simulator through a round),
+against the memory then available. On the Silverbox estimation record at 10 steps per
+sample (``gpjax fit --diagnose``, the README's command): 1.36 GB (batch 5) on 0.97 GB
+resident when the rounds start (2.34 GB; their peak, another run's trace, 2.30 GB) and
+1.24 GB (batch 3) on 1.18 GB when the whole-record refit starts (2.42 GB; the process's
+peak, in that last stage, 2.40 GB): an estimate at the measured peak, not above it with a
+margin.
+
 A system of D coordinates holds the record's arrays and each call's D times (the forcing
 basis once). Against measured peaks of ``gpjax fit`` (population 500, 2,001 samples): a
 2-mass chain at 1 step per sample 903 MB estimated, 958 MB measured; a 3-mass chain at 3
@@ -44,16 +55,19 @@ RECORD_ARRAYS = 32
 BASE_BYTES = 700 * 2 ** 20
 
 
-def fit_bytes(*, n_samples: int, substeps: int, population: int, coordinates: int = 1) -> int:
+def fit_bytes(*, n_samples: int, substeps: int, population: int, coordinates: int = 1,
+              together: bool = False) -> int:
     """Estimated peak memory of a fit of ``coordinates`` responses, in bytes (see the
-    module docstring: every per-coordinate array is held once per coordinate)."""
+    module docstring: every per-coordinate array is held once per coordinate);
+    ``together``: an evaluator call's arrays held beside a refiner call's, not after it."""
     stages = 2 * (n_samples - 1) * substeps + 1
     batch = max(1, min(population, 512, STAGE_ELEMENTS_PER_CALL // stages))
     models = refine_batch(BATCH, n_samples=n_samples, substeps=substeps, max_free=MAX_FREE)
     held = 2 * stages * first_forcing_capacity(stages) + RECORD_ARRAYS * n_samples * coordinates
     evaluator = coordinates * (EVALUATOR_ARRAYS * stages * batch + n_samples * batch)
     refiner = coordinates * REFINER_COPIES * models * MAX_FREE * (stages + n_samples)
-    return BASE_BYTES + FLOAT_BYTES * (held + max(evaluator, refiner))
+    calls = evaluator + refiner if together else max(evaluator, refiner)
+    return BASE_BYTES + FLOAT_BYTES * (held + calls)
 
 
 def available_bytes() -> int:
@@ -70,10 +84,22 @@ def available_bytes() -> int:
 
 
 def check_fit_memory(*, n_samples: int, substeps: int, population: int,
-                     coordinates: int = 1) -> None:
-    """Raise :class:`UserInputError` if a fit's estimated need exceeds available memory."""
-    need, free = fit_bytes(n_samples=n_samples, substeps=substeps, population=population,
-                           coordinates=coordinates), available_bytes()
+                     coordinates: int = 1, stage: str | None = None) -> None:
+    """Raise :class:`UserInputError` if a fit's estimated need exceeds available memory.
+
+    ``stage``: the name of a later stage of a running process (the diagnosis's fits), whose
+    :data:`BASE_BYTES` the process already holds and the available memory already excludes:
+    only the rest of :func:`fit_bytes` is needed, at the stage's own substeps and batch, with
+    its simulator's arrays beside its refiner's (``together``)."""
+    need = fit_bytes(n_samples=n_samples, substeps=substeps, population=population,
+                     coordinates=coordinates, together=stage is not None) - (
+                         BASE_BYTES if stage else 0)
+    free = available_bytes()
+    if need > free and stage:
+        raise UserInputError(
+            f"not enough memory for {stage}: about {_gb(need)} more needed, {_gb(free)} "
+            f"available ({n_samples:,} samples at {substeps} RK4 steps each); shorten the "
+            "record")
     if need > free:
         raise UserInputError(
             f"this run needs about {_gb(need)} of memory but {_gb(free)} are available "

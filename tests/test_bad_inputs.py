@@ -714,3 +714,27 @@ def test_fit_beyond_available_memory_exits_2_and_writes_nothing(tmp_path, monkey
                     r"available .*; shorten the record, or lower population or substeps$",
                     err.rstrip("\n")), err
     assert _snapshot(tmp_path) == before and not (tmp_path / "run").exists()
+
+
+def test_the_diagnosis_checks_its_own_memory_before_its_fits(monkeypatch):
+    """A diagnosis's fits at their substeps are checked against the memory then available,
+    for the estimate less what the running process holds already."""
+    import gpjax
+    from gpjax import _memory
+    from gpjax._canonical import Symbols
+    from gpjax._diagnose_fits import FitProblem
+    from gpjax._errors import UserInputError
+
+    measurement = gpjax.load_csv(Path(gpjax.__file__).parent / "data" / "gear_example.csv",
+                                 time="t", response="phi", inputs=["T"])
+    need = _memory.fit_bytes(n_samples=measurement.n_samples, substeps=4,
+                             population=4, together=True) - _memory.BASE_BYTES
+    monkeypatch.setattr(_memory, "available_bytes", lambda: need - 1)
+    with pytest.raises(UserInputError, match=r"^not enough memory for the diagnosis's fits: "
+                       r"about [\d.]+ GB more needed, .*at 4 RK4 steps each\); shorten the "
+                       r"record$"):
+        FitProblem(measurement, Symbols("phi", "t", ("T",)), holdout=0.25, iterations=5,
+                   substeps=4, batch=4)
+    monkeypatch.setattr(_memory, "available_bytes", lambda: need)
+    FitProblem(measurement, Symbols("phi", "t", ("T",)), holdout=0.25, iterations=5,
+               substeps=4, batch=4)
