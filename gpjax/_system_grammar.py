@@ -122,7 +122,7 @@ _UNARY = {"sign": ("sign", np.sign), "tanh": ("sign", np.tanh), "abs": ("abs", n
           "sin": ("sin", np.sin), "cos": ("cos", np.cos)}
 
 
-@dataclasses.dataclass(frozen=True)
+@dataclasses.dataclass(frozen=True, eq=False)  # hashed by identity: a cache key per call
 class _Terminals:
     """One equation's reading of a tree as a polynomial (:func:`gpjax._canonical.expanded_tree`)
     in x_i'', the state variables s (x_i, d_ij, x_i', d_ij'), one placeholder per bank kind
