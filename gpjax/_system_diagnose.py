@@ -131,8 +131,9 @@ def input_noise_response(model: Model, measurement: Measurement
     simulated by RK4 at its step count with and without them from its fitted initial states,
     the mean square difference over the draws; and per coordinate the scaling of that
     response with the noise: its RMS over the first :data:`SCALING_DRAWS` draws against
-    the same draws halved (2 where it is proportional). Both empty where no input has a
-    floor or a response to a noisy input diverges."""
+    the same draws halved (2 where it is proportional, and where the noise does not move
+    it at all). Both empty where no input has a floor or a response to a noisy input
+    diverges."""
     sigmas = {name: input_noise_sigma(values, measurement.dt) or 0.0
               for name, values in measurement.inputs.items()}
     if not any(sigmas.values()):
@@ -155,8 +156,11 @@ def input_noise_response(model: Model, measurement: Measurement
     halved = np.array([square(noise, 0.5) for noise in draws[:SCALING_DRAWS]])
     if not (np.all(np.isfinite(squares)) and np.all(np.isfinite(halved))):
         return np.zeros(0), np.zeros(0)
-    scaling = np.sqrt(np.sum(squares[:SCALING_DRAWS], axis=0) / np.fmax(np.sum(halved, axis=0),
-                                                                       1e-300))
+    moved, moved_half = np.sum(squares[:SCALING_DRAWS], axis=0), np.sum(halved, axis=0)
+    # a response the noise does not move at all (a model without its inputs) is proportional
+    # to it, 0 = 2·0: its share is counted, as 0, not read as a chaotic response
+    scaling = np.where((moved == 0) & (moved_half == 0), 2.0,
+                       np.sqrt(moved / np.fmax(moved_half, 1e-300)))
     return np.sqrt(np.mean(squares, axis=0)), scaling
 
 

@@ -263,6 +263,29 @@ def test_a_response_the_input_noise_moves_chaotically_is_not_excused_by_it():
     assert "not a smooth function of its input" in summary_line("x", statistics)
 
 
+def test_a_model_without_its_input_is_not_read_as_a_chaotic_response():
+    """A model whose forcing lacks the input (a search that missed it): the input's noise
+    moves its response by 0, which is proportional (scaling 2), so the line counts a share
+    of 0 and does not call the response chaotic."""
+    import sympy as sp
+
+    from gpjax import Model
+    from gpjax._coefficients import Coefficients
+    from gpjax._synthetic import generate
+    from gpjax._system_diagnose import residual_statistics, summary_line
+    from gpjax.systems import get_system
+
+    record = generate(get_system("duffing"), seed=0, noise=0.01, input_noise=0.04).fit
+    x, v = sp.symbols("x x_dot")
+    model = Model.from_equations(("x",), "t", ("u",), [Coefficients(
+        1.0, {v: 2.0, x: 40.0}, {}, (0.0, 0.0))], substeps=2)
+    statistics = residual_statistics(model, record.measurement())["x"]
+    assert statistics["noise"]["input_sigma"] == 0.0
+    assert statistics["noise"]["input_scaling"] == 2.0
+    assert statistics["noise"]["ratio_with_input"] == statistics["noise"]["ratio"]
+    assert "not a smooth function of its input" not in summary_line("x", statistics)
+
+
 def test_the_console_script_is_main_without_the_last_collection(monkeypatch):
     """``gpjax`` and ``python -m gpjax`` return :func:`gpjax.cli.main`'s status and skip
     the interpreter's last garbage collection (``gc.freeze``: ~0.5 s of a warm demo);
