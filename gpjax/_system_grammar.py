@@ -17,7 +17,7 @@ from functools import lru_cache
 import numpy as np
 import sympy as sp
 
-from ._canonical import expanded_tree
+from ._canonical import FLOAT64_FUNCTIONS, expanded_tree
 from ._data import Measurement
 from ._operators import Grammar
 from ._system_bank import (MAKERS, SYSTEM_FUNCTIONS, bank_feature, kinds_for, match_bank,
@@ -117,9 +117,10 @@ class Equations:
         return state, list(self.inputs) + [sp.Integer(1)]
 
 
-#: Per unary node: the bank kind it makes and its float64 value at a constant.
-_UNARY = {"sign": ("sign", np.sign), "tanh": ("sign", np.tanh), "abs": ("abs", np.abs),
-          "sin": ("sin", np.sin), "cos": ("cos", np.cos)}
+#: Per unary node, the bank kind it makes (:data:`MAKERS` read the other way).
+_KIND_OF = {function: kind for kind, makers in MAKERS.items() for function in makers}
+#: Per unary node, its float64 value at a constant.
+_FLOAT64 = FLOAT64_FUNCTIONS | {"sign": np.sign, "abs": np.abs}
 
 
 @dataclasses.dataclass(frozen=True, eq=False)  # hashed by identity: a cache key per call
@@ -150,7 +151,7 @@ class _Terminals:
         a state variable), the bank's term — sign(c)·sign s for sign and tanh (the smoothed
         sign), |c|·|s| for abs, ±sin s, cos s for c = ±1 — and sign(c·sign s) = sign(c)·sign s;
         otherwise ``None`` (invalid)."""
-        kind, function = _UNARY[head]
+        kind, function = _KIND_OF[head], _FLOAT64[head]
         if argument.is_ground:
             with np.errstate(all="ignore"):
                 value = float(function(float(argument.LC)))
