@@ -29,11 +29,11 @@ INPUT_FORCINGS = ("linear", "any")
 #: The wide function set the README documents (friction, pendulums, saturation, stiffening).
 WIDE_FUNCTIONS = ("add", "sub", "mul", "sin", "abs", "sign", "tanh", "exp")
 #: Fields of one coordinate's grammar, not (yet) of the search over systems: a system's
-#: trees use the states and inputs, its constants come from least squares, its refinements
-#: take 20 steps, and its initial states are found. Its functions are those of
+#: trees use the states and inputs, its constants come from least squares, and its initial
+#: states are found. Its functions are those of
 #: :data:`gpjax._system_bank.SYSTEM_FUNCTIONS`.
 ONE_COORDINATE = ("variables", "named_constants", "interval_constants",
-                  "coefficients", "refine_iterations", "initial_conditions")
+                  "coefficients", "initial_conditions")
 
 
 @dataclasses.dataclass(frozen=True, kw_only=True)

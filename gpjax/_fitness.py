@@ -23,18 +23,11 @@ from ._data import Measurement
 from ._evaluator import INVALID_STRUCTURE, OK, PENALTY, PopulationEvaluator, Scores
 from ._features import INNER_GRID, SIGN_WIDTH, Family, families_for, match, smoothed_sign
 from ._memory import check_fit_memory
-from ._refine import BATCH, HORIZONS, WHOLE_RECORD, Refiner
+from ._refine import BATCH, HORIZONS, MAX_ROUNDS, WHOLE_RECORD, Refiner, until_converged
 from ._trees import Tree
 from ._weak_form import (WeakForm, least_squares, least_squares_residual, smoothed_derivatives,
                          smoothing_cutoff_hz)
 
-
-#: A refinement to convergence stops when a round of Levenberg–Marquardt steps lowers the
-#: objective by less than this fraction (a convergence check on the objective itself: the
-#: selection's tests compare models whose objectives differ by percents, :mod:`gpjax._select`).
-CONVERGED = 1e-3
-#: Rounds of ``refine_iterations`` steps a refinement to convergence takes at most.
-MAX_ROUNDS = 10
 
 
 @dataclasses.dataclass
@@ -372,22 +365,22 @@ class Fitness:
         """Refine the constants of ``records`` (in place) on the simulated response: one
         round of ``refine_iterations`` Levenberg–Marquardt steps from the least-squares
         start; with ``to_convergence`` further rounds, each from the last constants, until a
-        round lowers the objective by less than :data:`CONVERGED` (relative), at most
-        :data:`MAX_ROUNDS` rounds in all."""
+        round lowers the objective by less than :data:`gpjax._refine.CONVERGED` (relative),
+        at most :data:`gpjax._refine.MAX_ROUNDS` rounds in all
+        (:func:`gpjax._refine.until_converged`)."""
         self._refine_round([r for r in records if r.valid and not r.refined])
         if not to_convergence:
             return
         pending = [r for r in records if r.valid and r.status == OK and not r.converged]
-        for _ in range(MAX_ROUNDS - 1):
-            if not pending:
-                break
-            before = [r.objective for r in pending]
-            self._refine_round(pending)
-            for record, objective in zip(pending, before):
-                record.converged = record.objective > (1 - CONVERGED) * objective
-            pending = [r for r in pending if not r.converged]
+
+        def refine_round(active):
+            chosen = [pending[i] for i in active]
+            self._refine_round(chosen)
+            return [r.objective for r in chosen]
+
+        until_converged(refine_round, [r.objective for r in pending], rounds=MAX_ROUNDS - 1)
         for record in pending:
-            record.converged = True  # MAX_ROUNDS reached: not refined again
+            record.converged = True  # converged, or MAX_ROUNDS reached: not refined again
 
     def _refine_round(self, records: list[Record]) -> None:
         """One refinement of ``records`` from their current constants; a record keeps them

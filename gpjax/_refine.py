@@ -72,6 +72,51 @@ WHOLE_RECORD = (1.0,)
 #: neighbours one or two at a time, and a call padded to 8 models costs 2–3× one of 2
 #: (``benchmarks/call_cost.json``: 8,000 samples, the wide function set, 2 cores).
 SMALL_BATCH = 2
+#: A refinement to convergence stops when a round of Levenberg–Marquardt steps lowers the
+#: objective by less than this fraction (a convergence check on the objective itself: the
+#: selection's tests compare models whose objectives differ by percents, :mod:`gpjax._select`).
+CONVERGED = 1e-3
+#: Rounds of ``refine_iterations`` steps a refinement to convergence takes at most.
+MAX_ROUNDS = 10
+
+
+def until_converged(refine_round, objectives, *, rounds: int = MAX_ROUNDS) -> None:
+    """The convergence loop of every fit whose constants are reported or compared (a
+    search's selection, :func:`gpjax._refit.refit`, :func:`gpjax._system_fit.fit_system`):
+    rounds of refinement while a round lowers a model's objective by at least
+    :data:`CONVERGED` (relative), at most ``rounds``. ``refine_round(active)`` refines the
+    models at the indices ``active`` once from their current constants (a model keeps them
+    where the refined ones do not score lower) and returns their objectives;
+    ``objectives``: every model's objective before the first round."""
+    before = np.asarray(objectives, dtype=float).copy()
+    active = np.arange(before.size)
+    for _ in range(rounds):
+        if not active.size:
+            return
+        after = np.asarray(refine_round(active), dtype=float)
+        falling = ~(after > (1 - CONVERGED) * before[active])
+        before[active] = after
+        active = active[falling]
+
+
+def refined_to_convergence(refiner: Refiner, population: Population,
+                           fixed_forcing: np.ndarray, score, *, ties=None
+                           ) -> tuple[Population, float]:
+    """One model (``population`` of one) refined by ``refiner`` in rounds until converged
+    (:func:`until_converged`), keeping the constants of its best round. ``score(population)
+    -> (1,)`` objectives; ``fixed_forcing``, ``ties`` as :meth:`Refiner.refine` takes them.
+    Returns (population, objective)."""
+    best = [population, float(np.asarray(score(population))[0])]
+
+    def refine_round(active):
+        refined = refiner.refine(best[0], fixed_forcing, ties=ties).population
+        objective = float(np.asarray(score(refined))[0])
+        if objective < best[1]:
+            best[:] = [refined, objective]
+        return [best[1]]
+
+    until_converged(refine_round, [best[1]])
+    return best[0], best[1]
 
 
 def refit_horizons(near: bool) -> tuple[float, ...]:

@@ -17,9 +17,8 @@ import numpy as np
 from ._coefficients import from_population
 from ._data import Measurement
 from ._convergence import fit_converged
-from ._fitness import CONVERGED, MAX_ROUNDS
 from ._model import Model, _check_inputs, fitted_initial_state
-from ._refine import Refiner, free_width, refit_horizons
+from ._refine import Refiner, free_width, refined_to_convergence, refit_horizons
 from ._uncertainty import model_names, uncertainty_of
 from ._weak_form import estimate_initial_conditions
 
@@ -34,7 +33,7 @@ def refit(model: Model, measurement: Measurement, *, iterations: int = 20,
             1; else the mass stays as given).
         measurement: one response and the model's inputs.
         iterations: Levenberg–Marquardt steps per round (rounds repeat while the objective
-            falls by more than 0.1 %, at most 10).
+            falls by more than 0.1 %, at most 10: :func:`gpjax._refine.until_converged`).
         tolerance: the converged-integration check's tolerance (fraction of the RMS
             residual).
         substeps: a fixed RK4 step count (checked once) instead of growing it.
@@ -66,16 +65,8 @@ def refit(model: Model, measurement: Measurement, *, iterations: int = 20,
         free = evaluator.layout.width  # every column a width may need, rounded up below
         refiner = Refiner(evaluator, iterations=iterations, batch=1, max_free=free_width(free),
                           horizons=refit_horizons(previous is not None))
-        best = float(evaluator.score(population).objective[0])
-        for _ in range(MAX_ROUNDS):
-            refined = refiner.refine(population, fixed).population
-            objective = float(evaluator.score(refined).objective[0])
-            if not objective < best:
-                break
-            population, falling = refined, objective < (1 - CONVERGED) * best
-            best = objective
-            if not falling:
-                break
+        population, best = refined_to_convergence(
+            refiner, population, fixed, lambda p: evaluator.score(p).objective)
         coefficients = from_population(population, evaluator, [current.coefficients])[0]
         fitted = Model.from_coefficients(
             model.symbols, coefficients, input_interpolation=model.input_interpolation,

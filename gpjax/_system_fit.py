@@ -8,7 +8,9 @@ one-coordinate search does for one structure: weak-form equation-error least squ
 equation (:mod:`gpjax._weak_form`'s test functions; no second derivative of the data),
 then output-error Levenberg–Marquardt on the simulated responses of all coordinates
 together — every constant and every initial state (:class:`gpjax._refine.Refiner` on a
-system evaluator) — at converged integration: the refitted system is simulated by RK4 and
+system evaluator, in rounds of ``GPConfig.refine_iterations`` steps until a round lowers the
+objective by less than 0.1 %: the one coordinate's convergence loop,
+:func:`gpjax._refine.until_converged`) — at converged integration: the refitted system is simulated by RK4 and
 by the reference solve (:func:`gpjax._reference.reference_response`), and the step
 count grows until they agree (:mod:`gpjax._convergence`).
 
@@ -32,7 +34,8 @@ from ._data import Measurement
 from ._diagnose_fits import blocked_cv_residual
 from ._evaluator import Scores
 from ._model import Model
-from ._refine import Refiner, free_width, refit_horizons
+from ._config import GPConfig
+from ._refine import Refiner, free_width, refined_to_convergence, refit_horizons
 from ._uncertainty import Uncertainty, model_names, uncertainty_of
 from ._system_couplings import couple, coupled_least_squares, fixed_columns, tie_columns
 from ._weak_form import (WeakForm, design, least_squares_residual, scaled_lstsq,
@@ -114,14 +117,15 @@ class SystemFit:
 
 
 def fit_system(measurement: Measurement, structure: Structure, *, max_degree: int = 3,
-               input_interpolation: str = "linear", iterations: int = 30,
+               input_interpolation: str = "linear",
+               iterations: int = GPConfig.refine_iterations,
                start: list[Coefficients] | None = None, tolerance: float = 0.01,
                substeps: int | None = None, third_law: bool = False,
                first_substeps: int | None = None, kinds: tuple[str, ...] = (),
                carried: bool = False) -> SystemFit:
     """Constants and initial states of a system ``structure`` on ``measurement``
     (module docstring): weak-form start (or ``start``), Levenberg–Marquardt on all
-    coordinates at once, repeated at a finer step until the RK4 and reference responses
+    coordinates at once (rounds of ``iterations`` steps until converged), repeated at a finer step until the RK4 and reference responses
     differ by less than ``tolerance`` of the RMS residual (``substeps`` given: that step
     count, checked once; ``first_substeps``: the step count the ladder starts from, e.g. a
     similar system's converged one; ``kinds``: the bank kinds its evaluators hold beside
@@ -177,7 +181,8 @@ def _refit(measurement, structure, start, steps, max_degree, interpolation, iter
     refiner = Refiner(evaluator, iterations=iterations, max_free=free_width(free), batch=1,
                       horizons=horizons)
     tied = [tie_columns(ties, evaluator)]
-    refined = refiner.refine(population, fixed, ties=tied).population
+    refined, _ = refined_to_convergence(refiner, population, fixed,
+                                        lambda p: evaluator.score(p).objective, ties=tied)
     equations = from_system_population(refined, evaluator, [start])[0]
     scores = evaluator.score(to_system_population([equations], evaluator))
     if not math.isfinite(float(scores.objective[0])):

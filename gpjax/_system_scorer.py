@@ -33,9 +33,10 @@ class SystemScorer:
     """Objective of systems by structure, with least-squares and refined constants cached."""
 
     def __init__(self, weak: WeakForm, equations: Equations,
-                 evaluator: PopulationEvaluator, *, batch: int):
+                 evaluator: PopulationEvaluator, *, batch: int, iterations: int):
         self.equations, self.evaluator, self.weak = equations, evaluator, weak
         self.batch = max(1, batch)  # systems per compiled refinement call
+        self.iterations = iterations  # Levenberg–Marquardt steps per horizon of a refinement
         self.objective: dict[tuple, float] = {}
         self.refined: dict[tuple, list[Coefficients]] = {}
         self._refiners: dict[tuple, Refiner] = {}
@@ -156,7 +157,8 @@ class SystemScorer:
         batch = 1 if len(chosen) == 1 else self.batch
         if (width, batch, horizons) not in self._refiners:
             self._refiners[width, batch, horizons] = Refiner(
-                self.evaluator, iterations=20, max_free=width, batch=batch, horizons=horizons)
+                self.evaluator, iterations=self.iterations, max_free=width, batch=batch,
+                horizons=horizons)
         ties = [tie_columns(t, self.evaluator) for _, t in coupled]
         refiner = self._refiners[width, batch, horizons]
         refined = refiner.refine(population, fixed, ties=ties).population

@@ -188,7 +188,8 @@ class SystemEvolution:
             w_time=config.w_time, w_freq=config.w_freq,
             input_interpolation=config.input_interpolation, batch=config.population,
             kinds=kinds, sign_scales=scales)
-        self.scorer = SystemScorer(weak, self.equations, evaluator, batch=config.refine_top)
+        self.scorer = SystemScorer(weak, self.equations, evaluator, batch=config.refine_top,
+                                   iterations=config.refine_iterations)
         self.fresh_columns = self.forcing_columns()
 
     # --- the generations ------------------------------------------------------------
@@ -310,6 +311,7 @@ class SystemEvolution:
                         input_interpolation=config.input_interpolation,
                         substeps=None if config.substeps == "auto" else config.substeps,
                         tolerance=config.convergence_tolerance,
+                        iterations=config.refine_iterations,
                         kinds=kinds_for(config.functions))
         best, fit = reported(best, scorer, measurement, settings, config.selection_alpha)
         fit, width, stopped = _narrowed(fit, scorer.normalised(best), measurement, settings)

@@ -13,7 +13,7 @@ import sympy as sp
 
 from gpjax import Measurement, Symbols
 from gpjax.engine import PopulationEvaluator
-from gpjax._refine import Refiner
+from gpjax._refine import CONVERGED, Refiner, refined_to_convergence, until_converged
 
 S = Symbols("x", "t", ("u",))
 TRUE = {"m": 1.0, "k1": 40.0, "k2": 30.0, "y0": (0.02, -0.1)}
@@ -268,3 +268,35 @@ def test_a_dropped_diffrax_evaluator_is_freed(monkeypatch):
     alive = simulated()
     gc.collect()
     assert alive() is None
+
+
+def test_rounds_stop_per_model_when_a_round_gains_less_than_the_tolerance():
+    # Model 0 halves its objective each round (never converges: stops at the round cap),
+    # model 1 gains 1 % then 0.01 % (stops after its second round), model 2 gains nothing.
+    objectives = np.array([1.0, 1.0, 1.0])
+    gains = {0: [0.5] * 10, 1: [0.99, 0.9999], 2: [1.0]}
+    rounds = {0: 0, 1: 0, 2: 0}
+
+    def refine_round(active):
+        for i in active:
+            objectives[i] *= gains[i][rounds[i]]
+            rounds[i] += 1
+        return objectives[active]
+
+    until_converged(refine_round, objectives.copy(), rounds=4)
+    assert rounds == {0: 4, 1: 2, 2: 1}
+    assert 0.9999 > 1 - CONVERGED > 0.99  # model 1's second gain is below the tolerance
+
+
+def test_a_refinement_to_convergence_keeps_its_best_round(refiner):
+    ev = refiner.evaluator
+    one = _models(ev, np.full(1, 0.15), np.random.default_rng(2))  # constants ≤ 15 % off
+    fixed = np.full(1, ev.forcing_index(S.u[0]))
+    before = float(ev.score(one).objective[0])
+    refined, objective = refined_to_convergence(refiner, one, fixed,
+                                                lambda p: ev.score(p).objective)
+    assert objective < 0.1 * before
+    assert objective == pytest.approx(float(ev.score(refined).objective[0]))
+    # A score no refinement can lower keeps the start.
+    kept, same = refined_to_convergence(refiner, one, fixed, lambda p: np.array([0.0]))
+    assert same == 0.0 and np.array_equal(kept.state, one.state)

@@ -170,7 +170,7 @@ def test_sign_scales_follow_the_variables_rms():
     (dict(functions=("add", "sub", "mul", "exp")), "function 'exp' is not supported"),
     (dict(functions=("add", "sub", "mul", "sign"), third_law=True),
      "third_law takes polynomial couplings only"),
-    (dict(refine_iterations=5), "refine_iterations is not supported with several responses"),
+    (dict(coefficients="tree"), "coefficients is not supported with several responses"),
 ])
 def test_system_settings_outside_the_bank_are_refused(change, message):
     with pytest.raises(ConfigError, match=message):

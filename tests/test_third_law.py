@@ -168,6 +168,32 @@ def test_system_search_takes_the_substeps_setting_and_guards_its_memory(monkeypa
         SystemEvolution(measurement, GPConfig(population=20))
 
 
+def test_system_refinements_take_the_refine_iterations_setting(monkeypatch):
+    """``refine_iterations`` acts on a system as on one coordinate: the search's
+    refinements and every round of the reported fit take that many steps."""
+    from gpjax import GPConfig
+    from gpjax import _system_fit
+    from gpjax._system_search import SystemEvolution
+
+    _, _, measurement = _chain(duration=1.0)
+    search = SystemEvolution(measurement, GPConfig(population=20, refine_iterations=4))
+    assert search.scorer.iterations == 4
+    taken = []
+
+    class Taken(Exception):
+        pass
+
+    def refiner(*args, iterations, **kwargs):
+        taken.append(iterations)
+        raise Taken
+
+    monkeypatch.setattr(_system_fit, "Refiner", refiner)
+    structure = (((V1, X1, X1 - X2), {U: 1.0}), ((V2, X2, X2 - X1), {}))
+    with pytest.raises(Taken):
+        _system_fit.fit_system(measurement, structure, substeps=1, iterations=4)
+    assert taken == [4]
+
+
 def test_system_config_errors_are_one_line_exit_2(tmp_path, capsys):
     from gpjax.cli import main
 
