@@ -776,6 +776,8 @@ TABLES = {
     "systems-width-ab": systems_ab("benchmarks/systems_width_ab.json"),
     "systems-continuation-ab": systems_ab("benchmarks/systems_continuation_ab.json"),
     "systems-wide-ab": lambda: systems_scored_ab("benchmarks/systems_wide_ab.json"),
+    "systems-rounds-ab": systems_ab("benchmarks/systems_rounds_ab.json"),
+    "systems-rounds-scored-ab": lambda: systems_scored_ab("benchmarks/systems_rounds_ab.json"),
     "islands-compare": islands_compare,
     "islands-hard": islands_hard,
     "islands-model": islands_model,

@@ -105,12 +105,16 @@ def refined_to_convergence(refiner: Refiner, population: Population,
     """One model (``population`` of one) refined by ``refiner`` in rounds until converged
     (:func:`until_converged`), keeping the constants of its best round. ``score(population)
     -> (1,)`` objectives; ``fixed_forcing``, ``ties`` as :meth:`Refiner.refine` takes them.
-    Returns (population, objective)."""
-    best = [population, float(np.asarray(score(population))[0])]
+    Returns (population, objective); a start that does not score (NaN) counts as +inf, so
+    any finite refinement replaces it."""
+    def scored(candidate) -> float:
+        return float(np.nan_to_num(np.asarray(score(candidate), dtype=float)[0], nan=np.inf))
+
+    best = [population, scored(population)]
 
     def refine_round(active):
         refined = refiner.refine(best[0], fixed_forcing, ties=ties).population
-        objective = float(np.asarray(score(refined))[0])
+        objective = scored(refined)
         if objective < best[1]:
             best[:] = [refined, objective]
         return [best[1]]
