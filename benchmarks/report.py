@@ -778,6 +778,7 @@ TABLES = {
     "systems-wide-ab": lambda: systems_scored_ab("benchmarks/systems_wide_ab.json"),
     "systems-rounds-ab": systems_ab("benchmarks/systems_rounds_ab.json"),
     "systems-rounds-scored-ab": lambda: systems_scored_ab("benchmarks/systems_rounds_ab.json"),
+    "systems-rounds-wide-ab": systems_ab("benchmarks/systems_rounds_wide_ab.json"),
     "islands-compare": islands_compare,
     "islands-hard": islands_hard,
     "islands-model": islands_model,
