@@ -29,7 +29,6 @@ from ._weak_form import (WeakForm, least_squares, least_squares_residual, smooth
                          smoothing_cutoff_hz)
 
 
-
 @dataclasses.dataclass
 class Record:
     """A scored model structure (one cache entry); ``coefficients`` is None when invalid;

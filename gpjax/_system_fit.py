@@ -8,11 +8,11 @@ one-coordinate search does for one structure: weak-form equation-error least squ
 equation (:mod:`gpjax._weak_form`'s test functions; no second derivative of the data),
 then output-error Levenberg–Marquardt on the simulated responses of all coordinates
 together — every constant and every initial state (:class:`gpjax._refine.Refiner` on a
-system evaluator, in rounds of ``GPConfig.refine_iterations`` steps until a round lowers the
-objective by less than 0.1 %: the one coordinate's convergence loop,
-:func:`gpjax._refine.until_converged`) — at converged integration: the refitted system is simulated by RK4 and
-by the reference solve (:func:`gpjax._reference.reference_response`), and the step
-count grows until they agree (:mod:`gpjax._convergence`).
+system evaluator, in rounds of ``GPConfig.refine_iterations`` steps until a round lowers
+the objective by less than 0.1 %: one coordinate's convergence loop,
+:func:`gpjax._refine.until_converged`) — at converged integration: the refitted system is
+simulated by RK4 and by the reference solve (:func:`gpjax._reference.reference_response`),
+and the step count grows until they agree (:mod:`gpjax._convergence`).
 
 Each equation is normalised on its own (each can be multiplied by any factor): the first
 input in it has coefficient 1 as given in the structure's start (±1), else its mass is
@@ -28,13 +28,13 @@ import numpy as np
 import sympy as sp
 
 from . import _progress
+from ._config import GPConfig
 from ._coefficients import Coefficients, from_system_population, to_system_population
 from ._convergence import fit_converged
 from ._data import Measurement
 from ._diagnose_fits import blocked_cv_residual
 from ._evaluator import Scores
 from ._model import Model
-from ._config import GPConfig
 from ._refine import Refiner, free_width, refined_to_convergence, refit_horizons
 from ._uncertainty import Uncertainty, model_names, uncertainty_of
 from ._system_couplings import couple, coupled_least_squares, fixed_columns, tie_columns
@@ -125,11 +125,12 @@ def fit_system(measurement: Measurement, structure: Structure, *, max_degree: in
                carried: bool = False) -> SystemFit:
     """Constants and initial states of a system ``structure`` on ``measurement``
     (module docstring): weak-form start (or ``start``), Levenberg–Marquardt on all
-    coordinates at once (rounds of ``iterations`` steps until converged), repeated at a finer step until the RK4 and reference responses
-    differ by less than ``tolerance`` of the RMS residual (``substeps`` given: that step
-    count, checked once; ``first_substeps``: the step count the ladder starts from, e.g. a
-    similar system's converged one; ``kinds``: the bank kinds its evaluators hold beside
-    the structure's own, a search's, so its refits share one set of programs). The first
+    coordinates at once (rounds of ``iterations`` steps until converged), repeated at a
+    finer step until the RK4 and reference responses differ by less than ``tolerance`` of
+    the RMS residual (``substeps`` given: that step count, checked once;
+    ``first_substeps``: the step count the ladder starts from, e.g. a similar system's
+    converged one; ``kinds``: the bank kinds its evaluators hold beside the structure's
+    own, a search's, so its refits share one set of programs). The first
     fit doubles its horizon (:data:`gpjax._refine.REFIT_HORIZONS`); a refit from the last
     fit, and the first with ``carried`` (``start`` holds a fitted system's constants, its
     signs narrowed), fit the whole record at once: their start is near.
