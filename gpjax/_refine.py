@@ -103,17 +103,22 @@ def refined_to_convergence(refiner: Refiner, population: Population,
                            fixed_forcing: np.ndarray, score, *, ties=None
                            ) -> tuple[Population, float]:
     """One model (``population`` of one) refined by ``refiner`` in rounds until converged
-    (:func:`until_converged`), keeping the constants of its best round. ``score(population)
-    -> (1,)`` objectives; ``fixed_forcing``, ``ties`` as :meth:`Refiner.refine` takes them.
-    Returns (population, objective); a start that does not score (NaN) counts as +inf, so
-    any finite refinement replaces it."""
+    (:func:`until_converged`), keeping the constants of its best round; the rounds after
+    the first start from a fit and fit the whole record at once (:data:`WHOLE_RECORD`, a
+    second refiner where ``refiner`` grows its horizon). ``score(population) -> (1,)``
+    objectives; ``fixed_forcing``, ``ties`` as :meth:`Refiner.refine` takes them. Returns
+    (population, objective); a start that does not score (NaN) counts as +inf, so any
+    finite refinement replaces it."""
     def scored(candidate) -> float:
         return float(np.nan_to_num(np.asarray(score(candidate), dtype=float)[0], nan=np.inf))
 
     best = [population, scored(population)]
+    rounds = [refiner]
 
     def refine_round(active):
-        refined = refiner.refine(best[0], fixed_forcing, ties=ties).population
+        refined = rounds[-1].refine(best[0], fixed_forcing, ties=ties).population
+        if rounds[-1] is refiner and len(refiner.horizon_limits) > 1:
+            rounds.append(refiner.whole_record())
         objective = scored(refined)
         if objective < best[1]:
             best[:] = [refined, objective]
@@ -231,6 +236,7 @@ class Refiner(CompileFigures):
         self.batch_sizes = tuple(sorted({min(SMALL_BATCH, self.batch), self.batch}))
         self.max_free = max_free
         self._sensitivity: Program | None = None  # compiled on first use (sensitivity)
+        self._whole: Refiner | None = None  # its whole-record twin (:meth:`whole_record`)
         responses = evaluator.measurement.responses
         self._state_scale = np.stack([np.std(responses, axis=0), np.std(np.diff(
             responses, axis=0), axis=0) / evaluator.measurement.dt], axis=1).ravel() + 1e-300
@@ -240,6 +246,15 @@ class Refiner(CompileFigures):
                             name="refine",
                             key=fingerprint(evaluator.time_key, iterations, self.horizon_samples,
                                             jacobian))
+
+    def whole_record(self) -> "Refiner":
+        """This refiner's twin that fits the whole record at once (:data:`WHOLE_RECORD`):
+        the same evaluator, steps, batch and Jacobian width; cached."""
+        if self._whole is None:
+            self._whole = Refiner(self.evaluator, iterations=self.iterations, batch=self.batch,
+                                  max_free=self.max_free, horizons=WHOLE_RECORD,
+                                  jacobian=self.jacobian)
+        return self._whole
 
     def refine(self, population: Population, fixed_forcing: np.ndarray,
                held_inner: np.ndarray | None = None, *, ties=None) -> Refinement:

@@ -297,6 +297,12 @@ def test_a_refinement_to_convergence_keeps_its_best_round(refiner):
                                                 lambda p: ev.score(p).objective)
     assert objective < 0.1 * before
     assert objective == pytest.approx(float(ev.score(refined).objective[0]))
+    # Rounds after the first fit the whole record at once: the twin of a refiner that
+    # grows its horizon, made once.
+    growing = Refiner(ev, iterations=10, batch=1, horizons=(0.25, 1.0))
+    twin = growing.whole_record()
+    assert twin is growing.whole_record() and twin.evaluator is ev
+    assert list(twin.horizon_limits) == [ev.measurement.n_samples] and twin.iterations == 10
     # A score no refinement can lower keeps the start.
     kept, same = refined_to_convergence(refiner, one, fixed, lambda p: np.array([0.0]))
     assert same == 0.0 and np.array_equal(kept.state, one.state)
