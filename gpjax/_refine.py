@@ -113,12 +113,11 @@ def refined_to_convergence(refiner: Refiner, population: Population,
         return float(np.nan_to_num(np.asarray(score(candidate), dtype=float)[0], nan=np.inf))
 
     best = [population, scored(population)]
-    rounds = [refiner]
+    current = [refiner]  # this round's refiner: ``refiner``, then its whole-record twin
 
     def refine_round(active):
-        refined = rounds[-1].refine(best[0], fixed_forcing, ties=ties).population
-        if rounds[-1] is refiner and len(refiner.horizon_limits) > 1:
-            rounds.append(refiner.whole_record())
+        refined = current[0].refine(best[0], fixed_forcing, ties=ties).population
+        current[0] = refiner.whole_record()
         objective = scored(refined)
         if objective < best[1]:
             best[:] = [refined, objective]
@@ -249,12 +248,19 @@ class Refiner(CompileFigures):
 
     def whole_record(self) -> "Refiner":
         """This refiner's twin that fits the whole record at once (:data:`WHOLE_RECORD`):
-        the same evaluator, steps, batch and Jacobian width; cached."""
+        the same evaluator, steps, batch and Jacobian width; cached (this refiner itself
+        if it fits the whole record at once already)."""
+        if len(self.horizon_limits) == 1:
+            return self
         if self._whole is None:
             self._whole = Refiner(self.evaluator, iterations=self.iterations, batch=self.batch,
                                   max_free=self.max_free, horizons=WHOLE_RECORD,
                                   jacobian=self.jacobian)
         return self._whole
+
+    def _programs(self) -> list[Program]:
+        """Its programs and its whole-record twin's (:class:`gpjax._aot.CompileFigures`)."""
+        return super()._programs() + (self._whole._programs() if self._whole else [])
 
     def refine(self, population: Population, fixed_forcing: np.ndarray,
                held_inner: np.ndarray | None = None, *, ties=None) -> Refinement:
