@@ -240,6 +240,28 @@ def _chain_driven_at_the_free_end() -> System:
                   excitation=Excitation(low=0.1, high=3.0, rms=3.0))
 
 
+def _stiff_torsional_pair() -> System:
+    """Two inertias at drivetrain scales (kg·m², N·m/rad, 1 kHz): inertia 1 on a ground
+    spring, both on ground dampers, coupled by a shaft much stiffer than the ground
+    spring, kc·d + k3·d³ (d = x1 − x2), torque on inertia 1. The shaft's twist d is a fifth
+    of the rotations and lives in the high mode, its band ~4× theirs: state estimates
+    smoothed to the coordinates' band alone lose it
+    (:func:`gpjax._weak_form.system_band_hz`)."""
+    kc, k3, inertia_1, inertia_2 = sp.symbols("kc k3 J1 J2")
+    x1, x1_dot, x1_ddot = state_symbols("x1")
+    x2, x2_dot, x2_ddot = state_symbols("x2")
+    shaft = kc * (x1 - x2) + k3 * (x1 - x2) ** 3
+    equations = (sp.Eq(inertia_1 * x1_ddot + _c * x1_dot + _k * x1 + shaft, U),
+                 sp.Eq(inertia_2 * x2_ddot + _c * x2_dot - shaft, 0))
+    return System(name="torsion2_stiff", description="2 inertias on a stiff cubic shaft, "
+                  "a ground spring on the driven one only, drivetrain scales",
+                  equations=equations, coordinates=("x1", "x2"),
+                  constants={"J1": 2e-3, "J2": 5e-3, "c": 0.02, "k": 20.0, "kc": 50.0,
+                             "k3": 5e4},
+                  sample_rate=1000.0, duration=8.0,
+                  excitation=Excitation(low=1.0, high=30.0, rms=1.0))
+
+
 def _ground_friction(base: System, i: int) -> System:
     """``base`` with dry friction F·tanh(x_i'/v0), F = 1 N, v0 = 1 mm/s, between
     coordinate ``i`` (0-based) and the ground: an effect a model of ``base``'s structure
@@ -299,6 +321,7 @@ def _catalogue() -> dict[str, System]:
         _chain(3, grounded_last=False),
         _friction_chain(),
         _chain_driven_at_the_free_end(),
+        _stiff_torsional_pair(),
         System(name="stage", description="drifting positioning stage: m·x'' + c·x' + "
                "F·sign(x') + f0 = u, PD loop on a quantised encoder",
                equations=(sp.Eq(_m * X_DDOT + _c * X_DOT + F * sign + f0, U),),
