@@ -250,9 +250,10 @@ def _stiff_torsional_pair() -> System:
     kc, k3, inertia_1, inertia_2 = sp.symbols("kc k3 J1 J2")
     x1, x1_dot, x1_ddot = state_symbols("x1")
     x2, x2_dot, x2_ddot = state_symbols("x2")
-    shaft = kc * (x1 - x2) + k3 * (x1 - x2) ** 3
-    equations = (sp.Eq(inertia_1 * x1_ddot + _c * x1_dot + _k * x1 + shaft, U),
-                 sp.Eq(inertia_2 * x2_ddot + _c * x2_dot - shaft, 0))
+    equations = (sp.Eq(inertia_1 * x1_ddot + _c * x1_dot + _k * x1 + kc * (x1 - x2)
+                       + k3 * (x1 - x2) ** 3, U),
+                 sp.Eq(inertia_2 * x2_ddot + _c * x2_dot + kc * (x2 - x1)
+                       + k3 * (x2 - x1) ** 3, 0))
     return System(name="torsion2_stiff", description="2 inertias on a stiff cubic shaft, "
                   "a ground spring on the driven one only, drivetrain scales",
                   equations=equations, coordinates=("x1", "x2"),

@@ -32,7 +32,7 @@ from numpy.lib.stride_tricks import sliding_window_view
 from scipy.signal import savgol_filter
 
 from ._data import Measurement
-from ._objective import default_n_bins
+from ._objective import SPECTRAL_ENERGY_FRACTION, amplitude_spectrum, default_n_bins
 
 POLYORDER = 4
 
@@ -221,17 +221,36 @@ class WeakForm:
 
 def system_band_hz(measurement: Measurement) -> float:
     """The band (Hz) a system's smoothed states keep: the widest of the bands holding
-    99 % of the AC energy (:func:`gpjax._objective.default_n_bins`) of each coordinate
-    x_i and each relative coordinate x_i − x_j. Both are terminals of the search, and a
-    power of x_i − x_j is evaluated on the smoothed states, so smoothing below its band
-    biases that column: a stiff coupling's high mode lives in x_i − x_j and barely moves
-    x_i (a held-out torsional pair, 4× the coordinates' band there: the true structure's
-    least squares gave the coupling 18 for 50 and the cubic 1.2e3 for 5e4; at this band
-    50.5 and 4.9e4). One coordinate: :func:`smoothing_cutoff_hz`."""
+    99 % of the signal energy above the noise floor (:func:`signal_band_bins`) of each
+    coordinate x_i and each relative coordinate x_i − x_j. Both are terminals of the
+    search, and a power of x_i − x_j is evaluated on the smoothed states, so smoothing
+    below its band biases that column: a stiff coupling's high mode lives in x_i − x_j and
+    barely moves x_i (``torsion2_stiff``: 4× the coordinates' band; smoothed to theirs,
+    the true structure's least squares gave the coupling 18 for 50 and its cubic 1.2e3 for
+    5e4, at this band 50.5 and 4.9e4). One coordinate: :func:`smoothing_cutoff_hz`."""
     r = measurement.responses
     signals = [r[:, i] for i in range(r.shape[1])] + [
         r[:, i] - r[:, j] for i in range(r.shape[1]) for j in range(i + 1, r.shape[1])]
-    return max(default_n_bins(s) for s in signals) / (measurement.n_samples * measurement.dt)
+    return max(signal_band_bins(s) for s in signals) / (measurement.n_samples * measurement.dt)
+
+
+def signal_band_bins(signal: np.ndarray) -> int:
+    """Smallest m whose bins (DC included) hold 99 % of ``signal``'s AC energy above its
+    white-noise floor: :func:`gpjax._objective.default_n_bins` with the floor taken out of
+    every bin. The floor is the periodogram's median over the upper half of the
+    frequencies divided by ln 2 (a white noise's ordinates are exponential, median ln 2 ×
+    mean; the median ignores the few bins a band reaching there holds). Without it the
+    noise's own share decides the band once it exceeds 1 %: a relative coordinate is a
+    difference of two noisy coordinates and may be a fifth of either (``torsion2_stiff``
+    at 2 % noise: 231 Hz for its 54 Hz; with the floor taken out 54 Hz from 0 to 10 %).
+    Where nothing stands above the floor, :func:`gpjax._objective.default_n_bins`."""
+    energy = amplitude_spectrum(signal)[1:] ** 2
+    if energy.size < 2:
+        return default_n_bins(signal)
+    above = np.cumsum(energy - np.median(energy[energy.size // 2:]) / np.log(2.0))
+    if not above[-1] > 0:
+        return default_n_bins(signal)
+    return 2 + int(np.searchsorted(above / above[-1], SPECTRAL_ENERGY_FRACTION))
 
 
 def smoothed_weak_form(measurement: Measurement) -> WeakForm:
