@@ -6,7 +6,8 @@ import numpy as np
 import sympy as sp
 
 from gpjax._data import Measurement
-from gpjax._weak_form import WeakForm, design, smoothed_derivatives, smoothed_weak_form
+from gpjax._weak_form import (WeakForm, design, smoothed_derivatives, smoothed_weak_form,
+                              system_band_hz)
 
 X1, X2, X1_DOT, X2_DOT, U = sp.symbols("x1 x2 x1_dot x2_dot u")
 
@@ -47,7 +48,8 @@ def test_a_linear_feature_of_several_coordinates_is_integrated_by_parts_on_the_d
 def test_a_nonlinear_feature_is_evaluated_on_the_state_estimates_given():
     m = _two_coordinates(1)
     weak = smoothed_weak_form(m)
-    smooth = [smoothed_derivatives(m.coordinate(d)) for d in range(2)]
+    # every coordinate smoothed to the system's band (its relative coordinate's included)
+    smooth = [smoothed_derivatives(m.coordinate(d), system_band_hz(m)) for d in range(2)]
     on_smoothed = _one(m, smooth[0].x - smooth[1].x, smooth[0].x_dot - smooth[1].x_dot,
                        weak.half_width)
     x = sp.Symbol("x")
