@@ -300,6 +300,7 @@ def test_the_front_door_finds_the_gear_pair_with_its_mesh_damping(tmp_path):
     import sys
     from pathlib import Path
 
+    import gpjax
     from gpjax import cli
     from gpjax.gear import two_dof_record
 
