@@ -465,6 +465,19 @@ def test_fit_many_fits_every_record_as_a_system(tmp_path, capsys):
         assert model.coordinates == ("x1", "x2")
 
 
+def _torsion_errors(first, second, c) -> list[float]:
+    """Relative errors of a ``torsion2_stiff`` model's constants (equation 1 by its
+    torque, equation 2 by its inertia) against the true ``c``."""
+    d, e = X1 - X2, X2 - X1
+    expected = [(first.mass, c["J1"]), (first.state[V1], c["c"]), (first.state[X1], c["k"]),
+                (first.state[d], c["kc"]), (first.state[d ** 3], c["k3"]),
+                (second.state[V2], c["c"] / c["J2"]), (second.state[e], c["kc"] / c["J2"]),
+                (second.state[e ** 3], c["k3"] / c["J2"])]
+    errors = [found / truth - 1 for found, truth in expected]
+    print("relative errors:", np.round(errors, 4))
+    return errors
+
+
 def test_the_system_weak_form_keeps_the_relative_coordinates_band():
     """A stiff shaft's twist x1 − x2 lives in the high mode, above the band of x1 and x2:
     the system's state estimates keep it (:func:`gpjax._weak_form.system_band_hz`), so the
@@ -487,12 +500,7 @@ def test_the_system_weak_form_keeps_the_relative_coordinates_band():
     structure = (((X1, V1, d, d ** 3), {U: 1.0}), ((V2, e, e ** 3), {}))
     first, second = weak_form_start(measurement, structure)
     c = data.system.constants
-    expected = [(first.mass, c["J1"]), (first.state[V1], c["c"]), (first.state[X1], c["k"]),
-                (first.state[d], c["kc"]), (first.state[d ** 3], c["k3"]),
-                (second.state[V2], c["c"] / c["J2"]), (second.state[e], c["kc"] / c["J2"]),
-                (second.state[e ** 3], c["k3"] / c["J2"])]
-    errors = [found / truth - 1 for found, truth in expected]
-    print("relative errors:", np.round(errors, 4))
+    errors = _torsion_errors(first, second, c)
     assert second.mass == 1.0 and max(map(abs, errors)) < 0.05
 
 
@@ -516,12 +524,7 @@ def test_the_front_door_finds_a_stiff_torsional_pair(tmp_path):
     d, e, c = X1 - X2, X2 - X1, data.system.constants
     assert set(first.state) == {X1, V1, d, d ** 3} and set(first.forcing) == {U}
     assert set(second.state) == {V2, e, e ** 3} and not second.forcing
-    expected = [(first.mass, c["J1"]), (first.state[V1], c["c"]), (first.state[X1], c["k"]),
-                (first.state[d], c["kc"]), (first.state[d ** 3], c["k3"]),
-                (second.state[V2], c["c"] / c["J2"]), (second.state[e], c["kc"] / c["J2"]),
-                (second.state[e ** 3], c["k3"] / c["J2"])]
-    errors = [found / truth - 1 for found, truth in expected]
-    print("relative errors:", np.round(errors, 4))
+    errors = _torsion_errors(first, second, c)
     assert second.mass == 1.0 and max(map(abs, errors)) < 0.02
     record = data.extrapolation
     simulated = gpjax.Model.load(tmp_path / "run" / "model.json").sympy()
