@@ -228,10 +228,17 @@ def system_band_hz(measurement: Measurement) -> float:
     barely moves x_i (``torsion2_stiff``: 4× the coordinates' band; smoothed to theirs,
     the true structure's least squares gave the coupling 18 for 50 and its cubic 1.2e3 for
     5e4, at this band 50.5 and 4.9e4). One coordinate: :func:`smoothing_cutoff_hz`."""
+    coordinates, relative = _band_bins(measurement)
+    return max(coordinates + relative) / (measurement.n_samples * measurement.dt)
+
+
+def _band_bins(measurement: Measurement) -> tuple[list[int], list[int]]:
+    """(:func:`signal_band_bins` of each coordinate, of each x_i − x_j with i < j)."""
     r = measurement.responses
-    signals = [r[:, i] for i in range(r.shape[1])] + [
-        r[:, i] - r[:, j] for i in range(r.shape[1]) for j in range(i + 1, r.shape[1])]
-    return max(signal_band_bins(s) for s in signals) / (measurement.n_samples * measurement.dt)
+    count = r.shape[1]
+    return ([signal_band_bins(r[:, i]) for i in range(count)],
+            [signal_band_bins(r[:, i] - r[:, j]) for i in range(count)
+             for j in range(i + 1, count)])
 
 
 def signal_band_bins(signal: np.ndarray) -> int:
@@ -264,9 +271,9 @@ def smoothed_weak_form(measurement: Measurement) -> WeakForm:
     system band's windows, 3.8e-6 at these); wider ones leave the low modes alone to
     decide the constants (``torsion2_stiff``: the coordinates' windows gave the true
     structure's start 1.9 and the search a wrong structure at 1.3; these give 0.58)."""
-    cutoff = system_band_hz(measurement)
-    lowest = min(signal_band_bins(measurement.responses[:, d])
-                 for d in range(measurement.n_coordinates)) / (measurement.n_samples * measurement.dt)
+    coordinates, relative = _band_bins(measurement)
+    seconds = measurement.n_samples * measurement.dt
+    cutoff, lowest = max(coordinates + relative) / seconds, min(coordinates) / seconds
     smooth = [smoothed_derivatives(measurement.coordinate(d), cutoff)
               for d in range(measurement.n_coordinates)]
     return WeakForm(measurement, np.stack([s.x_dot for s in smooth], axis=1),
