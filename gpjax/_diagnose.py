@@ -19,7 +19,10 @@ Each round:
    Levenberg–Marquardt on the simulated response (:class:`gpjax._refine.Refiner`) — on
    the *estimation* part of the record (the first ``1 − holdout``), fitted over its first
    25 %, then all of it (a start that diverges is refitted over 10, 25, 50 and 100 %),
-   and the refit is simulated over the whole record from its fitted initial state.
+   in rounds of ``iterations`` steps until a round lowers the objective by less than
+   0.1 % (:func:`gpjax._refine.refined_to_convergence`: the effects are compared at
+   their converged constants, not at a step count), and the refit is simulated over the
+   whole record from its fitted initial state.
 4. **Evidence: held-out output error, with one step of look-ahead.** (Simulation mode.)
    The equation error weighs a missing force by its size, the simulated response by what
    it does to the response (a force near resonance counts ~Q times more than a static
@@ -101,6 +104,7 @@ import numpy as np
 
 from . import _progress
 from ._canonical import Symbols
+from ._config import GPConfig
 from ._convergence import MAX_SUBSTEPS, fit_converged, initial_substeps
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._diagnose_acceptance import accepted
@@ -241,7 +245,7 @@ def structure_of(model: Model) -> Structure:
 def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effect] | None = None,
              frequencies: tuple[float, ...] = (), holdout: float = 0.25, max_steps: int = 4,
              shortlist: int = 4, min_gain: float = 0.02, alpha: float = 0.05,
-             denoise_inputs: bool = True, iterations: int = 20,
+             denoise_inputs: bool = True, iterations: int = GPConfig.refine_iterations,
              substeps: int | str = "auto", convergence_tolerance: float = 0.01,
              input_interpolation: str | None = None, mode: str = "auto") -> Diagnosis:
     """Add missing effects to ``model`` while held-out error improves (module docstring).
@@ -262,7 +266,9 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
             chance that a correct model gains a spurious term in a round.
         denoise_inputs: reduce inputs that are sums of spectral lines to their significant
             lines at level ``alpha`` before fitting (:func:`input_lines_only`).
-        iterations: Levenberg–Marquardt steps per refit.
+        iterations: Levenberg–Marquardt steps per round of a refit (rounds repeat while
+            a model's objective falls by more than 0.1 %, at most 10:
+            :func:`gpjax._refine.until_converged`).
         substeps: RK4 steps per sample interval, or ``"auto"``: the larger of the data's
             bandwidth rule and the starting model's, raised (and the chosen structures
             refitted on the whole record) until the final model's RK4 response agrees with

@@ -26,7 +26,7 @@ from ._evaluator import OK, PopulationEvaluator, split_state_features
 from ._memory import check_fit_memory
 from ._model import Model
 from ._objective import amplitude_spectrum, default_n_bins
-from ._refine import Refiner
+from ._refine import Refiner, refined_to_convergence
 from ._diagnose_noise import signal_band_hz
 from ._weak_form import (WeakForm, design, evaluate, least_squares, savgol_window, scaled_lstsq,
                          smoothed_derivatives, smoothing_cutoff_hz)
@@ -208,7 +208,7 @@ class FitProblem:
         simulator = self.simulator_for(structures)
         count, fixed = len(structures), self._fixed_forcing(structures, simulator.train)
         population = self._starts(structures, structures, simulator.train)
-        options = [population, simulator.refiner.refine(population, fixed).population]
+        options = [population, simulator.converged(simulator.refiner, population, fixed)]
         every = Population.concatenate(options)
         responses, scores = simulator.full.simulate(every)
         chosen = [self._chosen(responses, scores, i, count, len(options)) for i in range(count)]
@@ -218,9 +218,9 @@ class FitProblem:
                                    forcing=self.pool_forcing)) for s in structures]
             retry = Population.concatenate(
                 [population, self._starts(structures, pooled, simulator.train)])
-            refined = simulator.careful_refiner.refine(retry, np.concatenate([fixed, fixed]))
-            options += [refined.population.rows(slice(0, count)),
-                        refined.population.rows(slice(count, 2 * count))]
+            refined = simulator.converged(simulator.careful_refiner, retry,
+                                          np.concatenate([fixed, fixed]))
+            options += [refined.rows(slice(0, count)), refined.rows(slice(count, 2 * count))]
             every = Population.concatenate(options)
             responses, scores = simulator.full.simulate(every)
             chosen = [self._chosen(responses, scores, i, count, len(options))
@@ -345,6 +345,14 @@ class _Simulator:
                                             max_free=self.refiner.max_free,
                                             horizons=CAREFUL_HORIZONS)
         return self._careful_refiner
+
+    def converged(self, refiner: Refiner, population: Population,
+                  fixed_forcing: np.ndarray) -> Population:
+        """``population`` refined by ``refiner`` on the estimation part in rounds until
+        each model converges (:func:`gpjax._refine.refined_to_convergence`, the loop of
+        every fit whose constants are reported or compared)."""
+        return refined_to_convergence(refiner, population, fixed_forcing,
+                                      lambda p: self.train.score(p).objective)[0]
 
     def jacobian(self, fit: Fit, columns: list[int]) -> np.ndarray:
         """Sensitivities of the simulated response over the whole record to the flat

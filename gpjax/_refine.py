@@ -86,45 +86,57 @@ def until_converged(refine_round, objectives, *, rounds: int = MAX_ROUNDS) -> No
     rounds of refinement while a round lowers a model's objective by at least
     :data:`CONVERGED` (relative), at most ``rounds``. ``refine_round(active)`` refines the
     models at the indices ``active`` once from their current constants (a model keeps them
-    where the refined ones do not score lower) and returns their objectives;
+    where the refined ones do not score lower) and returns their objectives, or
+    (objectives, settled): ``settled`` marks the models whose solver met its own stop rule
+    on the whole record this round (:attr:`Refinement.settled`), which converge without
+    another round, since one would start where that rule holds already;
     ``objectives``: every model's objective before the first round."""
     before = np.asarray(objectives, dtype=float).copy()
     active = np.arange(before.size)
     for _ in range(rounds):
         if not active.size:
             return
-        after = np.asarray(refine_round(active), dtype=float)
-        falling = ~(after > (1 - CONVERGED) * before[active])
+        out = refine_round(active)
+        after, settled = out if isinstance(out, tuple) else (out, False)
+        after = np.asarray(after, dtype=float)
+        falling = ~(after > (1 - CONVERGED) * before[active]) & ~np.asarray(settled)
         before[active] = after
         active = active[falling]
 
 
 def refined_to_convergence(refiner: Refiner, population: Population,
                            fixed_forcing: np.ndarray, score, *, ties=None
-                           ) -> tuple[Population, float]:
-    """One model (``population`` of one) refined by ``refiner`` in rounds until converged
-    (:func:`until_converged`), keeping the constants of its best round; the rounds after
-    the first start from a fit and fit the whole record at once (:data:`WHOLE_RECORD`, a
-    second refiner where ``refiner`` grows its horizon). ``score(population) -> (1,)``
-    objectives; ``fixed_forcing``, ``ties`` as :meth:`Refiner.refine` takes them. Returns
-    (population, objective); a start that does not score (NaN) counts as +inf, so any
-    finite refinement replaces it."""
-    def scored(candidate) -> float:
-        return float(np.nan_to_num(np.asarray(score(candidate), dtype=float)[0], nan=np.inf))
+                           ) -> tuple[Population, np.ndarray]:
+    """The models of ``population`` refined by ``refiner`` in rounds until each converges
+    (:func:`until_converged`), each keeping the constants of its best round; the rounds
+    after the first start from a fit and fit the whole record at once
+    (:data:`WHOLE_RECORD`, a second refiner where ``refiner`` grows its horizon).
+    ``score(population) -> (P,)`` objectives; ``fixed_forcing``, ``ties`` as
+    :meth:`Refiner.refine` takes them (``ties`` one entry per model). Returns
+    (population, (P,) objectives); a start that does not score (NaN) counts as +inf, so
+    any finite refinement replaces it."""
+    def scored(candidates) -> np.ndarray:
+        return np.nan_to_num(np.asarray(score(candidates), dtype=float), nan=np.inf)
 
-    best = [population, scored(population)]
+    best = [population]
+    objectives = scored(population)
     current = [refiner]  # this round's refiner: ``refiner``, then its whole-record twin
 
     def refine_round(active):
-        refined = current[0].refine(best[0], fixed_forcing, ties=ties).population
+        refinement = current[0].refine(best[0].rows(active), fixed_forcing[active],
+                                       ties=None if ties is None else [ties[i] for i in active])
         current[0] = refiner.whole_record()
-        objective = scored(refined)
-        if objective < best[1]:
-            best[:] = [refined, objective]
-        return [best[1]]
+        refined = refinement.population
+        after = scored(refined)
+        better = after < objectives[active]
+        rows = np.arange(len(best[0]))
+        rows[active[better]] = len(best[0]) + np.flatnonzero(better)
+        best[0] = Population.concatenate([best[0], refined]).rows(rows)
+        objectives[active[better]] = after[better]
+        return objectives[active], refinement.settled
 
-    until_converged(refine_round, [best[1]])
-    return best[0], best[1]
+    until_converged(refine_round, objectives)
+    return best[0], objectives
 
 
 def refit_horizons(near: bool) -> tuple[float, ...]:
@@ -143,11 +155,15 @@ def free_width(free: int) -> int:
 
 @dataclasses.dataclass(frozen=True)
 class Refinement:
-    """Refined models and, per model, whether the solver reported success."""
+    """Refined models and, per model, whether the solver reported success, its
+    Levenberg–Marquardt steps over every horizon, and whether the last horizon's solve
+    (the whole record) stopped by the solver's own rule (rounding level, or resolved to
+    0.1 standard error) rather than at the step cap: ``settled``."""
 
     population: Population
     succeeded: np.ndarray
     steps: np.ndarray
+    settled: np.ndarray
 
 
 @dataclasses.dataclass(frozen=True)
@@ -300,7 +316,8 @@ class Refiner(CompileFigures):
         merged = Population.concatenate(p.population for p in parts)
         return Refinement(population=merged.rows(back),
                           succeeded=np.concatenate([p.succeeded for p in parts])[back],
-                          steps=np.concatenate([p.steps for p in parts])[back])
+                          steps=np.concatenate([p.steps for p in parts])[back],
+                          settled=np.concatenate([p.settled for p in parts])[back])
 
     def _moves(self, population: Population, fixed_forcing: np.ndarray, plain: bool,
                held_inner: np.ndarray, ties=None):
@@ -365,14 +382,15 @@ class Refiner(CompileFigures):
             out = jax.block_until_ready(self._run(chunk[0], tuple(chunk[1:]), basis,
                                                   ev.time_record, self.horizon_limits))
             outputs.append([np.asarray(o)[:size] for o in out])
-        params, ok, steps = (np.concatenate(p) for p in zip(*outputs))
+        params, ok, steps, settled = (np.concatenate(p) for p in zip(*outputs))
         refined = dataclasses.replace(layout.population(params, population.forcing.shape[-1]),
                                       forcing_features=population.forcing_features)
         if plain:  # back on the full layout: the family columns and θ as they were
             refined = dataclasses.replace(refined, state=np.concatenate(
                 [refined.state, population.state[..., layout.n_state:]], axis=-1),
                 inner=population.inner)
-        return Refinement(population=refined, succeeded=ok.astype(bool), steps=steps)
+        return Refinement(population=refined, succeeded=ok.astype(bool), steps=steps,
+                          settled=settled.astype(bool))
 
     def sensitivity(self, population: Population, fixed_forcing: np.ndarray,
                     held_inner: np.ndarray | None = None, *, ties=None,
@@ -453,7 +471,8 @@ class Refiner(CompileFigures):
             ok = ok & finite & ((solution.result == optx.RESULTS.successful) | (
                 solution.result == optx.RESULTS.nonlinear_max_steps_reached))
             steps = steps + solution.stats["num_steps"]
-        return _moved(start, moves, delta), ok, steps
+        settled = finite & (solution.result == optx.RESULTS.successful)  # the last horizon
+        return _moved(start, moves, delta), ok, steps, settled
 
     def _response(self, samples: int):
         """x over the first ``samples`` samples as a function of the scaled step ``delta``

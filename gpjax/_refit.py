@@ -14,6 +14,7 @@ import dataclasses
 
 import numpy as np
 
+from ._config import GPConfig
 from ._coefficients import from_population
 from ._data import Measurement
 from ._convergence import fit_converged
@@ -23,8 +24,9 @@ from ._uncertainty import model_names, uncertainty_of
 from ._weak_form import estimate_initial_conditions
 
 
-def refit(model: Model, measurement: Measurement, *, iterations: int = 20,
-          tolerance: float = 0.01, substeps: int | None = None) -> Model:
+def refit(model: Model, measurement: Measurement, *,
+          iterations: int = GPConfig.refine_iterations, tolerance: float = 0.01,
+          substeps: int | None = None) -> Model:
     """``model``'s structure with its constants and initial state refitted to
     ``measurement`` from ``model``'s values, and their :class:`~gpjax._uncertainty.Uncertainty`.
 
@@ -67,6 +69,7 @@ def refit(model: Model, measurement: Measurement, *, iterations: int = 20,
                           horizons=refit_horizons(previous is not None))
         population, best = refined_to_convergence(
             refiner, population, fixed, lambda p: evaluator.score(p).objective)
+        best = float(best[0])
         coefficients = from_population(population, evaluator, [current.coefficients])[0]
         fitted = Model.from_coefficients(
             model.symbols, coefficients, input_interpolation=model.input_interpolation,

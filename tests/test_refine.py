@@ -293,8 +293,8 @@ def test_a_refinement_to_convergence_keeps_its_best_round(refiner):
     one = _models(ev, np.full(1, 0.15), np.random.default_rng(2))  # constants ≤ 15 % off
     fixed = np.full(1, ev.forcing_index(S.u[0]))
     before = float(ev.score(one).objective[0])
-    refined, objective = refined_to_convergence(refiner, one, fixed,
-                                                lambda p: ev.score(p).objective)
+    refined, (objective,) = refined_to_convergence(refiner, one, fixed,
+                                                   lambda p: ev.score(p).objective)
     assert objective < 0.1 * before
     assert objective == pytest.approx(float(ev.score(refined).objective[0]))
     # Rounds after the first fit the whole record at once: the twin of a refiner that
@@ -304,5 +304,44 @@ def test_a_refinement_to_convergence_keeps_its_best_round(refiner):
     assert twin is growing.whole_record() and twin.evaluator is ev
     assert list(twin.horizon_limits) == [ev.measurement.n_samples] and twin.iterations == 10
     # A score no refinement can lower keeps the start.
-    kept, same = refined_to_convergence(refiner, one, fixed, lambda p: np.array([0.0]))
+    kept, (same,) = refined_to_convergence(refiner, one, fixed, lambda p: np.array([0.0]))
     assert same == 0.0 and np.array_equal(kept.state, one.state)
+
+
+def test_a_population_converges_model_by_model_and_a_settled_one_stops(refiner):
+    # Three models refined together: each ends at its own converged constants, the same as
+    # refined alone; a model whose solver met its own stop rule on the whole record is
+    # settled, and a round from its constants is not run (it would start converged).
+    ev = refiner.evaluator
+    start = _models(ev, np.array([0.3, 0.05, 0.15]), np.random.default_rng(4))
+    fixed = np.full(3, ev.forcing_index(S.u[0]))
+    calls = []
+
+    class Counting:  # the refiner, counting the models of each round
+        def __init__(self, inner):
+            self.inner = inner
+
+        def refine(self, population, fixed_forcing, ties=None):
+            out = self.inner.refine(population, fixed_forcing, ties=ties)
+            calls.append((len(population), out.settled.copy()))
+            return out
+
+        def whole_record(self):
+            return Counting(self.inner.whole_record())
+
+    together, objectives = refined_to_convergence(Counting(refiner), start, fixed,
+                                                  lambda p: ev.score(p).objective)
+    for i in range(3):
+        alone, (objective,) = refined_to_convergence(refiner, start.rows([i]), fixed[[i]],
+                                                     lambda p: ev.score(p).objective)
+        np.testing.assert_allclose(together.state[i], alone.state[0], rtol=1e-6)
+        assert objectives[i] == pytest.approx(objective, rel=1e-6)
+    np.testing.assert_allclose(together.state[:, 0], TRUE["k1"], rtol=1e-4)
+    # rounds shrink to the models still falling and not settled
+    sizes = [n for n, _ in calls]
+    assert sizes[0] == 3 and sizes == sorted(sizes, reverse=True)
+    for (n, settled), (m, _) in zip(calls, calls[1:]):
+        assert m <= n - settled.sum()
+    # a converged model settles at once: its refinement stops by the solver's rule
+    again = refiner.whole_record().refine(together, fixed)
+    assert again.settled.all() and np.all(again.steps < refiner.iterations)
