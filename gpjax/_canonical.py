@@ -374,3 +374,17 @@ def _term(coefficient: float, feature: sp.Expr) -> sp.Expr:
     number = sp.Integer(int(coefficient)) if float(coefficient).is_integer() else sp.Float(
         coefficient)
     return number * feature
+
+
+def numbers_lifted(expression: sp.Expr, constant) -> sp.Expr:
+    """``expression`` with every number not in an exponent replaced by ``constant(value)``
+    (a symbol the caller makes): the expression's shape, whose numbers a compiled program
+    takes as data."""
+    if expression.is_Number:
+        return constant(float(expression))
+    if isinstance(expression, sp.Pow):
+        return sp.Pow(numbers_lifted(expression.base, constant), expression.exp, evaluate=False)
+    if not expression.args:
+        return expression
+    return expression.func(*(numbers_lifted(a, constant) for a in expression.args),
+                           evaluate=False)

@@ -46,7 +46,7 @@ import sympy as sp
 from jax.sharding import AxisType, PartitionSpec
 
 from ._aot import CompileFigures, Program, fingerprint
-from ._canonical import Symbols
+from ._canonical import Symbols, numbers_lifted
 from ._coefficients import Population, padded_chunks
 from ._data import Measurement, between_samples
 from ._evaluator_columns import Columns, first_forcing_capacity
@@ -277,10 +277,13 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         self._first_forcing_capacity = (first_forcing_capacity(self.stage_times.size)
                                         if forcing_capacity is None else int(forcing_capacity))
         self._n_extra = len(extra_state_features)
-        self._extra_jets = _jets(extra_state_features, symbols)
+        # the extra features' numbers are data, their shapes the program (lifted_numbers)
+        extra_shapes, extra_numbers = lifted_numbers(extra_state_features)
+        self._extra_jets = _jets(extra_shapes, symbols, extra_numbers.size)
         #: The record as the programs' argument (:class:`~gpjax._record.RecordArrays`).
         self.record_arrays = _record_arrays(measurement, self.n_padded, self.n_bins,
-                                            self.n_bins_padded, dft, self.h, self.sign_scales)
+                                            self.n_bins_padded, dft, self.h, self.sign_scales,
+                                            extra_numbers)
         run = self._simulate_and_score
         if len(self.devices) > 1:
             mesh = jax.make_mesh((len(self.devices),), ("population",),
@@ -292,8 +295,9 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
         #: argument: records of one length bucket share the programs).
         #: The same without eq. 9's bins: the key of programs that integrate but take no
         #: spectrum (the refiner's; their record is :attr:`time_record`).
-        unit = (self.state_features if self.n_coordinates == 1 else  # θ is an argument
-                system_state_features(names, max_degree, self.kinds)[0])
+        unit = ([*polynomial_state_features(symbols, max_degree), *extra_shapes,  # numbers
+                 *self.state_features[len(fixed):]] if self.n_coordinates == 1 else  # and θ
+                system_state_features(names, max_degree, self.kinds)[0])  # are arguments
         self.time_key = fingerprint(self.n_padded, symbols, unit,
                                     self.families, max_degree, substeps, self.batch,
                                     fit_initial_conditions, integrator, input_interpolation,
@@ -416,7 +420,8 @@ class PopulationEvaluator(Columns, Dynamics, SystemTerms, RecordContext, Compile
 
 
 def _record_arrays(measurement: Measurement, n_padded: int, n_bins: int, n_bins_padded: int,
-                   dft: np.ndarray, step: float, sign_scales: np.ndarray) -> RecordArrays:
+                   dft: np.ndarray, step: float, sign_scales: np.ndarray,
+                   extra_numbers: np.ndarray) -> RecordArrays:
     """``measurement`` as program arguments, padded to ``n_padded`` samples and
     ``n_bins_padded`` bins (:class:`~gpjax._record.RecordArrays`); ``dft`` is
     :func:`~gpjax._objective._dft_matrix` of the unpadded record."""
@@ -440,7 +445,8 @@ def _record_arrays(measurement: Measurement, n_padded: int, n_bins: int, n_bins_
         amplitude=_amplitude(padded_dft, responses, n_bins_padded, np),
         weights=np.std(measured[:, :1]) / np.std(measured, axis=0), bounds=bounds,
         step=np.asarray(step), start=np.asarray(float(measurement.time[0])),
-        noise_scale=np.where(noise_scale == 0, 1.0, noise_scale), sign_scales=sign_scales)
+        noise_scale=np.where(noise_scale == 0, 1.0, noise_scale), sign_scales=sign_scales,
+        extra_numbers=extra_numbers)
 
 
 def _pad_columns(array: np.ndarray, columns: int) -> np.ndarray:
@@ -464,18 +470,48 @@ def _pad_columns(array: np.ndarray, columns: int) -> np.ndarray:
     return out
 
 
-def _jets(features, symbols):
-    """``jets(x, x', t)``: the features' values and their partial derivatives by x and by x'
-    (three lists of arrays), from one function that computes their common subexpressions
-    once (a tanh and its slope share the tanh); ``None`` without features. ``features``
-    are sympy expressions (parsed by the whitelist of :mod:`gpjax._expressions`)."""
+#: The symbols that stand for the numbers of extra features (:func:`lifted_numbers`).
+NUMBER = "_number"
+
+
+def lifted_numbers(features) -> tuple[tuple[sp.Expr, ...], np.ndarray]:
+    """(shapes, numbers): ``features`` with every number not in an exponent replaced by a
+    real symbol ``_number{k}`` (k counting across the features;
+    :func:`gpjax._canonical.numbers_lifted`, as the reference solve lifts them), and
+    those numbers in order.
+
+    A diagnosis's effects carry numbers that come from the record — a smoothed sign's
+    θ = 1/ε, a backlash's centre and half width, a spectral line's frequency — so with the
+    numbers compiled in every new record compiled its programs again (a gear record of
+    2,001 samples: 26 s of compiling, 5 s warm). As data (:attr:`RecordArrays.extra_numbers`)
+    one program serves every record of a shape."""
+    numbers: list[float] = []
+
+    def constant(value: float) -> sp.Symbol:
+        numbers.append(value)
+        return sp.Symbol(f"{NUMBER}{len(numbers) - 1}", real=True)  # |z|' is sign(z)
+
+    shapes = tuple(numbers_lifted(f, constant) for f in features)
+    return shapes, np.array(numbers, dtype=np.float64)
+
+
+def _jets(features, symbols, count: int):
+    """``jets(x, x', t, numbers)``: the features' values and their partial derivatives by x
+    and by x' (three lists of arrays), from one function that computes their common
+    subexpressions once (a tanh and its slope share the tanh); ``None`` without features.
+    ``features`` are sympy expressions (parsed by the whitelist of
+    :mod:`gpjax._expressions`) whose ``count`` numbers are the symbols of
+    :func:`lifted_numbers`, given as ``numbers``."""
     if not features:
         return None
     x, v, t = (sp.Dummy(real=True) for _ in range(3))  # |x|' is sign(x) for a real x
     real = [f.subs({symbols.x: x, symbols.x_dot: v, symbols.t: t}) for f in features]
+    numbers = sp.symbols(f"{NUMBER}0:{count}", real=True)
 
     def slope(f, z):  # a jump's delta is 0, as forward-mode autodiff takes it
         return sp.diff(f, z).replace(sp.DiracDelta, lambda *_: sp.S.Zero)
 
-    return sp.lambdify((x, v, t), [real, [slope(f, x) for f in real],
-                                   [slope(f, v) for f in real]], modules="jax", cse=True)
+    jets = sp.lambdify((x, v, t, numbers), [real, [slope(f, x) for f in real],
+                                            [slope(f, v) for f in real]],
+                       modules="jax", cse=True)
+    return lambda x, v, t, values: jets(x, v, t, [values[k] for k in range(count)])

@@ -113,7 +113,8 @@ class Dynamics:
             x, v = xs[0], vs[0]
             total = horner(position, x) + horner(velocity, v)
             if n_extra:  # the values only: jit drops the slopes no one uses
-                for c, f in zip(extra, self._extra_jets(x, v, t)[0]):
+                numbers = self.record.extra_numbers
+                for c, f in zip(extra, self._extra_jets(x, v, t, numbers)[0]):
                     total = total + c * f
             if family_sum is not None:
                 total = total + family_sum(x, v)
@@ -368,7 +369,7 @@ class Dynamics:
         def terms(x, v, t):
             x, v = jnp.clip(x, -bx, bx), jnp.clip(v, -bv, bv)
             f, f_x, f_v = (jnp.stack(jnp.broadcast_arrays(x, *part)[1:], axis=-1)
-                           for part in self._extra_jets(x, v, t))  # (P, E) each
+                           for part in self._extra_jets(x, v, t, self.record.extra_numbers))
             moved = None if d_c is None else jnp.sum(d_c * f, axis=-1)
             return (jnp.sum(c * f, axis=-1), jnp.sum(c * f_x, axis=-1),
                     jnp.sum(c * f_v, axis=-1), moved)

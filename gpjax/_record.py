@@ -104,6 +104,8 @@ class RecordArrays:
             refiner).
         sign_scales: (2D²,) θ of a system's smoothed signs tanh(θ·z), one per equation
             variable (:mod:`gpjax._system_bank`; unused for D = 1).
+        extra_numbers: (K,) the numbers of the evaluator's extra state features, in
+            order (:func:`gpjax._evaluator.lifted_numbers`; empty without them).
     """
 
     responses: np.ndarray
@@ -117,6 +119,7 @@ class RecordArrays:
     start: np.ndarray
     noise_scale: np.ndarray
     sign_scales: np.ndarray
+    extra_numbers: np.ndarray
 
 
 class RecordContext:

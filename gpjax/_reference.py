@@ -42,6 +42,7 @@ import numpy as np
 import sympy as sp
 
 from ._aot import Program, fingerprint
+from ._canonical import numbers_lifted
 from ._coefficients import Coefficients
 from ._data import BANDLIMITED_FACTOR, bandlimited_spline
 from ._integrate import enable_float64
@@ -126,21 +127,10 @@ def _structure(equations: tuple[Coefficients, ...]) -> tuple[
         force = sp.Integer(0)
         for feature, value in features:
             c = constant(value)
-            force = force + c * _lifted(feature, constant)
+            force = force + c * numbers_lifted(feature, constant)
         expressions.append(inverse_mass * force)
     return tuple(expressions), tuple(sp.Symbol(f"_c{k}") for k in range(len(values))), \
         np.array(values)
-
-
-def _lifted(expression: sp.Expr, constant) -> sp.Expr:
-    """``expression`` with every number not in an exponent replaced by ``constant(value)``."""
-    if expression.is_Number:
-        return constant(float(expression))
-    if isinstance(expression, sp.Pow):
-        return sp.Pow(_lifted(expression.base, constant), expression.exp, evaluate=False)
-    if not expression.args:
-        return expression
-    return expression.func(*(_lifted(a, constant) for a in expression.args), evaluate=False)
 
 
 @lru_cache(maxsize=64)

@@ -292,3 +292,35 @@ def test_a_batch_capped_by_memory_splits_over_no_more_devices_than_its_models():
                                                   "--xla_force_host_platform_device_count=4"})
     assert done.returncode == 0, done.stderr[-2000:]
     assert done.stdout.split() == ["4", "3", "3", "True"]
+
+
+def test_the_numbers_of_extra_features_are_data_not_the_program():
+    # Two records whose effects carry different numbers (a sign's scale, a backlash's
+    # edges, a line's frequency) share one program key, and each evaluator integrates its
+    # own numbers: the response equals one with those numbers compiled into a fresh
+    # evaluator of a single feature set, and differs from the other set's.
+    measurement = _measurement()
+
+    def effects(scale, edge, frequency):
+        return (sp.tanh(scale * S.x_dot), sp.Abs(S.x - edge) / 2,
+                S.x * sp.cos(frequency * S.t))
+
+    a = PopulationEvaluator(measurement, S, max_degree=3, batch=4,
+                            extra_state_features=effects(20.0, 0.01, 9.0))
+    b = PopulationEvaluator(measurement, S, max_degree=3, batch=4,
+                            extra_state_features=effects(35.0, 0.03, 11.0))
+    assert a.key == b.key and a.time_key == b.time_key
+    np.testing.assert_array_equal(a.record_arrays.extra_numbers, [20.0, 0.5, -0.01, 9.0])
+    pop = _random_models(a, np.random.default_rng(5), 4)
+    pop.state[:, -3:] = [0.3, 40.0, 4.0]
+    for g in a.forcing_features:
+        b.forcing_index(g)
+    x_a, x_b = a.simulate(pop)[0], b.simulate(pop)[0]
+    assert np.max(np.abs(x_a - x_b)) > 1e-3 * np.max(np.abs(x_a))
+    # the same numbers by hand: the jets evaluate every feature at its own numbers
+    x, v, t = 0.02, -0.3, 0.4
+    values = a._extra_jets(jnp.asarray(x), jnp.asarray(v), jnp.asarray(t),
+                           jnp.asarray(b.record_arrays.extra_numbers))[0]
+    np.testing.assert_allclose([float(f) for f in values],
+                               [np.tanh(35.0 * v), abs(x - 0.03) / 2, x * np.cos(11.0 * t)],
+                               rtol=1e-14)
