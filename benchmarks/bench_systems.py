@@ -8,7 +8,7 @@
 ``chains``: ``chain2`` and ``chain3`` of :mod:`gpjax.systems` (cubic coupling springs, 1 %
 noise on every response and on the input), every coordinate measured. The structure is
 given (the truth's), or with ``--search`` found by the system GP
-(:func:`gpjax.engine.search_system`, ``--population`` 100, ``--generations`` 3,
+(:meth:`gpjax.Identifier.fit`, ``--population`` 100, ``--generations`` 3,
 max_degree 4, seed = the record's seed); the
 constants and initial states come from :func:`gpjax.engine.fit_system` (weak-form start,
 Levenberg–Marquardt over all coordinates, converged integration). Constants: equation 1 is
@@ -52,7 +52,7 @@ from pathlib import Path
 import numpy as np
 import sympy as sp
 
-from gpjax import GPConfig, Symbols
+from gpjax import GPConfig, Identifier, Symbols
 from gpjax._coefficients import Coefficients, to_population, to_system_population
 from gpjax.engine import PopulationEvaluator, fit_system
 from gpjax.systems import generate, get_system, simulate_equations
@@ -113,10 +113,9 @@ def chains(seeds: int, search: bool, population: int, generations: int,
             measurement = data.fit.system_measurement()
             began = time.perf_counter()
             if search:
-                from gpjax.engine import search_system
                 config = GPConfig(population=population, generations=generations,
                                   third_law=third_law)
-                model = search_system(measurement, config=config, seed=seed).model
+                model = Identifier(config).fit(measurement, seed=seed).model_
             else:
                 model = fit_system(measurement, chain_structure(n), third_law=third_law).model
             seconds = time.perf_counter() - began

@@ -1,7 +1,11 @@
-"""The genetic-programming driver (paper §2, §5), run on the CPU.
+"""The genetic-programming driver (paper §2, §5), run on the CPU, for any number of
+coordinates: :class:`GenerationLoop` runs the generations, stop rules, history,
+checkpoints and island migrants of one coordinate's :class:`Evolution` (below) and of a
+system's :class:`gpjax._system_search.SystemEvolution` (one tree per equation).
 
-Each generation: offspring are made by crossover / mutation / perturbation / reproduction
-(probabilities from the config) from parents chosen by tournament; offspring are scored
+One coordinate, each generation: offspring are made by crossover / mutation /
+perturbation / reproduction (probabilities from the config) from parents chosen by
+tournament; offspring are scored
 (new structures only, in one batch); the best distinct structures are refined and extended
 by one term (memetic step); the next population is the best ``population`` of parents ∪
 offspring ∪ extensions (elitist replacement, repeats of a feature set ranked after all
@@ -27,6 +31,7 @@ import numpy as np
 import sympy as sp
 
 from . import _progress, _trees
+from ._canonical import feature_name
 from ._config import GPConfig
 from ._evaluator import OK
 from ._expressions import parse_expression
@@ -50,7 +55,8 @@ class GenerationStats:
 
 @dataclasses.dataclass
 class RunState:
-    """Everything needed to continue a run after a generation."""
+    """Everything needed to continue a run after a generation (:meth:`GenerationLoop.state_json`
+    writes it as JSON)."""
 
     generation: int
     population: list[tuple]
@@ -58,39 +64,53 @@ class RunState:
     history: list[GenerationStats]
     done: bool = False
 
-    def to_json(self, fitness: Fitness) -> dict:
-        return {
-            "generation": self.generation,
-            "population": [_trees.to_json(t) for t in self.population],
-            "rng_state": self.rng_state,
-            "history": [dataclasses.asdict(h) for h in self.history],
-            "done": self.done,
-            "records": [r.to_json() for r in fitness.records.values() if r.valid],
-            "forcing_features": [str(f) for f in fitness.evaluator.forcing_features],
-        }
 
-    @classmethod
-    def from_json(cls, data: dict, fitness: Fitness) -> "RunState":
-        names = fitness.symbols.names()
-        for text in data["forcing_features"]:
-            fitness.evaluator.forcing_index(parse_expression(text, names))
-        for item in data["records"]:
-            record = Record.from_json(item, names)
-            fitness.records[record.key] = record
-        return cls(generation=data["generation"],
-                   population=[_trees.from_json(t) for t in data["population"]],
-                   rng_state=data["rng_state"],
-                   history=[GenerationStats(**h) for h in data["history"]],
-                   done=data["done"])
+@dataclasses.dataclass(frozen=True)
+class Standing:
+    """Where a population's individuals stand: ``objectives`` (P,); ``usable`` (P,): a valid
+    structure whose evaluation succeeded; ``keys``: each individual's structure (``None``
+    where it is not a valid one); ``order``: the individuals best first; ``best_key``: the
+    best one's structure as text."""
+
+    objectives: np.ndarray
+    usable: np.ndarray
+    keys: list
+    order: list[int]
+    best_key: str
+
+    @property
+    def ranks(self) -> np.ndarray:
+        """Each individual's place in :attr:`order` (0: the best)."""
+        ranks = np.empty(len(self.order), dtype=np.int64)
+        ranks[self.order] = np.arange(len(self.order))
+        return ranks
 
 
 def _rank_key(record: Record, tree: tuple) -> tuple:
     return (record.objective, record.n_terms if record.valid else 10**6, _trees.size(tree))
 
 
+def tournament(values: np.ndarray, rng: np.random.Generator, size: int) -> int:
+    """The index of the least of ``size`` entries of ``values`` drawn with replacement
+    (at most as many as there are)."""
+    entrants = rng.integers(len(values), size=min(size, len(values)))
+    return int(entrants[np.argmin(values[entrants])])
+
+
+def distinct_first(order, keys: list, count: int) -> list[int]:
+    """The first ``count`` of the indices ``order`` with each repeat of a key put after
+    every distinct one (elitist replacement that keeps the population diverse)."""
+    seen: set = set()
+    first, repeats = [], []
+    for i in order:
+        (repeats if keys[i] in seen else first).append(i)
+        seen.add(keys[i])
+    return (first + repeats)[:count]
+
+
 def evolution_for(measurement, config: GPConfig):
     """The GP engine of ``measurement``: :class:`Evolution` for one coordinate, else
-    :class:`gpjax._system_search.SystemEvolution` (the same interface)."""
+    :class:`gpjax._system_search.SystemEvolution`."""
     if measurement.n_coordinates > 1:
         from ._system_search import SystemEvolution
 
@@ -98,8 +118,99 @@ def evolution_for(measurement, config: GPConfig):
     return Evolution(Fitness(measurement, config), config)
 
 
-class Evolution:
-    """Runs GP on one measurement. ``fitness`` holds the caches; ``state`` the population."""
+class GenerationLoop:
+    """The GP driver for any number of coordinates: generations from a seed, the stop
+    rules, the history, checkpoints and island migrants. An individual is one tree
+    (:class:`Evolution`, one coordinate) or one tree per equation
+    (:class:`gpjax._system_search.SystemEvolution`); a subclass gives how individuals are
+    made, scored, improved and kept (``_first_population``, ``_child``,
+    ``_next_population``, ``_standing``) and how its caches are written and read."""
+
+    config: GPConfig
+    stop_objective: float
+
+    # --- the generations ----------------------------------------------------------------
+    def start(self, seed: int) -> RunState:
+        """Generation 0 from ``seed``, scored."""
+        rng = np.random.default_rng(seed)
+        _progress.stage(self._first_message())
+        began = time.perf_counter()
+        population = self._first_population(rng)
+        return self._closed(RunState(generation=0, population=population, rng_state={},
+                                     history=[]), rng, began)
+
+    def step(self, state: RunState) -> RunState:
+        """One generation: offspring of parents chosen by tournament, then the subclass's
+        scoring, local moves, refinement and elitist replacement."""
+        began = time.perf_counter()
+        rng = np.random.default_rng()
+        rng.bit_generator.state = state.rng_state
+        parents = state.population
+        standing = self._standing(parents)
+        offspring = [self._child(parents, standing, rng) for _ in range(self.config.population)]
+        population = self._next_population(parents, offspring, standing, rng)
+        return self._closed(RunState(generation=state.generation + 1, population=population,
+                                     rng_state={}, history=state.history), rng, began)
+
+    def _closed(self, state: RunState, rng: np.random.Generator, began: float) -> RunState:
+        """``state`` with the generator's state, its history row and its stop flag."""
+        standing = self._standing(state.population)
+        objectives, usable = standing.objectives, standing.usable
+        best = standing.order[0]
+        state.rng_state = rng.bit_generator.state
+        state.history.append(GenerationStats(
+            generation=state.generation, best_objective=float(objectives[best]),
+            median_objective=float(np.median(objectives[usable])) if usable.any() else None,
+            valid_fraction=float(usable.mean()),
+            unique_structures=len({k for k in standing.keys if k is not None}),
+            seconds=time.perf_counter() - began, best_key=standing.best_key))
+        state.done = bool(state.generation >= self.config.generations
+                          or objectives[best] <= self.stop_objective)
+        return state
+
+    # --- checkpoints and islands --------------------------------------------------------
+    def state_json(self, state: RunState) -> dict:
+        """``state`` as plain JSON, with the scored records a resumed run cannot recompute
+        and the evaluator's forcing columns (:meth:`load_state` reads it)."""
+        return {"generation": state.generation,
+                "population": [self._individual_json(t) for t in state.population],
+                "rng_state": state.rng_state,
+                "history": [dataclasses.asdict(h) for h in state.history],
+                "done": state.done, "records": self._records_json(),
+                "forcing_features": self.forcing_columns()}
+
+    def load_state(self, data: dict) -> RunState:
+        """Inverse of :meth:`state_json` (the records go into the caches)."""
+        names = self._variable_names()
+        for text in data["forcing_features"]:
+            self._evaluator.forcing_index(parse_expression(text, names))
+        self._load_records(data["records"], names)
+        return RunState(generation=data["generation"],
+                        population=[self._individual(t) for t in data["population"]],
+                        rng_state=data["rng_state"],
+                        history=[GenerationStats(**h) for h in data["history"]],
+                        done=data["done"])
+
+    def emigrants(self, state: RunState, count: int) -> list[dict]:
+        """The population's ``count`` best usable distinct structures as ``{"tree",
+        "record"}``."""
+        standing, out, seen = self._standing(state.population), [], set()
+        for i in standing.order:
+            if len(out) == count:
+                break
+            if standing.usable[i] and standing.keys[i] not in seen:
+                seen.add(standing.keys[i])
+                out.append({"tree": self._individual_json(state.population[i]),
+                            "record": self._record_json(state.population[i])})
+        return out
+
+    def forcing_columns(self) -> list[str]:
+        """The evaluator's forcing columns, as text."""
+        return [feature_name(f) for f in self._evaluator.forcing_features]
+
+
+class Evolution(GenerationLoop):
+    """GP on one coordinate: an individual is one tree; ``fitness`` holds the caches."""
 
     def __init__(self, fitness: Fitness, config: GPConfig):
         self.fitness = fitness
@@ -108,84 +219,73 @@ class Evolution:
         self.grammar = Grammar.from_config(config, len(fitness.measurement.inputs))
         self.fresh_columns = self.forcing_columns()
 
-    # --- checkpoints and islands (the interface SystemEvolution shares) ----------------
-    def state_json(self, state: RunState) -> dict:
-        """``state`` and the scored records as plain JSON."""
-        return state.to_json(self.fitness)
+    @property
+    def _evaluator(self):
+        return self.fitness.evaluator
 
-    def load_state(self, data: dict) -> RunState:
-        """Inverse of :meth:`state_json` (the records go into the fitness cache)."""
-        return RunState.from_json(data, self.fitness)
+    def _variable_names(self) -> set[str]:
+        return self.fitness.symbols.names()
 
-    def emigrants(self, state: RunState, count: int) -> list[dict]:
-        """The head of the ranked population's usable structures as ``{"tree", "record"}``."""
-        head = state.population[:count]  # ranked, distinct structures first
-        return [{"tree": _trees.to_json(tree), "record": record.to_json()}
-                for tree, record in zip(head, self.fitness.records_for(head))
-                if record.valid and record.status == OK]
+    @staticmethod
+    def _individual_json(tree: tuple):
+        return _trees.to_json(tree)
 
-    def forcing_columns(self) -> list[str]:
-        """The evaluator's forcing columns, as text."""
-        return [str(f) for f in self.fitness.evaluator.forcing_features]
+    @staticmethod
+    def _individual(item) -> tuple:
+        return _trees.from_json(item)
+
+    def _records_json(self) -> list[dict]:
+        return [r.to_json() for r in self.fitness.records.values() if r.valid]
+
+    def _load_records(self, items: list[dict], names: set[str]) -> None:
+        for item in items:
+            record = Record.from_json(item, names)
+            self.fitness.records[record.key] = record
+
+    def _record_json(self, tree: tuple) -> dict:
+        return self.fitness.records_for([tree])[0].to_json()
 
     def reset(self) -> None:
         """Forget every scored record (a reused island engine)."""
         self.fitness.records.clear()
 
-    def start(self, seed: int) -> RunState:
-        """Generation 0: a ramped half-and-half population with the linear model in place
-        of its last tree (least-squares coefficients; :meth:`_linear_tree`), scored and
+    def _standing(self, population: list[tuple]) -> Standing:
+        records = self.fitness.records_for(population)
+        order = sorted(range(len(population)),
+                       key=lambda i: _rank_key(records[i], population[i]) + (i,))
+        return Standing(objectives=np.array([r.objective for r in records]),
+                        usable=np.array([r.valid and r.status == OK for r in records]),
+                        keys=[r.key if r.valid else None for r in records], order=order,
+                        best_key=records[order[0]].key)
+
+    def _first_message(self) -> str:
+        return (f"generation 0: compiling (or loading) the population evaluator, scoring "
+                f"{self.config.population} candidates")
+
+    def _first_population(self, rng: np.random.Generator) -> list[tuple]:
+        """A ramped half-and-half population with the linear model in place of its last
+        tree (least-squares coefficients; :meth:`_linear_tree`), scored, extended and
         refined."""
-        rng = np.random.default_rng(seed)
-        _progress.stage(f"generation 0: compiling (or loading) the population evaluator, "
-                        f"scoring {self.config.population} candidates")
-        began = time.perf_counter()
         population = initial_population(self.grammar, rng, self.config.population,
                                         self.config.init_depth)
         linear = self._linear_tree()
         if linear is not None and linear not in population:
             population[-1] = linear
         self._score(population)
-        population = self._replace(population + self._extensions(population, rng))
-        state = RunState(generation=0, population=population, rng_state=rng.bit_generator.state,
-                         history=[])
-        self._finish_generation(state, population, began)
-        return state
+        return self._refined(self._replace(population + self._extensions(population, rng)))
 
-    def step(self, state: RunState) -> RunState:
-        """One generation: offspring, scoring, refinement, elitist replacement."""
-        began = time.perf_counter()
-        rng = np.random.default_rng()
-        rng.bit_generator.state = state.rng_state
-        parents = state.population
-        records = self.fitness.records_for(parents)
-        ranks = _ranks(records, parents)
-        offspring = [self._offspring(parents, ranks, rng) for _ in range(self.config.population)]
+    def _next_population(self, parents, offspring, standing, rng) -> list[tuple]:
+        """The offspring scored, the union's one-term extensions, the best ``population``
+        of all, their best refined."""
         union = parents + offspring
         self._score(offspring)
         union += self._extensions(union, rng)
-        next_population = self._replace(union)
-        state = RunState(generation=state.generation + 1, population=next_population,
-                         rng_state=rng.bit_generator.state, history=state.history)
-        self._finish_generation(state, next_population, began)
-        return state
+        return self._refined(self._replace(union))
 
-    def _finish_generation(self, state: RunState, population: list[tuple], began: float):
-        records = self.fitness.records_for(population)
-        self._refine_best(records)
-        population[:] = self._replace(population)
-        records = self.fitness.records_for(population)
-        objectives = np.array([r.objective for r in records])
-        valid = np.array([r.valid and r.status == OK for r in records])
-        best = min(range(len(records)), key=lambda i: _rank_key(records[i], population[i]))
-        state.history.append(GenerationStats(
-            generation=state.generation, best_objective=float(objectives[best]),
-            median_objective=float(np.median(objectives[valid])) if valid.any() else None,
-            valid_fraction=float(valid.mean()),
-            unique_structures=len({r.key for r in records if r.valid}),
-            seconds=time.perf_counter() - began, best_key=records[best].key))
-        state.done = bool(state.generation >= self.config.generations
-                          or objectives[best] <= self.stop_objective)
+    def _refined(self, population: list[tuple]) -> list[tuple]:
+        """``population`` after refining its best distinct structures, ranked again."""
+        self._refine_best(self.fitness.records_for(population))
+        return self._replace(population)
 
     def _score(self, trees: list[tuple]) -> None:
         """Score new trees; in tree mode also refine every new valid candidate (Lamarckian;
@@ -293,13 +393,12 @@ class Evolution:
             return float(rng.uniform(*pairs[rng.integers(len(pairs))]))
         return float(rng.uniform(*self.config.real_interval))
 
-    def _offspring(self, parents: list[tuple], ranks: np.ndarray, rng: np.random.Generator):
-        c = self.config
+    def _child(self, parents: list[tuple], standing: Standing, rng: np.random.Generator):
+        c, ranks = self.config, standing.ranks
         draw = rng.random()
 
         def pick() -> tuple:
-            contestants = rng.integers(len(parents), size=c.tournament)
-            return parents[int(contestants[np.argmin(ranks[contestants])])]
+            return parents[tournament(ranks, rng, c.tournament)]
 
         if draw < c.p_crossover:
             return crossover(pick(), pick(), self.grammar, rng)
@@ -314,14 +413,8 @@ class Evolution:
         records = self.fitness.records_for(candidates)
         order = sorted(range(len(candidates)),
                        key=lambda i: _rank_key(records[i], candidates[i]) + (i,))
-        seen: set[str] = set()
-        first, repeats = [], []
-        for i in order:
-            key = feature_set_key(records[i]) if records[i].valid else repr(candidates[i])
-            (repeats if key in seen else first).append(i)
-            seen.add(key)
-        chosen = (first + repeats)[: self.config.population]
-        return [candidates[i] for i in chosen]
+        keys = [feature_set_key(r) if r.valid else repr(t) for r, t in zip(records, candidates)]
+        return [candidates[i] for i in distinct_first(order, keys, self.config.population)]
 
 
 def _best_distinct(records: list[Record], count: int) -> list[Record]:
@@ -345,10 +438,3 @@ def _sum_tree(mass: float, terms: list[tuple[str, tuple, float]]) -> tuple:
         leaves = [("add", leaves[i], leaves[i + 1]) if i + 1 < len(leaves) else leaves[i]
                   for i in range(0, len(leaves), 2)]
     return leaves[0]
-
-
-def _ranks(records: list[Record], trees: list[tuple]) -> np.ndarray:
-    order = sorted(range(len(trees)), key=lambda i: _rank_key(records[i], trees[i]) + (i,))
-    ranks = np.empty(len(trees), dtype=np.int64)
-    ranks[order] = np.arange(len(trees))
-    return ranks

@@ -28,7 +28,7 @@ system must not depend on that width: its reference response with every sign
 :data:`gpjax._sign_width.NARROWING` times narrower, constants unchanged, must differ from
 its own by less than the convergence tolerance of its RMS residual; otherwise the search
 refits it with the narrower signs by one coordinate's rule
-(:func:`gpjax._sign_width.next_narrowing`; :func:`gpjax._system_search.search_system`).
+(:func:`gpjax._sign_width.next_narrowing`; :meth:`gpjax._system_search.SystemEvolution.finish`).
 """
 
 from __future__ import annotations

@@ -90,13 +90,12 @@ import numpy as np
 import sympy as sp
 
 from . import _progress, _trees
-from ._canonical import Symbols, feature_name
+from ._canonical import Symbols
 from ._config import GPConfig, check_system_config
 from ._convergence import search_substeps
 from ._data import Measurement
 from ._evaluator import PENALTY, PopulationEvaluator
-from ._evolve import GenerationStats, RunState
-from ._expressions import parse_expression
+from ._evolve import GenerationLoop, RunState, Standing, distinct_first, tournament
 from ._features import SIGN_WIDTH
 from ._memory import check_fit_memory
 from ._objective import stop_objective
@@ -117,8 +116,8 @@ class SearchResult:
     :class:`gpjax._evolve.GenerationStats` as a dict; its smoothed signs' width check
     (:meth:`gpjax._sign_width.WidthCheck.to_json`, ``None`` without a sign) and why its
     narrowing ended unconverged (``stopped``, :func:`gpjax._sign_width.why_stopped`); and
-    the seconds of the stages (``search_s``, ``selection_s``, ``convergence_s``: the final
-    fit at converged integration and its uncertainty)."""
+    the seconds of the stages (``selection_s``, ``convergence_s``: the final fit at
+    converged integration and its uncertainty)."""
 
     fit: SystemFit
     history: list[dict]
@@ -131,35 +130,10 @@ class SearchResult:
         return self.fit.model
 
 
-def search_system(measurement: Measurement, *, config: GPConfig = GPConfig(),
-                  seed: int = 0) -> SearchResult:
-    """Identify one equation per coordinate of ``measurement`` by GP (module docstring) in
-    this process, without checkpoints (:meth:`gpjax.Identifier.fit` runs the same
-    :class:`SystemEvolution` with them).
-
-    Raises:
-        ConfigError: a :data:`gpjax._config.ONE_COORDINATE` field changed.
-        ValueError: no valid system was found.
-    """
-    began = time.perf_counter()
-    evolution = SystemEvolution(measurement, config)
-    state = evolution.start(seed)
-    while not state.done:
-        state = evolution.step(state)
-        last = state.history[-1]
-        _progress.generation(last.generation, config.generations, last.best_objective,
-                             last.seconds)
-    searched = time.perf_counter()
-    result = evolution.finish(state)
-    result.timings["search_s"] = searched - began
-    return result
-
-
-class SystemEvolution:
-    """GP over the systems of one measurement (module docstring), a generation at a time
-    with the interface of :class:`gpjax._evolve.Evolution` (``start``, ``step``,
-    ``state_json``, ``load_state``, ``emigrants``): one driver runs either with
-    checkpoints, resume and islands. The population is a list of D-tuples of trees.
+class SystemEvolution(GenerationLoop):
+    """GP over the systems of one measurement (module docstring), run by
+    :class:`gpjax._evolve.GenerationLoop` (generations, checkpoints, resume and islands as
+    one coordinate's): an individual is a D-tuple of trees, one per equation.
 
     Raises:
         ConfigError: a :data:`gpjax._config.ONE_COORDINATE` field changed.
@@ -193,96 +167,88 @@ class SystemEvolution:
         self.fresh_columns = self.forcing_columns()
 
     # --- the generations ------------------------------------------------------------
-    def start(self, seed: int) -> RunState:
-        """Generation 0: half ramped half-and-half trees, half random sums of valid terms
-        (module docstring), scored."""
-        rng = np.random.default_rng(seed)
+    def _first_message(self) -> str:
+        return (f"generation 0: compiling (or loading) the evaluator of "
+                f"{len(self.grammars)} equations, scoring {self.config.population} systems")
+
+    def _first_population(self, rng: np.random.Generator) -> list[tuple]:
+        """Half ramped half-and-half trees, half random sums of valid terms (module
+        docstring)."""
         count, config = len(self.grammars), self.config
         trees = list(zip(*(initial_population(g, rng, config.population, config.init_depth)
                            for g in self.grammars)))
         for k in range(0, len(trees), 2):
             trees[k] = as_trees(tuple(_random_terms(i, self.equations, rng)
                                       for i in range(count)), self.equations)
-        _progress.stage(f"generation 0: compiling (or loading) the evaluator of {count} "
-                        f"equations, scoring {config.population} systems")
-        began = time.perf_counter()
-        state = RunState(generation=0, population=trees, rng_state={}, history=[])
-        return self._finished(state, self.scorer(trees), rng, began)
+        return trees
 
-    def step(self, state: RunState) -> RunState:
-        """One generation: offspring, local search, refinement of the best, survivors."""
-        began = time.perf_counter()
-        rng = np.random.default_rng()
-        rng.bit_generator.state = state.rng_state
-        config, scorer, trees = self.config, self.scorer, state.population
-        fitness = scorer(trees)
-        offspring = [_offspring(trees, fitness, self.grammars, rng, config)
-                     for _ in range(config.population)]
-        offspring += _local_search(trees, fitness, self.equations, scorer, config)
-        pool = trees + offspring
-        scores = np.concatenate([fitness, scorer(offspring)])
-        scorer.refine_best(pool, scores, config.refine_top)
-        trees, fitness = _survivors(pool, scorer(pool), scorer, config.population)
-        state = RunState(generation=state.generation + 1, population=trees, rng_state={},
-                         history=state.history)
-        return self._finished(state, fitness, rng, began)
+    def _child(self, parents, standing: Standing, rng: np.random.Generator) -> tuple:
+        """One equation of a parent changed: crossover with another parent's same equation
+        (or, with probability ``p_swap``, that equation swapped whole), mutation or
+        perturbation (module docstring)."""
+        config, fitness = self.config, standing.objectives
+        parent = list(parents[tournament(fitness, rng, config.tournament)])
+        i = int(rng.integers(len(parent)))
+        draw = rng.random()
+        if draw < config.p_crossover:
+            other = parents[tournament(fitness, rng, config.tournament)]
+            if rng.random() < config.p_swap:
+                parent[i] = other[i]
+            else:
+                parent[i] = crossover(parent[i], other[i], self.grammars[i], rng)
+        elif draw < config.p_crossover + config.p_mutation:
+            parent[i] = mutation(parent[i], self.grammars[i], rng)
+        elif draw < config.p_crossover + config.p_mutation + config.p_perturbation:
+            parent[i] = perturbation(parent[i], self.grammars[i], rng)
+        return tuple(parent)
 
-    def _finished(self, state: RunState, fitness: np.ndarray, rng, began: float) -> RunState:
-        """``state`` with the generator's state, its history row and stop flag."""
-        keys = [self.scorer.key(s) for s in state.population]
-        valid = fitness < PENALTY
-        best = int(np.argmin(fitness))
-        state.rng_state = rng.bit_generator.state
-        state.history.append(GenerationStats(
-            generation=state.generation, best_objective=float(fitness[best]),
-            median_objective=float(np.median(fitness[valid])) if valid.any() else None,
-            valid_fraction=float(valid.mean()),
-            unique_structures=len({k for k in keys if k is not None}), seconds=
-            time.perf_counter() - began,
-            best_key=key_text(keys[best]) if keys[best] is not None else ""))
-        state.done = bool(state.generation >= self.config.generations
-                          or fitness[best] <= self.stop_objective)
-        return state
+    def _next_population(self, parents, offspring, standing, rng) -> list[tuple]:
+        """The local search's systems beside the offspring, the best new ones refined,
+        the best ``population`` of all kept (distinct structures first)."""
+        scorer, fitness = self.scorer, standing.objectives
+        offspring = offspring + _local_search(parents, fitness, self.equations, scorer,
+                                              self.config)
+        pool = parents + offspring
+        scorer.refine_best(pool, np.concatenate([fitness, scorer(offspring)]),
+                           self.config.refine_top)
+        scores = scorer(pool)
+        order = np.argsort(scores, kind="stable")
+        keys = [scorer.key(s) for s in pool]
+        return [pool[i] for i in distinct_first(order, keys, self.config.population)]
 
-    # --- checkpoints and islands -------------------------------------------------------
-    def state_json(self, state: RunState) -> dict:
-        """``state`` as plain JSON, with the refined structures' records and the
-        evaluator's forcing columns (:meth:`load_state` reads it)."""
-        return {"generation": state.generation,
-                "population": [[_trees.to_json(t) for t in s] for s in state.population],
-                "rng_state": state.rng_state,
-                "history": [dataclasses.asdict(h) for h in state.history],
-                "done": state.done, "records": self.scorer.records(),
-                "forcing_features": self.forcing_columns()}
+    def _standing(self, population: list[tuple]) -> Standing:
+        fitness = self.scorer(population)
+        keys = [self.scorer.key(s) for s in population]
+        order = [int(i) for i in np.argsort(fitness, kind="stable")]
+        best = keys[order[0]]
+        return Standing(objectives=fitness, usable=fitness < PENALTY, keys=keys, order=order,
+                        best_key=key_text(best) if best is not None else "")
 
-    def load_state(self, data: dict) -> RunState:
-        """Inverse of :meth:`state_json` (the records go into the scorer's caches)."""
-        names = {*self.equations.names, *(f"{n}_dot" for n in self.equations.names),
-                 self.measurement.time_name, *self.measurement.input_names}
-        for text in data["forcing_features"]:
-            self.scorer.evaluator.forcing_index(parse_expression(text, names))
-        self.scorer.load(data["records"])
-        return RunState(generation=data["generation"],
-                        population=[tuple(_trees.from_json(t) for t in s)
-                                    for s in data["population"]],
-                        rng_state=data["rng_state"],
-                        history=[GenerationStats(**h) for h in data["history"]],
-                        done=data["done"])
+    # --- the caches as JSON -----------------------------------------------------------------
+    @property
+    def _evaluator(self):
+        return self.scorer.evaluator
 
-    def emigrants(self, state: RunState, count: int) -> list[dict]:
-        """The population's ``count`` best valid systems as ``{"tree", "record"}``."""
-        scores = self.scorer(state.population)
-        out = []
-        for index in np.argsort(scores, kind="stable")[:count]:
-            key = self.scorer.key(state.population[index])
-            if key is not None and scores[index] < PENALTY:
-                out.append({"tree": [_trees.to_json(t) for t in state.population[index]],
-                            "record": self.scorer.record(key)})
-        return out
+    def _variable_names(self) -> set[str]:
+        return {*self.equations.names, *(f"{n}_dot" for n in self.equations.names),
+                self.measurement.time_name, *self.measurement.input_names}
 
-    def forcing_columns(self) -> list[str]:
-        """The evaluator's forcing columns, as text."""
-        return [feature_name(f) for f in self.scorer.evaluator.forcing_features]
+    @staticmethod
+    def _individual_json(system: tuple) -> list:
+        return [_trees.to_json(t) for t in system]
+
+    @staticmethod
+    def _individual(item) -> tuple:
+        return tuple(_trees.from_json(t) for t in item)
+
+    def _records_json(self) -> list[dict]:
+        return self.scorer.records()
+
+    def _load_records(self, items: list[dict], names: set[str]) -> None:
+        self.scorer.load(items)
+
+    def _record_json(self, system: tuple) -> dict:
+        return self.scorer.record(self.scorer.key(system))
 
     def reset(self) -> None:
         """Forget every scored structure (a reused island engine)."""
@@ -376,28 +342,6 @@ def _random_terms(i: int, equations: Equations, rng) -> tuple:
     return state, tuple(sorted(forcing, key=str))
 
 
-def _offspring(trees, fitness, grammars, rng, config: GPConfig):
-    parent = list(trees[_tournament(fitness, rng, config.tournament)])
-    i = int(rng.integers(len(parent)))
-    draw = rng.random()
-    if draw < config.p_crossover:
-        other = trees[_tournament(fitness, rng, config.tournament)]
-        if rng.random() < config.p_swap:
-            parent[i] = other[i]
-        else:
-            parent[i] = crossover(parent[i], other[i], grammars[i], rng)
-    elif draw < config.p_crossover + config.p_mutation:
-        parent[i] = mutation(parent[i], grammars[i], rng)
-    elif draw < config.p_crossover + config.p_mutation + config.p_perturbation:
-        parent[i] = perturbation(parent[i], grammars[i], rng)
-    return tuple(parent)
-
-
-def _tournament(fitness, rng, size: int) -> int:
-    entrants = rng.integers(len(fitness), size=min(size, len(fitness)))
-    return int(entrants[np.argmin(fitness[entrants])])
-
-
 def _local_search(trees, fitness, equations: Equations, scorer: SystemScorer,
                   config: GPConfig) -> list:
     """Descent by one-term changes from the ``local_search`` best distinct systems, at
@@ -470,15 +414,3 @@ def _forward(scorer: SystemScorer, key, i: int, state: list, forcing: list, step
             return
         state, forcing = min(options, key=lambda o: scorer.residual(key, i, o))
         yield tuple(sorted(state, key=str)), tuple(sorted(forcing, key=str))
-
-
-def _survivors(pool, scores, scorer: SystemScorer, count: int):
-    """The best ``count`` of ``pool``: distinct structures first, then repeats."""
-    order = np.argsort(scores, kind="stable")
-    seen, first, repeats = set(), [], []
-    for index in order:
-        key = scorer.key(pool[index])
-        (repeats if key in seen else first).append(index)
-        seen.add(key)
-    chosen = (first + repeats)[:count]
-    return [pool[i] for i in chosen], scores[chosen]

@@ -11,7 +11,7 @@
 * systems of several coordinates (issue 14): :func:`to_system_population`,
   :func:`from_system_population`, :func:`system_state_features`,
   :func:`fit_system` (constants of a given system structure, converged),
-  :func:`weak_form_start` and :func:`search_system` (the GP over systems); a system is a
+  :func:`weak_form_start` (the GP over systems is :class:`gpjax.Identifier`'s); a system is a
   :class:`gpjax.Model` of several coordinates, read by :func:`load_model` (any version of
   the model file).
 """
@@ -26,12 +26,11 @@ from ._model import simulate_model
 from ._objective import objective_parts
 from ._model_file import load_model
 from ._system_fit import SystemFit, fit_system, weak_form_start
-from ._system_search import search_system
 
 __all__ = ["CanonicalForm", "Coefficients", "FlatLayout", "Population", "PopulationEvaluator",
            "Scores", "Status", "StructureCheck", "Symbols", "check_structure", "check_tree",
            "SystemFit", "fit_system", "from_population",
-           "load_model", "search_system",
+           "load_model",
            "from_system_population", "objective_parts", "parse_expression", "simulate_model",
            "system_state_features", "to_population", "to_system_population",
            "tree_to_sympy", "weak_form_start"]

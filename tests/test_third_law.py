@@ -118,8 +118,7 @@ def test_third_law_needs_several_responses(tmp_path, capsys):
 
 # --- the settings of a system search: the one GPConfig ---------------------------------
 def test_system_search_takes_the_one_gpconfig_and_refuses_one_coordinate_fields(tmp_path):
-    from gpjax import ConfigError, GPConfig
-    from gpjax.engine import search_system
+    from gpjax import ConfigError, GPConfig, Identifier
 
     config = GPConfig(population=60, generations=2, third_law=True, p_swap=0.5)
     assert config.third_law and config.p_swap == 0.5 and config.local_steps == 4
@@ -132,9 +131,9 @@ def test_system_search_takes_the_one_gpconfig_and_refuses_one_coordinate_fields(
         GPConfig(local_steps=-1)
     _, _, measurement = _chain(duration=1.0)
     with pytest.raises(ConfigError, match="coefficients is not supported with several"):
-        search_system(measurement, config=GPConfig(coefficients="tree"))
+        Identifier(GPConfig(coefficients="tree")).fit(measurement)
     with pytest.raises(ConfigError, match="function 'exp' is not supported with several"):
-        search_system(measurement, config=GPConfig(functions=("add", "sub", "mul", "exp")))
+        Identifier(GPConfig(functions=("add", "sub", "mul", "exp"))).fit(measurement)
     path = tmp_path / "run.toml"
     path.write_text("population = 30\ngenerations = 1\nthird_law = true\np_swap = 0.5\n")
     read = GPConfig.from_toml(path)
