@@ -55,7 +55,7 @@ from bench_systems import scored  # noqa: E402
 from report import front_door_rows  # noqa: E402
 
 SYSTEMS = ("chain2", "chain2_free", "chain3", "chain3_free", "chain2_friction",
-           "chain2_driven_free_end", "torsion2_stiff")
+           "chain2_driven_free_end", "torsion2_stiff", "chain3_light_middle")
 #: The function set given where the truth has a term beyond add, sub, mul.
 FUNCTIONS = {"chain2_friction": "add,sub,mul,sign"}
 

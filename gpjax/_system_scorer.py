@@ -41,6 +41,9 @@ class SystemScorer:
         self.refined: dict[tuple, list[Coefficients]] = {}
         self._refiners: dict[tuple, Refiner] = {}
         self._residuals: dict[tuple, float] = {}
+        #: equation feature sets by weak-form residual, by (equation, size, key)
+        #: (:func:`gpjax._system_search._selections`)
+        self.selections: dict[tuple, list] = {}
 
     def key(self, system) -> tuple | None:
         parts = [self.equations.structure(i, tree) for i, tree in enumerate(system)]
@@ -210,6 +213,7 @@ class SystemScorer:
         self.objective.clear()
         self.refined.clear()
         self._residuals.clear()
+        self.selections.clear()
 
 
 def key_text(key) -> str:

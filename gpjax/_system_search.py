@@ -385,22 +385,56 @@ def _neighbours(key, equations: Equations):
 def _equation_error_steps(key, scorer: SystemScorer, steps: int = 4, longest: int = 8):
     """Multi-term moves by weak-form equation error, which is separable per equation and
     never gets worse with a term more: per equation, forward selection from the equation as
-    it is and from nothing, every equation along the way (the others kept); and jointly,
-    every combination of the equations' selections from nothing (up to ``longest`` terms)
-    that stop where the residual is within 5 % of the longest one's, one term less or one
-    more (coupled equations are often right only together: a coupling term pays in output
-    error once both ends have it)."""
+    it is, and the best selection of each size from nothing (:func:`_selections`), every
+    equation along the way (the others kept); and jointly, every combination of the
+    equations' selections from nothing (up to ``longest`` terms) that stop where the
+    residual is within 5 % of the longest one's, one term less or one more (coupled
+    equations are often right only together: a coupling term pays in output error once
+    both ends have it)."""
     joint = []
     for i, (state, forcing) in enumerate(key):
         for part in _forward(scorer, key, i, list(state), list(forcing), steps):
             yield key[:i] + (part,) + key[i + 1:]
-        fresh = list(_forward(scorer, key, i, [], [], longest))
+        fresh = _selections(scorer, key, i, longest)
         for part in fresh[:steps]:
             yield key[:i] + (part,) + key[i + 1:]
         residuals = [scorer.residual(key, i, part) for part in fresh]
         stop = next(k for k, r in enumerate(residuals) if r <= 1.05 * residuals[-1])
         joint.append(fresh[max(0, stop - 1):stop + 2])
     yield from itertools.product(*joint)
+
+
+def _selections(scorer: SystemScorer, key, i: int, longest: int) -> list:
+    """Equation ``i``'s feature sets of 1 … ``longest`` features, each the one of least
+    weak-form residual that forward selection from nothing (:func:`_forward`) and
+    backward elimination from the whole basis (:func:`_backward`) reach at that size.
+    Both ways, since each misses what the other finds: forward selection adds one feature
+    at a time and so misses features that explain the equation only together — a mass's
+    own x_i and its couplings x_i − x_j to both neighbours, nearly collinear, each little
+    use alone (a 3-mass chain with a light middle mass: its forward path took the input
+    and never reached the truth); backward elimination starts from them all."""
+    known = (i, longest, key if scorer.equations.third_law else None)
+    if known not in scorer.selections:  # without the third law, one path per equation
+        forward = list(_forward(scorer, key, i, [], [], longest))
+        backward = _backward(scorer, key, i, longest)
+        scorer.selections[known] = [min(pair, key=lambda part: scorer.residual(key, i, part))
+                                    for pair in zip(forward, backward)]
+    return scorer.selections[known]
+
+
+def _backward(scorer: SystemScorer, key, i: int, longest: int) -> list:
+    """Equation ``i``'s whole basis thinned one feature at a time by the least weak-form
+    residual; the sets of 1 … ``longest`` features, the smallest first."""
+    state, forcing = (list(b) for b in scorer.equations.basis(i))
+    path = []
+    while True:
+        if len(state) + len(forcing) <= longest:
+            path.append((tuple(sorted(state, key=str)), tuple(sorted(forcing, key=str))))
+        if len(state) + len(forcing) == 1:
+            return path[::-1]
+        options = [([g for g in state if g != f], forcing) for f in state]
+        options += [(state, [g for g in forcing if g != f]) for f in forcing]
+        state, forcing = min(options, key=lambda o: scorer.residual(key, i, o))
 
 
 def _forward(scorer: SystemScorer, key, i: int, state: list, forcing: list, steps: int):

@@ -263,6 +263,20 @@ def _stiff_torsional_pair() -> System:
                   excitation=Excitation(low=1.0, high=30.0, rms=1.0))
 
 
+def _light_middle_chain() -> System:
+    """``chain3_free`` with a light middle mass (2, 0.5, 1 kg), stiffer cubic couplings and
+    lighter damping: the middle equation's own x2 and its couplings to both neighbours are
+    nearly collinear, each of little use alone, so forward selection by equation error
+    misses them (:func:`gpjax._system_search._selections`)."""
+    return dataclasses.replace(
+        _chain(3, grounded_last=False), name="chain3_light_middle",
+        description="3-mass chain, a light middle mass, cubic coupling springs, input on "
+        "mass 1, no ground spring on the last mass",
+        constants={"m1": 2.0, "m2": 0.5, "m3": 1.0, "c": 0.3, "k": 45.0, "kc": 40.0,
+                   "k3": 800.0},
+        excitation=Excitation(low=0.1, high=4.0, rms=5.0))
+
+
 def _ground_friction(base: System, i: int) -> System:
     """``base`` with dry friction F·tanh(x_i'/v0), F = 1 N, v0 = 1 mm/s, between
     coordinate ``i`` (0-based) and the ground: an effect a model of ``base``'s structure
@@ -320,6 +334,7 @@ def _catalogue() -> dict[str, System]:
         _chain(3),
         _chain(2, grounded_last=False),
         _chain(3, grounded_last=False),
+        _light_middle_chain(),
         _friction_chain(),
         _chain_driven_at_the_free_end(),
         _stiff_torsional_pair(),

@@ -533,3 +533,28 @@ def test_the_front_door_finds_a_stiff_torsional_pair(tmp_path):
     errors = [nrms(response, truth) for response, truth in zip(simulated, record.response_true)]
     print("extrapolation NRMS:", errors)
     assert max(errors) < 0.02
+
+
+def test_the_local_search_selects_features_that_explain_an_equation_only_together():
+    """``chain3_light_middle`` (2 % noise): the middle equation's own x2 and its couplings
+    to both neighbours are nearly collinear, each of little use alone. Forward selection
+    from nothing takes the input instead and never reaches the truth; the search's
+    selections (forward and backward elimination, the better of each size) hold it."""
+    import sympy as sp
+
+    from gpjax import GPConfig
+    from gpjax._system_search import SystemEvolution, _forward, _selections
+
+    measurement = generate("chain3_light_middle", seed=1, noise=0.02,
+                           input_noise=0.02).fit.system_measurement()
+    scorer = SystemEvolution(measurement, GPConfig()).scorer
+    x1, x2, x3, v2 = sp.symbols("x1 x2 x3 x2_dot")
+    truth = (tuple(sorted((v2, x2, x2 - x1, (x2 - x1) ** 3, x2 - x3, (x2 - x3) ** 3),
+                          key=str)), ())
+    key = ((), truth, ())
+    forward = list(_forward(scorer, key, 1, [], [], 8))
+    assert truth not in forward
+    assert any(sp.Symbol("u") in forcing for _, forcing in forward[1:6])
+    selections = _selections(scorer, key, 1, 8)
+    assert selections[5] == truth
+    assert scorer.residual(key, 1, truth) < scorer.residual(key, 1, forward[5])
