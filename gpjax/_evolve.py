@@ -5,11 +5,10 @@ system's :class:`gpjax._system_search.SystemEvolution` (one tree per equation).
 
 One coordinate, each generation: offspring are made by crossover / mutation /
 perturbation / reproduction (probabilities from the config) from parents chosen by
-tournament; offspring are scored
-(new structures only, in one batch); the best distinct structures are refined and extended
-by one term (memetic step); the next population is the best ``population`` of parents ∪
-offspring ∪ extensions (elitist replacement, repeats of a feature set ranked after all
-distinct ones). In tree mode (``coefficients="tree"``) every new candidate is refined from
+tournament; offspring are scored (new structures only, in one batch); the best distinct
+structures are refined and extended by one term (memetic step); the next population is
+the best ``population`` of parents ∪ offspring ∪ extensions (elitist replacement, repeats
+of a feature set ranked after all distinct ones). In tree mode (``coefficients="tree"``) every new candidate is refined from
 its tree's constants before it competes (see :meth:`Evolution._score`). The run stops after
 ``generations`` generations or when the best objective f <= epsilon × f_0 (eq. 12,
 :func:`gpjax._objective.stop_objective`).
@@ -55,8 +54,8 @@ class GenerationStats:
 
 @dataclasses.dataclass
 class RunState:
-    """Everything needed to continue a run after a generation (:meth:`GenerationLoop.state_json`
-    writes it as JSON)."""
+    """Everything needed to continue a run after a generation (written as JSON by
+    :meth:`GenerationLoop.state_json`)."""
 
     generation: int
     population: list[tuple]
