@@ -24,6 +24,7 @@ JSON-ready dict, so a run can be checkpointed after every generation and resumed
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 
 import numpy as np
@@ -77,9 +78,10 @@ class Standing:
     order: list[int]
     best_key: str
 
-    @property
+    @functools.cached_property
     def ranks(self) -> np.ndarray:
-        """Each individual's place in :attr:`order` (0: the best)."""
+        """Each individual's place in :attr:`order` (0: the best; computed once, read by
+        every tournament of a generation)."""
         ranks = np.empty(len(self.order), dtype=np.int64)
         ranks[self.order] = np.arange(len(self.order))
         return ranks
