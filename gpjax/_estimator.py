@@ -504,6 +504,7 @@ class Identifier:
             width = check.get("sign_width")
             if width:
                 lines.append(width_line(width, check.get("stopped")))
+        lines += _scale_lines(self.model_)
         band = self.model_.uncertainty
         if band is not None:
             lines.append("  ±: half of each constant's 95 % interval (output error, "
@@ -594,6 +595,17 @@ def _projection(width) -> str:
                 f"{width.next_ratio:.1%}")
     return (f"its change falls {width.rate:.2g}× per narrowing: about "
             f"{width.narrowings_needed} more narrowing(s) would pass")
+
+
+def _scale_lines(model: Model) -> list[str]:
+    """The printout's note on equations identified only up to a factor (no input)."""
+    names = [model.coordinates[i] for i in model.unscaled()]
+    if not names:
+        return []
+    hint = ("; --third-law carries the input's units to an equation through its "
+            "coupling forces" if model.n_coordinates > 1 and not model.third_law else "")
+    return [f"  no input in the equation of {', '.join(names)}: identified up to a factor, "
+            f"its constants are per unit of its mass (m held at 1){hint}"]
 
 
 def _row(record: Record, model: Model, chosen: Record) -> dict:

@@ -250,6 +250,12 @@ class Model:
         first = next((u for u in self.inputs if u in forcing), None)
         return first if first is not None and abs(forcing[first]) == 1.0 else None
 
+    def unscaled(self) -> list[int]:
+        """The equations normalised by their mass (held at 1) for want of an input: each
+        is identified only up to a factor, so its constants are per unit of its mass."""
+        return [i for i, e in enumerate(self.equations)
+                if self.normaliser(i) is None and e.mass == 1.0]
+
     def constants(self) -> dict[str, float]:
         values = {}
         for name, (i, part, feature) in self.constant_names().items():

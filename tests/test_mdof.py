@@ -275,6 +275,21 @@ def test_a_system_whose_reported_model_diverges_prints_which_coordinate():
     assert "RMS x1 diverged, x2 0.25" in str(identifier)
 
 
+def test_the_printout_says_which_equations_are_known_only_up_to_a_factor():
+    """An equation without an input is normalised by its mass: the printout names it and
+    points to the third law; an equation normalised by its input, or a mass that was
+    fitted, is not named."""
+    system, record, _ = _chain(duration=3.0)
+    c = {**system.constants, "m2": 1.0}
+    identifier = gpjax.Identifier(gpjax.GPConfig())
+    identifier.model_ = gpjax.Model.from_equations(("x1", "x2"), "t", ("u",), _equations(c))
+    assert identifier.model_.unscaled() == [1]
+    line = next(x for x in str(identifier).splitlines() if "no input" in x)
+    assert "equation of x2:" in line and "--third-law" in line
+    identifier.model_ = _truth_model(system, record)  # m2 fitted: known in u's units
+    assert identifier.model_.unscaled() == [] and "no input" not in str(identifier)
+
+
 def test_system_model_file_round_trip_and_simulate_command(tmp_path, capsys):
     from gpjax.cli import main
     from gpjax.engine import load_model
