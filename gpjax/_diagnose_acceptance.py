@@ -44,7 +44,10 @@ force as noise: ``input_gain`` at 4× the torque noise was missed that way). Req
 (an intersection–union test, Berger 1982) keeps the level α whenever either test holds it
 — the score test for coefficients, the held-out test for the nonlinear parameters found on
 the estimation part, which make the score statistic's null distribution non-standard —
-and it can only remove acceptances. Equation-error mode tests its held-out windows by
+and it can only remove acceptances. Where the current fit's sensitivities give a
+candidate's terms no column of their own (no degrees of freedom: the test has no
+information, not evidence of zero), the score test is taken in the weak form on the
+measured response (:func:`gpjax._diagnose_evidence.score_statistics`). Equation-error mode tests its held-out windows by
 blocked cross-validation (every window held out once, no single extrapolated tail) and
 requires the same score test on the estimation part's weak form
 (:func:`gpjax._diagnose_evidence.equation_error_scores`): an effect whose coefficients are

@@ -256,17 +256,28 @@ def score_statistics(problem: FitProblem, current: Fit, candidates: list[Candida
     """Per candidate, the robust score test (:func:`gpjax._diagnose_acceptance.score_test`)
     that its coefficients are zero, on the estimation part of the current fit's residual
     with the simulated response's sensitivities at the current fit, the variance from the
-    candidate's refit (``results``, same order) residual."""
+    candidate's refit (``results``, same order) residual.
+
+    Where those sensitivities give the candidate's terms no column outside the current
+    fit's (``dof`` 0: the test has no information, e.g. a dead zone that the current
+    fit's simulated response never leaves), the same test is taken in the weak form on
+    the measured response instead (:func:`equation_error_scores`, marked ``"weak_form"``),
+    which does not depend on the fit's trajectory: "no information" is not "zero"."""
     problem.simulator_for([current.structure] + [current.structure.plus(c.terms)
                                                  for c in candidates])
     jacobian, base, columns, _ = sensitivities(problem, current,
                                                [c.terms for c in candidates])
     n, measured = problem.n_train, problem.measurement.response
     residual = (measured - current.simulated)[:n]
-    return [score_test(residual, jacobian[:n, base],
-                       jacobian[:n, [c for c in columns(c.terms) if c not in base]],
-                       noise=(measured - fit.simulated)[:n])
-            for c, fit in zip(candidates, results)]
+    out = []
+    for c, fit in zip(candidates, results):
+        test = score_test(residual, jacobian[:n, base],
+                          jacobian[:n, [c for c in columns(c.terms) if c not in base]],
+                          noise=(measured - fit.simulated)[:n])
+        if test["dof"] == 0:
+            test = equation_error_scores(problem, current, [fit])[0] | {"weak_form": True}
+        out.append(test)
+    return out
 
 
 def equation_error_scores(problem: FitProblem, current: Fit, results: list[Fit]) -> list[dict]:

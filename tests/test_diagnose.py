@@ -152,6 +152,22 @@ def test_control_with_no_missing_effect_adds_nothing(tmp_path):
     assert "refitted alone" in (tmp_path / "report.md").read_text()
 
 
+@pytest.mark.slow  # ~30 s
+def test_a_dead_zone_the_base_fit_never_leaves_is_still_named():
+    """Seed 212: the backlash is centred on the operating point and the start structure's
+    output-error fit collapses to an almost still response inside the dead zone, where
+    the dead zone's column has no sensitivity: the score test there has no information
+    (dof 0) and is taken in the weak form, so the backlash is added (before, nothing was
+    added and the model stayed 127σ from the data)."""
+    case = undeclared_effect_case("backlash", seed=212)
+    result = diagnose(case.measurement, case.start, frequencies=(285.0,))
+    assert result.effects_added[:1] == ["backlash"]
+    first = next(e for e in result.rankings[0] if e["effect"] == "backlash")
+    assert first["test"]["passed"] and first["test"]["score"]["weak_form"]
+    assert result.after.metrics["rms"] <= 1.5 * case.truth_rms(
+        result.measurement, settings=result.settings)
+
+
 @pytest.mark.slow
 @pytest.mark.sweep
 @pytest.mark.parametrize("seed, strength", [(21, 0.7), (22, 1.4), (23, 1.0), (24, 1.2)])
