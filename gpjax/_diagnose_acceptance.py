@@ -47,11 +47,11 @@ the estimation part, which make the score statistic's null distribution non-stan
 and it can only remove acceptances. Where the current fit's sensitivities give a
 candidate's terms no column of their own (no degrees of freedom: the test has no
 information, not evidence of zero), the score test is taken in the weak form on the
-measured response (:func:`gpjax._diagnose_evidence.score_statistics`). Equation-error mode tests its held-out windows by
-blocked cross-validation (every window held out once, no single extrapolated tail) and
-requires the same score test on the estimation part's weak form
-(:func:`gpjax._diagnose_evidence.equation_error_scores`): an effect whose coefficients are
-not distinguishable from zero is not added in either mode.
+measured response (:func:`gpjax._diagnose_evidence.score_statistics`). Equation-error
+mode tests its held-out windows by blocked cross-validation (every window held out once,
+no single extrapolated tail) and requires the same score test on the estimation part's
+weak form (:func:`gpjax._diagnose_evidence.equation_error_scores`): an effect whose
+coefficients are not distinguishable from zero is not added in either mode.
 """
 
 from __future__ import annotations

@@ -270,9 +270,9 @@ def score_statistics(problem: FitProblem, current: Fit, candidates: list[Candida
     n, measured = problem.n_train, problem.measurement.response
     residual = (measured - current.simulated)[:n]
     out = []
-    for c, fit in zip(candidates, results):
-        test = score_test(residual, jacobian[:n, base],
-                          jacobian[:n, [c for c in columns(c.terms) if c not in base]],
+    for candidate, fit in zip(candidates, results):
+        added = [k for k in columns(candidate.terms) if k not in base]
+        test = score_test(residual, jacobian[:n, base], jacobian[:n, added],
                           noise=(measured - fit.simulated)[:n])
         if test["dof"] == 0:
             test = equation_error_scores(problem, current, [fit])[0] | {"weak_form": True}
