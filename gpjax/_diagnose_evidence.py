@@ -272,11 +272,13 @@ def score_statistics(problem: FitProblem, current: Fit, candidates: list[Candida
     out = []
     for candidate, fit in zip(candidates, results):
         added = [k for k in columns(candidate.terms) if k not in base]
-        test = score_test(residual, jacobian[:n, base], jacobian[:n, added],
-                          noise=(measured - fit.simulated)[:n])
-        if test["dof"] == 0:
-            test = equation_error_scores(problem, current, [fit])[0] | {"weak_form": True}
-        out.append(test)
+        out.append(score_test(residual, jacobian[:n, base], jacobian[:n, added],
+                              noise=(measured - fit.simulated)[:n]))
+    blind = [k for k, test in enumerate(out) if test["dof"] == 0]
+    if blind:  # one weak-form design of the current structure for all of them
+        for k, test in zip(blind, equation_error_scores(problem, current,
+                                                        [results[k] for k in blind])):
+            out[k] = test | {"weak_form": True}
     return out
 
 

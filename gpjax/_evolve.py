@@ -8,8 +8,9 @@ perturbation / reproduction (probabilities from the config) from parents chosen 
 tournament; offspring are scored (new structures only, in one batch); the best distinct
 structures are refined and extended by one term (memetic step); the next population is
 the best ``population`` of parents ∪ offspring ∪ extensions (elitist replacement, repeats
-of a feature set ranked after all distinct ones). In tree mode (``coefficients="tree"``) every new candidate is refined from
-its tree's constants before it competes (see :meth:`Evolution._score`). The run stops after
+of a feature set ranked after all distinct ones). In tree mode (``coefficients="tree"``)
+every new candidate is refined from its tree's constants before it competes (see
+:meth:`Evolution._score`). The run stops after
 ``generations`` generations or when the best objective f <= epsilon × f_0 (eq. 12,
 :func:`gpjax._objective.stop_objective`).
 
