@@ -62,7 +62,8 @@ import numpy as np
 from scipy import special
 
 #: Least and most batches (Schmeiser 1982: 10 to 30; fewer leave the t test no power,
-#: more gain little).
+#: more gain little). A residual of fewer samples (a short record's weak-form windows) has
+#: one batch per sample.
 BATCHES = (10, 30)
 
 
@@ -116,7 +117,7 @@ def predictive_test(current: np.ndarray, candidate: np.ndarray) -> dict:
     d = current ** 2 - candidate ** 2
     n = d.size
     bandwidth = long_run_variance(d)[1]
-    batches = int(np.clip(n // (2 * bandwidth + 1), *BATCHES))
+    batches = int(min(np.clip(n // (2 * bandwidth + 1), *BATCHES), n))
     means = np.array([np.mean(b) for b in np.array_split(d, batches)]) if n >= 2 else d
     if not np.any(means != 0):
         return {"statistic": 0.0, "p_value": 1.0, "bandwidth": bandwidth,

@@ -2,6 +2,8 @@
 null and finds a real gain; the noise floor and the input's lines are estimated from the
 data; a residual's structure is described; the drifting stage, the held-out sweep."""
 
+import warnings
+
 import numpy as np
 import pytest
 from scipy.signal import butter, lfilter, sosfiltfilt
@@ -28,6 +30,20 @@ def test_predictive_test_holds_its_level_on_a_coloured_null():
     rejected = sum(predictive_test(_coloured(rng, 334), _coloured(rng, 334))["p_value"] < 0.05
                    for _ in range(400))
     assert rejected <= 32  # a Newey–West variance with the normal: 35
+
+
+def test_predictive_test_on_fewer_samples_than_batches_has_one_batch_per_sample():
+    """A short record's held-out residual has fewer windows than the least batch count
+    (9 on a 500-sample record): each sample is a batch, none is empty (an empty batch's
+    NaN mean made every p NaN, so the final selection never stepped)."""
+    rng = np.random.default_rng(0)
+    current = rng.standard_normal(9)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        gain = predictive_test(3.0 * current, current)
+        none = predictive_test(current, 3.0 * current)
+    assert gain["batches"] == 9 and gain["p_value"] < 0.01
+    assert none["p_value"] > 0.5
 
 
 def test_predictive_test_finds_a_real_gain_and_refuses_a_diverged_candidate():
