@@ -291,6 +291,14 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         UserInputError: the data's names differ from the model's, or a setting is out of
             range.
     """
+    names = (measurement.time_name, tuple(measurement.response_names),
+             tuple(measurement.input_names))
+    if names != (model.time, tuple(model.coordinates), tuple(model.inputs)):
+        raise ModelFileError(
+            f"the model's variables (time {model.time!r}, responses {list(model.coordinates)}, "
+            f"inputs {list(model.inputs)}) differ from the data's columns (time {names[0]!r}, "
+            f"responses {list(names[1])}, inputs {list(names[2])}); pass matching --time, "
+            "--response and --input or edit the model's \"variables\"")
     if model.n_coordinates > 1:
         from ._system_effects import diagnose_system
 
@@ -299,13 +307,6 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
                                alpha=alpha, convergence_tolerance=convergence_tolerance,
                                input_interpolation=input_interpolation)
     symbols = model.symbols
-    names = (measurement.time_name, measurement.response_name, tuple(measurement.input_names))
-    if names != (symbols.time, symbols.response, tuple(symbols.inputs)):
-        raise ModelFileError(
-            f"the model's variables (time {symbols.time!r}, response {symbols.response!r}, "
-            f"inputs {list(symbols.inputs)}) differ from the data's columns (time {names[0]!r}, "
-            f"response {names[1]!r}, inputs {list(names[2])}); pass matching --time, "
-            "--response and --input or edit the model's \"variables\"")
     if not 0.05 <= holdout <= 0.5:
         raise UserInputError(f"holdout must lie in [0.05, 0.5], got {holdout}; use e.g. 0.25")
     if mode not in ("auto", "simulation", "equation_error"):

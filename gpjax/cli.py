@@ -411,13 +411,12 @@ def _run_diagnosis(args, measurement, model, out: Path) -> float:
 
 def _run_system_diagnosis(args, measurement, model, out: Path) -> float:
     from ._convergence import check_line
+    from ._diagnose import diagnose
     from ._system_diagnose import summary_line
-    from ._system_effects import diagnose_system
 
     with _progress.stage_clock("setting up") as stages:
-        result = diagnose_system(measurement, model, holdout=args.holdout,
-                                 max_steps=args.max_steps, alpha=args.alpha,
-                                 input_interpolation=args.input_interpolation)
+        result = diagnose(measurement, model, holdout=args.holdout, max_steps=args.max_steps,
+                          alpha=args.alpha, input_interpolation=args.input_interpolation)
         _progress.stage(f"diagnosis: writing the report to {out}/")
         result.write(out)
     print(f"Diagnosis (simulation, {model.n_coordinates} coordinates): effects added: "

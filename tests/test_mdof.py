@@ -324,6 +324,24 @@ def test_system_model_file_round_trip_and_simulate_command(tmp_path, capsys):
     assert np.sqrt(np.mean(error ** 2)) < 2e-3 * np.std(record.response_true)
 
 
+def test_diagnosing_a_system_on_columns_other_than_its_own_is_a_user_error(tmp_path, capsys):
+    """The diagnosis of a system checks the data's columns against the model's before it
+    fits anything, as one coordinate's does: a record without the model's input, or with
+    its responses in another order, is exit status 2 with one line, and no report."""
+    from gpjax.cli import main
+
+    system, record, measurement = _chain(duration=1.0)
+    _truth_model(system, record).save(tmp_path / "model.json")
+    measurement.to_csv(tmp_path / "data.csv")
+    for responses, inputs in (("x1,x2", []), ("x2,x1", ["--input", "u"])):
+        assert main(["diagnose", str(tmp_path / "data.csv"), "--model",
+                     str(tmp_path / "model.json"), "--time", "t", "--response", responses,
+                     *inputs, "--out", str(tmp_path / "report")]) == 2
+        error = capsys.readouterr().err
+        assert "differ from the data's columns" in error and len(error.splitlines()) == 1
+        assert not (tmp_path / "report").exists()
+
+
 def test_system_model_file_refuses_a_feature_outside_its_equation(tmp_path):
     from gpjax import ModelFileError
 
