@@ -28,16 +28,19 @@ lags on Duffing records and gave intervals 2–3× too narrow (z-scores of the t
 sensitivities are concentrated have high leverage; removing it puts back the part of the
 residual the fit absorbed. A few bins carry most of a constant's information when its
 sensitivity is narrow-band, and then ν is small and the t quantile widens the interval
-accordingly. Where a bin's leverage is 1 in some direction (a constant fitted by that bin
-alone: a constant force, or a sine's phase acting as a static offset, by the zero bin), the
-fit leaves no residual there to measure. In the zero bin the residual's variance in that
-direction is read from the lowest bins that keep theirs (:data:`NEIGHBOURS`: the spectral
-density at zero frequency, as long-run variance estimators take it), so a constant force,
-and the stiffnesses that share the zero bin with it, still get an interval. Elsewhere (a
-sinusoid on one bin, where at a resonance the spectrum can peak between its neighbours)
-the constants loading on that direction get an infinite variance (no interval) rather than
-a ratio of rounding errors. A block bootstrap would refit the model hundreds of times where this needs one
-Jacobian.
+accordingly. The zero bin is one real value per coordinate (its sine part is 0): its own
+residual is a single χ²₁ draw, and a fitted static balance (a stiffness against the mean
+force, or the initial state of an undamped oscillator, whose mean it sets) takes nearly
+all of it, so leverage near 1 would inflate that one draw by (1 − h)⁻² (on the demo's
+undamped eq. 14, h = 0.9998: k1's interval was 34 % where its spread over noise seeds is
+0.25 %). Its residual variance is therefore always read from the lowest bins
+(:data:`NEIGHBOURS`: the spectral density at zero frequency, as long-run variance
+estimators take it), which also gives a constant force, fitted by the zero bin alone
+(leverage 1, no residual left), its interval. Elsewhere, where a bin's leverage is 1 in
+some direction (a sinusoid on one bin, where at a resonance the spectrum can peak between
+its neighbours), the constants loading on that direction get an infinite variance (no
+interval) rather than a ratio of rounding errors. A block bootstrap would refit the model
+hundreds of times where this needs one Jacobian.
 
 What the interval does not count: the input's reconstruction between samples (linear
 interpolation of a band-limited input is a systematic error that moved the constants by
@@ -64,13 +67,13 @@ HIGH_CORRELATION = 0.9
 #: make it up get infinite standard errors).
 RANK_TOLERANCE = 1e-12
 #: A frequency bin's leverage within this of 1 in some direction (rounding: I − H_f is
-#: singular) fits that direction alone: its residual there is 0 whatever the noise. In the
-#: zero bin (a constant force) the residual's variance there is read from the lowest
-#: :data:`NEIGHBOURS` bins; elsewhere (a sinusoid on one bin, at a resonance the local
-#: spectrum can peak) a constant loading on such a direction by more than :data:`LOADING`
-#: (in units of its √[A⁻¹]ₖₖ) has no estimable variance.
+#: singular) fits that direction alone: its residual there is 0 whatever the noise. Outside
+#: the zero bin (whose variance is always read from the lowest :data:`NEIGHBOURS` bins) —
+#: a sinusoid on one bin, at a resonance the local spectrum can peak — a constant loading
+#: on such a direction by more than :data:`LOADING` (in units of its √[A⁻¹]ₖₖ) has no
+#: estimable variance.
 SATURATED, LOADING = 1e-13, 1e-9
-#: The zero bin's absorbed variance comes from this many lowest bins without a saturated
+#: The zero bin's residual variance comes from this many lowest bins without a saturated
 #: direction (their 2·q cosine and sine parts): the spectral density at zero frequency
 #: estimated from the lowest frequencies, q as in low-frequency long-run variance
 #: estimation (Müller 2007, q = 12), so its relative standard error is about 1/√(2q) ≈ 0.2.
@@ -253,10 +256,10 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
     inverse = ((basis[:, ~null] / eigenvalues[~null]) @ basis[:, ~null].T
                / np.outer(norm, norm))
     # Each bin's leverage H_f = X_f A⁻¹ X_fᵀ; its residual inflated by (I − H_f)⁻¹ (CR3).
-    # A direction with leverage 1 is fitted by that bin alone (a static offset by the zero
-    # bin): its residual is 0 and the jackknife cannot estimate its variance there; in the
-    # zero bin it is read from the lowest bins' residuals (:func:`_absorbed`), elsewhere
-    # the constants that load on it get none (infinite).
+    # A direction with leverage 1 is fitted by that bin alone: its residual is 0 and the
+    # jackknife cannot estimate its variance there; the constants that load on it get none
+    # (infinite). The zero bin's variance is read from the lowest bins instead
+    # (:func:`_zero_bin`), where there are any.
     leverage = np.einsum("fmk,kl,fnl->fmn", x, inverse, x)
     eigenvalues, vectors = np.linalg.eigh((leverage + np.swapaxes(leverage, 1, 2)) / 2)
     saturated = eigenvalues > 1.0 - SATURATED
@@ -265,24 +268,23 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
                          shrink * np.einsum("fnm,fn->fm", vectors, u))
     per_bin = np.einsum("fmk,fm->fk", x, inflated) @ inverse       # (F, k): A⁻¹X_fᵀũ_f
     clean = np.flatnonzero(~saturated.any(axis=1))
-    near = clean[clean > 0][:NEIGHBOURS]  # the zero bin's neighbours (:func:`_absorbed`)
+    near = clean[clean > 0][:NEIGHBOURS]  # the zero bin's neighbours (:func:`_zero_bin`)
     interior = saturated.copy()
     interior[0] &= near.size == 0  # with no neighbour the zero bin has no estimate either
     loading = np.abs(np.einsum("fmk,fmn->fnk", x, vectors) @ inverse)[interior]  # (S, k)
     unknown = np.any(loading > LOADING * np.sqrt(np.diag(inverse)), axis=0) | undetermined
-    covariance = per_bin.T @ per_bin
     # Satterthwaite: a constant's variance is Σ_f a_f, a_f the square of one normal
     # combination of bin f (a scaled χ²₁), so its degrees of freedom are
     # (Σ E a)²/Σ (E a)²/ν_f, here with each bin's observed share for E a (module
-    # docstring); ν_f = 1, and 2q for an absorbed direction's expected share.
-    share = per_bin ** 2
-    spread = np.sum(share ** 2, axis=0)
-    if saturated[0].any() and near.size:
-        absorbed, absorbed_share = _absorbed(x, inflated[near], vectors[0],
-                                             saturated[0], inverse, d)
-        covariance = covariance + absorbed
-        share = np.concatenate([share, absorbed_share])
-        spread = spread + np.sum(absorbed_share ** 2, axis=0) / (2 * NEIGHBOURS)
+    # docstring); ν_f = 1, and 2q for the zero bin read from its q neighbours.
+    if near.size:
+        per_bin = per_bin[1:]
+        zero, zero_share = _zero_bin(x[0, :d], inflated[near], inverse, d)
+    else:
+        zero, zero_share = np.zeros((k, k)), np.zeros((0, k))
+    covariance = per_bin.T @ per_bin + zero
+    share = np.concatenate([per_bin ** 2, zero_share])
+    spread = np.sum(per_bin ** 4, axis=0) + np.sum(zero_share ** 2, axis=0) / (2 * NEIGHBOURS)
     with np.errstate(invalid="ignore", divide="ignore"):
         dof = np.nan_to_num(share.sum(axis=0) ** 2 / spread, nan=1.0)
     covariance = (covariance + covariance.T) / 2
@@ -291,23 +293,22 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
     return covariance, np.where(unknown, 1.0, dof)
 
 
-def _absorbed(x: np.ndarray, near: np.ndarray, vectors: np.ndarray, saturated: np.ndarray,
-              inverse: np.ndarray, d: int) -> tuple[np.ndarray, np.ndarray]:
-    """The covariance (k, k) that the zero bin's absorbed directions (leverage 1: a constant
-    force; ``saturated`` among its eigen-``vectors``) add, and their shares (S, k). Each
-    direction's residual variance is read from ``near``, the inflated residuals ũ (cosine
-    and sine parts, D each) of the :data:`NEIGHBOURS` lowest bins without a saturated
-    direction, which estimate the spectral matrix C = E[ũ_c ũ_cᵀ + ũ_s ũ_sᵀ] near zero
-    frequency; the zero bin's unit direction v (a cosine part only) then has variance
-    ½·vᵀCv (in the orthonormal transform each part of white noise of variance σ² has
-    variance σ², the zero bin's one part too). A constant's share is that variance times
-    the square of its loading A⁻¹X₀ᵀv."""
+def _zero_bin(x0: np.ndarray, near: np.ndarray, inverse: np.ndarray,
+              d: int) -> tuple[np.ndarray, np.ndarray]:
+    """The zero bin's covariance (k, k) and its shares (D, k). ``x0`` (D, k): its
+    Jacobian rows (the cosine part; the sine part is 0); ``near``: the inflated residuals ũ
+    (cosine and sine parts, D each) of the :data:`NEIGHBOURS` lowest bins without a
+    saturated direction, which estimate the spectral matrix C = E[ũ_c ũ_cᵀ + ũ_s ũ_sᵀ] near
+    zero frequency. In the orthonormal transform each part of white noise of variance σ²
+    has variance σ², the zero bin's one part too, so its residual has covariance ½C and
+    adds L·½C·Lᵀ, L = A⁻¹X₀ᵀ. Each eigen-direction of ½C (variance λ_j along e_j) is one
+    share λ_j·(L e_j)²."""
     parts = near.reshape(near.shape[0], 2, d)
-    spectral = np.einsum("fpa,fpb->ab", parts, parts) / near.shape[0]
-    directions = vectors[:, saturated]                                # (M, S)
-    loadings = (inverse @ (x[0].T @ directions)).T                    # (S, k)
-    variances = 0.5 * np.einsum("as,ab,bs->s", directions[:d], spectral, directions[:d])
-    return loadings.T @ (variances[:, None] * loadings), variances[:, None] * loadings ** 2
+    spectral = 0.5 * np.einsum("fpa,fpb->ab", parts, parts) / near.shape[0]
+    variances, directions = np.linalg.eigh(spectral)
+    loadings = (inverse @ x0.T @ directions).T                    # (D, k): L e_j
+    shares = np.maximum(variances, 0.0)[:, None] * loadings ** 2
+    return loadings.T @ (np.maximum(variances, 0.0)[:, None] * loadings), shares
 
 
 def _orthonormal_fourier(a: np.ndarray) -> np.ndarray:
