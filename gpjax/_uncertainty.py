@@ -276,7 +276,8 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
     # Satterthwaite: a constant's variance is Σ_f a_f, a_f the square of one normal
     # combination of bin f (a scaled χ²₁), so its degrees of freedom are
     # (Σ E a)²/Σ (E a)²/ν_f, here with each bin's observed share for E a (module
-    # docstring); ν_f = 1, and 2q for the zero bin read from its q neighbours.
+    # docstring); ν_f = 1, and 2q for the zero bin read from its q neighbours (at most
+    # NEIGHBOURS: a short record has fewer).
     if near.size:
         per_bin = per_bin[1:]
         zero, zero_share = _zero_bin(x[0, :d], inflated[near], inverse, d)
@@ -284,7 +285,8 @@ def sandwich_covariance(residual: np.ndarray, jacobian: np.ndarray,
         zero, zero_share = np.zeros((k, k)), np.zeros((0, k))
     covariance = per_bin.T @ per_bin + zero
     share = np.concatenate([per_bin ** 2, zero_share])
-    spread = np.sum(per_bin ** 4, axis=0) + np.sum(zero_share ** 2, axis=0) / (2 * NEIGHBOURS)
+    spread = (np.sum(per_bin ** 4, axis=0)
+              + np.sum(zero_share ** 2, axis=0) / (2 * max(near.size, 1)))
     with np.errstate(invalid="ignore", divide="ignore"):
         dof = np.nan_to_num(share.sum(axis=0) ** 2 / spread, nan=1.0)
     covariance = (covariance + covariance.T) / 2
