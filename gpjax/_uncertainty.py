@@ -33,7 +33,7 @@ residual is a single χ²₁ draw, and a fitted static balance (a stiffness agai
 force, or the initial state of an undamped oscillator, whose mean it sets) takes nearly
 all of it, so leverage near 1 would inflate that one draw by (1 − h)⁻² (on the demo's
 undamped eq. 14, h = 0.9998: k1's interval was 34 % where its spread over noise seeds is
-0.25 %). Its residual variance is therefore always read from the lowest bins
+0.3 %). Its residual variance is therefore always read from the lowest bins
 (:data:`NEIGHBOURS`: the spectral density at zero frequency, as long-run variance
 estimators take it), which also gives a constant force, fitted by the zero bin alone
 (leverage 1, no residual left), its interval. Elsewhere, where a bin's leverage is 1 in
@@ -308,9 +308,9 @@ def _zero_bin(x0: np.ndarray, near: np.ndarray, inverse: np.ndarray,
     parts = near.reshape(near.shape[0], 2, d)
     spectral = 0.5 * np.einsum("fpa,fpb->ab", parts, parts) / near.shape[0]
     variances, directions = np.linalg.eigh(spectral)
+    variances = np.maximum(variances, 0.0)[:, None]              # rounding can give −0
     loadings = (inverse @ x0.T @ directions).T                    # (D, k): L e_j
-    shares = np.maximum(variances, 0.0)[:, None] * loadings ** 2
-    return loadings.T @ (np.maximum(variances, 0.0)[:, None] * loadings), shares
+    return loadings.T @ (variances * loadings), variances * loadings ** 2
 
 
 def _orthonormal_fourier(a: np.ndarray) -> np.ndarray:
