@@ -3,18 +3,18 @@
     python benchmarks/interval_coverage.py --seeds 40 --json benchmarks/interval_coverage.json
     python benchmarks/interval_coverage.py --seeds 40 --json benchmarks/interval_coverage.json --resume
 
-For four systems of the catalogue (Duffing (polynomial), Duffing under a static load (a
-constant force, fitted by the spectrum's zero bin alone), the pendulum (k·sin x: a
-non-polynomial family with its frequency and phase refined too) and the 2-mass chain (two
-coordinates, cubic coupling), each seed a record with 1 % noise on the response(s) *and*
-on the measured input (:func:`gpjax.systems.generate`), and for the demo's gear (eq. 14,
-undamped: the initial state's free oscillation never decays, and the static balance takes
-nearly all of the spectrum's zero bin) the bundled generator's record on that seed
-(:func:`gpjax.gear.generate_gear_example`, with its noise on φ and on the torque): the
-true structure fitted from the true constants by gpjax's output-error refit at converged
-integration (:func:`gpjax.refit`; :func:`gpjax.engine.fit_system` for the chain) with
-band-limited input reconstruction (the records' inputs are band-limited multisines), and each fitted
-constant's interval checked against the truth. ``--interpolation linear`` measures what
+For four systems of the catalogue, each seed a record with 1 % noise on the response(s)
+*and* on the measured input (:func:`gpjax.systems.generate`): Duffing (polynomial), Duffing
+under a static load (a constant force, fitted by the spectrum's zero bin alone), the
+pendulum (k·sin x: a non-polynomial family with its frequency and phase refined too) and
+the 2-mass chain (two coordinates, cubic coupling). For the demo's gear (eq. 14, undamped:
+the initial state's free oscillation never decays, and the static balance takes nearly all
+of the zero bin), the bundled generator's record on that seed
+(:func:`gpjax.gear.generate_gear_example`, with its noise on φ and on the torque). Each
+record's true structure is fitted from the true constants by gpjax's output-error refit
+at converged integration (:func:`gpjax.refit`; :func:`gpjax.engine.fit_system` for the
+chain) with band-limited input reconstruction (the records' inputs are band-limited), and
+each fitted constant's interval checked against the truth. ``--interpolation linear`` measures what
 linear input interpolation does to the same intervals. Rows are written after every seed;
 ``--resume`` skips the seeds the JSON already holds.
 """
