@@ -46,9 +46,10 @@ of the model against the data. Otherwise the step count grows and the model is r
   the reported model, its constants unchanged, is checked at the law's count, and at the
   law's next count from there, until it passes with the margin. As each count is
   measured, the law's is tried as it is (at least one step more), not rounded up to twice
-  the last (:func:`next_substeps`). Each trial is one RK4 and
-  one reference solve of one model; a refit of the front at a count that then fails is
-  the compiling of four programs and the refinement of every front model.
+  the last (:func:`next_substeps`). Each trial is one RK4 solve of one model (two for a
+  doubling estimate; the failed check's Dopri8 response is reused, as no step count
+  changes it); a refit of the front at a count that then fails is the compiling of four
+  programs and the refinement of every front model.
 """
 
 from __future__ import annotations

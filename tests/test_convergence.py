@@ -64,12 +64,12 @@ def test_the_step_rule_follows_the_bandwidth_and_the_fourth_order_error():
     assert initial_substeps(record) == max(1, math.ceil(phase / 0.5))
     failed = Convergence(substeps=2, rms_rk4=1.0, rms_reference=1.0, difference_rms=0.08,
                          ratio=0.08, tolerance=0.01)
-    wanted = next_substeps(failed)  # (0.08 / 0.005)^(1/4) = 2 → twice the steps at least
+    wanted = next_substeps(failed)  # (0.08 / 0.005)^(1/4) = 2: the law asks for twice
     assert wanted == 4 and not failed.converged
     # the law's count as it is, not rounded up to twice the last: (0.0104 / 0.005)^(1/4)
     # = 1.2 (Silverbox's estimation part at 5 steps asks for 7, which pass, not 10)
     assert next_substeps(dataclasses.replace(failed, substeps=5, ratio=0.0104)) == 7
-    # a law that asks for less than the last count still moves one step
+    # a law that asks for no more than the last count still moves one step
     assert next_substeps(dataclasses.replace(failed, substeps=5, ratio=0.005)) == 6
     assert next_substeps(Convergence(2, 1.0, math.inf, math.inf, math.inf, 0.01)) == 8
 
