@@ -30,7 +30,10 @@ def test_a_system_tree_survives_its_json():
         _trees.from_json(["s", 3])
 
 
-@pytest.mark.slow  # ~2 min: three small system runs in subprocesses
+@pytest.mark.slow
+@pytest.mark.handrun  # 4-5 min on 2 cores (three system runs in subprocesses): the hand-run
+# tier (README, Quick start); CI's slow step keeps one coordinate's kill and resume
+# (tests/test_run.py) and a system's islands resumed (below)
 def test_a_system_resumes_after_sigkill_to_the_same_model(tmp_path):
     """kill -9 after generation 1, then ``--resume``: the model of the uninterrupted run,
     byte for byte (the refined constants travel in the checkpoint)."""
