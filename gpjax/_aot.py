@@ -30,7 +30,7 @@ import hashlib
 import os
 import tempfile
 import time
-from functools import lru_cache
+from functools import lru_cache, partial
 from pathlib import Path
 from typing import Callable
 
@@ -131,6 +131,13 @@ class Program:
         return len(self._executables)
 
     def __call__(self, *args):
+        return self.prepared(*args)()
+
+    def prepared(self, *args) -> Callable[[], tuple]:
+        """The call with ``args``, its executable compiled or loaded now, run when the
+        returned function is called: it may run in another thread (compiling switches
+        JAX's process-wide cache setting, :func:`_compile_bypassing_persistent_cache`,
+        so it stays in the calling one)."""
         leaves, tree = jax.tree_util.tree_flatten(args)
         signature = (str(tree), tuple((np.shape(x), np.dtype(getattr(x, "dtype", None)
                                                             or np.result_type(x)).str)
@@ -144,7 +151,7 @@ class Program:
             self.compile_seconds += elapsed
             _LEDGER[0] += elapsed
             _LEDGER[1] += 1
-        return executable(*leaves)
+        return partial(executable, *leaves)
 
     def _executable(self, tree, leaves, signature) -> Callable:
         def flat(*values):

@@ -56,6 +56,8 @@ from __future__ import annotations
 
 import dataclasses
 import math
+import threading
+from concurrent.futures import Future
 from typing import Callable
 
 import numpy as np
@@ -248,6 +250,27 @@ def coordinate_weights(measured: np.ndarray):
     return spread[0] / np.where(spread > 0, spread, 1.0)
 
 
+def reference_started(model, measurement: Measurement) -> Future:
+    """The Dopri8 response :func:`check_model` compares ``model`` against (its fitted
+    initial state, the first :data:`CHECK_SAMPLES` samples), compiled or loaded here and
+    solved in a background thread: the solve is sequential and keeps one core busy, so a
+    caller with other work for the rest of the machine starts it first and hands the
+    future to :func:`fit_converged` (``fit_at`` returning (model, future)). A daemon
+    thread: an interrupted run does not wait for it."""
+    window = measurement.segment(0, min(measurement.n_samples, CHECK_SAMPLES))
+    solve = model.prepared_simulation(window, initial_conditions=model.initial_states)
+    future = Future()
+
+    def run():
+        try:
+            future.set_result(solve())
+        except BaseException as error:  # noqa: BLE001 - raised again by future.result()
+            future.set_exception(error)
+
+    threading.Thread(target=run, name="gpjax-reference", daemon=True).start()
+    return future
+
+
 def check_model(model, measurement: Measurement, *, tolerance: float,
                 reference: np.ndarray | None = None, stable: int | None = None,
                 estimate: str = "reference") -> tuple[Convergence, np.ndarray]:
@@ -273,7 +296,7 @@ def check_model(model, measurement: Measurement, *, tolerance: float,
             measurement, initial_conditions=y0, solver="rk4")
         reference = finer + (finer - rk4) / 15.0  # RK4: error(h) ≈ 16·error(h/2)
     elif reference is None:
-        reference = model.simulate(measurement, initial_conditions=y0)
+        reference = model.prepared_simulation(measurement, initial_conditions=y0)()
     ok = bool(np.all(np.isfinite(reference)))
     if stable is None:
         stable = stable_substeps(model, measurement, reference if ok else rk4)
@@ -305,7 +328,9 @@ def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int |
     (a diagnosis's rounds, whose checks choose steps and are not reported): an estimate
     that passes stands.
     ``fit_at`` returning ``None`` is a failed fit: the last model, its checks and reference
-    are returned as they stand (``None`` and no checks where the first fit failed).
+    are returned as they stand (``None`` and no checks where the first fit failed); returning
+    (model, future), the model and its reference response already being solved
+    (:func:`reference_started`), which a Dopri8 check of it then takes.
     ``unsolved_ends``: a check whose reference solve failed (ratio not finite) ends the
     ladder, as no RK4 step count brings a response the reference cannot integrate closer
     to it (the diagnosis, whose test does not rank a diverged model; the estimator and
@@ -318,7 +343,7 @@ def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int |
         fitted = fit_at(steps, model)
         if fitted is None:
             return model, checks, reference
-        model = fitted
+        model, started = fitted if isinstance(fitted, tuple) else (fitted, None)
         ends = bool(substeps) or steps >= MAX_SUBSTEPS
         check = None
         if not (ends and confirm):
@@ -326,7 +351,9 @@ def fit_converged(fit_at: Callable, measurement: Measurement, *, substeps: int |
                                            estimate="doubling")
         if (check is None or (confirm and check.converged)
                 or (unsolved_ends and not check.converged)):
-            check, reference = check_model(model, measurement, tolerance=tolerance)
+            check, reference = check_model(
+                model, measurement, tolerance=tolerance,
+                reference=None if started is None else started.result())
         checks.append(check)
         if (ends or check.converged
                 or (unsolved_ends and not math.isfinite(check.ratio))):

@@ -99,13 +99,14 @@ from __future__ import annotations
 import dataclasses
 import math
 import types
+from concurrent.futures import Future
 
 import numpy as np
 
 from . import _progress
 from ._canonical import Symbols
 from ._config import GPConfig
-from ._convergence import MAX_SUBSTEPS, fit_converged, initial_substeps
+from ._convergence import MAX_SUBSTEPS, fit_converged, initial_substeps, reference_started
 from ._data import INPUT_INTERPOLATIONS, Measurement
 from ._diagnose_acceptance import accepted
 from ._diagnose_ambiguity import indistinguishable, separating_input
@@ -449,9 +450,12 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
                 "input_interpolation": input_interpolation, "input_noise": input_noise}
     last = {}  # the last refit: its diagnosis and its whole-record problem
 
-    def refit_at(count: int, previous=None) -> Model:
+    def refit_at(count: int, previous=None) -> tuple[Model, Future | None]:
         """The chosen structures refitted on the whole record at ``count`` RK4 steps per
-        sample (their diagnosis kept in ``last``); the last structure's model."""
+        sample (their diagnosis kept in ``last``): the last structure's model and, in
+        simulation mode, its reference response for the convergence check, solved in the
+        background while the residuals and the uncertainty are computed
+        (:func:`gpjax._convergence.reference_started`)."""
         _progress.stage(f"diagnosis: refitting {len(fits)} model(s) on the whole record at "
                         f"{count} substeps")
         # the steps' evaluators, and a coarser rung's, are done with: their arrays go
@@ -474,10 +478,15 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
         _progress.stage("diagnosis: the refits' residuals, "
                         + ("convergence check and " if chosen_mode == "simulation" else "")
                         + "uncertainty")
+        model = result.model()
+        started = (reference_started(model, measurement) if chosen_mode == "simulation"
+                   else None)
         result.noise = _noise(result, problem)
         result.unexplained = _unexplained(result, problem, alpha)
+        if chosen_mode == "simulation":
+            result.uncertainty = _uncertainty(result, whole)
         last.update(result=result, whole=whole)
-        return result.model()
+        return model, started
 
     if chosen_mode != "simulation":  # an equation-error fit integrates nothing
         refit_at(substeps)
@@ -489,7 +498,6 @@ def diagnose(measurement: Measurement, model: Model, *, library: dict[str, Effec
                                  tolerance=convergence_tolerance)
     result = last["result"]
     result.convergence = checks[-1].to_json()
-    result.uncertainty = _uncertainty(result, last["whole"])
     return result
 
 

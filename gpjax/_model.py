@@ -19,7 +19,7 @@ import math
 import re
 from collections import OrderedDict
 from pathlib import Path
-from typing import Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 import sympy as sp
@@ -32,7 +32,7 @@ from ._evaluator import PopulationEvaluator, split_state_features
 from ._evaluator_columns import grown_capacity
 from ._expressions import parse_expression
 from ._objective import default_n_bins
-from ._reference import reference_response
+from ._reference import prepared_reference_response, reference_response
 from ._system_bank import KINDS, bank_of
 from ._uncertainty import Uncertainty
 from ._weak_form import estimate_initial_conditions
@@ -425,8 +425,24 @@ class Model:
             evaluator = self.evaluator(measurement)
             responses, _ = evaluator.simulate(self.population(evaluator, y0))
             return _shaped(np.asarray(responses[0]).T)
-        return self.simulate_inputs(measurement.time, measurement.inputs, y0,
-                                    scale=measurement_scale(measurement))
+        return self.prepared_simulation(measurement, initial_conditions=y0)()
+
+    def prepared_simulation(self, measurement: Measurement, *,
+                            initial_conditions=None) -> Callable[[], np.ndarray]:
+        """:meth:`simulate` by the reference solve, compiled (or loaded) now and run when
+        the returned function is called, which may be in another thread: a convergence
+        check's reference solved beside other work
+        (:func:`gpjax._convergence.reference_started`). Arguments and errors as
+        :meth:`simulate`'s."""
+        _check_inputs(self, measurement)
+        y0 = (self.estimated_initial_states(measurement) if initial_conditions is None
+              else initial_conditions)
+        solve = prepared_reference_response(
+            self, np.asarray(measurement.time, dtype=np.float64),
+            {u: np.asarray(measurement.inputs[u], dtype=np.float64) for u in self.inputs},
+            np.reshape(np.asarray(y0, dtype=np.float64), (-1, 2)),
+            scale=measurement_scale(measurement))
+        return lambda: _shaped(solve()[0])
 
     def simulate_inputs(self, time: np.ndarray, inputs: dict[str, np.ndarray],
                         initial_conditions, *, scale=None) -> np.ndarray:

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import dataclasses
 from functools import lru_cache
+from typing import Callable
 
 import jax
 import jax.numpy as jnp
@@ -200,7 +201,20 @@ def _solve_program(expressions: tuple[sp.Expr, ...], names: tuple, constants: tu
 def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
                        initial_states, *, scale=None,
                        solver: ReferenceSolver = ReferenceSolver()) -> tuple[np.ndarray, bool]:
-    """A model's responses at uniformly spaced sample times by the reference solve.
+    """A model's responses at uniformly spaced sample times by the reference solve:
+    :func:`prepared_reference_response`'s solve, run at once (arguments and result as
+    there)."""
+    return prepared_reference_response(model, time, inputs, initial_states, scale=scale,
+                                       solver=solver)()
+
+
+def prepared_reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
+                                initial_states, *, scale=None,
+                                solver: ReferenceSolver = ReferenceSolver()
+                                ) -> Callable[[], tuple[np.ndarray, bool]]:
+    """A model's reference solve at uniformly spaced sample times, compiled (or loaded)
+    now and run when the returned function is called, which may be in another thread
+    (:meth:`gpjax._aot.Program.prepared`).
 
     Args:
         model: a :class:`~gpjax._model.Model` of D coordinates.
@@ -212,7 +226,8 @@ def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
         solver: tolerances.
 
     Returns:
-        (responses (N, D), ok); a failed solve gives NaN and ``ok`` false.
+        The solve: a function returning (responses (N, D), ok); a failed solve gives NaN
+        and ``ok`` false.
     """
     enable_float64()
     coordinates = model.coordinates
@@ -231,8 +246,13 @@ def reference_response(model, time: np.ndarray, inputs: dict[str, np.ndarray],
     scale = np.ones((len(coordinates), 2)) if scale is None else np.asarray(scale, float)
     scale = jnp.asarray(np.where(scale > 0, scale, 1.0).T)
     y0 = np.reshape(np.asarray(initial_states, float), (len(coordinates), 2))
-    scaled, succeeded = program(jnp.asarray(values), path, jnp.asarray(ts, dtype=float),
-                                jnp.asarray(n), jnp.asarray(y0.T), scale)
-    x = np.asarray(scaled)[:n] * np.asarray(scale[0])
-    ok = bool(succeeded) and bool(np.all(np.isfinite(x)))
-    return (x if ok else np.full(x.shape, np.nan)), ok
+    run = program.prepared(jnp.asarray(values), path, jnp.asarray(ts, dtype=float),
+                           jnp.asarray(n), jnp.asarray(y0.T), scale)
+
+    def solved() -> tuple[np.ndarray, bool]:
+        scaled, succeeded = run()
+        x = np.asarray(scaled)[:n] * np.asarray(scale[0])
+        ok = bool(succeeded) and bool(np.all(np.isfinite(x)))
+        return (x if ok else np.full(x.shape, np.nan)), ok
+
+    return solved

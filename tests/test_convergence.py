@@ -10,8 +10,8 @@ from scipy.linalg import expm
 
 from gpjax import Model, Symbols
 from gpjax._convergence import (MAX_SUBSTEPS, Convergence, bandwidth_hz, check_model,
-                                fit_converged, initial_substeps,
-                                needed_substeps, next_substeps, stable_substeps)
+                                fit_converged, initial_substeps, needed_substeps,
+                                next_substeps, reference_started, stable_substeps)
 from gpjax._data import Measurement
 
 S = Symbols("x", "t", ("u",))
@@ -235,3 +235,39 @@ def test_the_fit_ladder_refits_until_the_check_passes_and_stops_on_a_failed_fit(
         assert not math.isfinite(checks[-1].ratio) and checks[-1].estimate == "reference"
         ladders[ends] = steps_asked
     assert ladders[True] == [1] and ladders[False][-1] == MAX_SUBSTEPS
+
+
+def test_a_reference_started_in_the_background_is_the_checks_own_and_the_ladder_takes_it():
+    """:func:`reference_started` compiles in the calling thread and solves in another: the
+    compile is counted when it returns, its response is the one :func:`check_model` solves
+    itself, and a ``fit_at`` that returns (model, future) has its Dopri8 check take that
+    response instead of solving again (a stand-in response shows it was used)."""
+    from concurrent.futures import Future
+
+    from gpjax import _aot
+
+    record = _held_record()
+    noisy = Measurement(time=record.time, response=record.response + np.random.default_rng(1)
+                        .normal(0, 0.02 * np.std(record.response), record.n_samples),
+                        inputs=record.inputs, time_name="t", response_name="x")
+    # a structure no other test solves: its executable is compiled (or loaded) here
+    model = Model.single(S, mass=M, state={"x": K, "x_dot": C, "x**3": 1.0},
+                         forcing={"u": 1.0}, input_interpolation="hold",
+                         initial_conditions=(0.01, -0.2), substeps=8)
+    compiled = _aot._LEDGER[1]
+    started = reference_started(model, noisy)
+    assert _aot._LEDGER[1] == compiled + 1  # before the solve's result is asked for
+    own, reference = check_model(model, noisy, tolerance=0.01)
+    np.testing.assert_array_equal(started.result(), reference)
+    assert check_model(model, noisy, tolerance=0.01, reference=started.result())[0] == own
+
+    stand_in = reference + 0.5 * np.std(reference)
+
+    def fit_at(steps, previous):
+        future = Future()
+        future.set_result(stand_in)
+        return model, future
+
+    _, checks, taken = fit_converged(fit_at, noisy, substeps=8, tolerance=0.01)
+    assert checks[-1].estimate == "reference" and not checks[-1].converged
+    np.testing.assert_array_equal(taken, stand_in)
