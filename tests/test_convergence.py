@@ -33,6 +33,14 @@ def _held_record(n=400, dt=0.02, seed=3):
                        time_name="t", response_name="x")
 
 
+def _noisy(record: Measurement, seed: int = 0) -> Measurement:
+    """``record`` with white noise of 2 % of its response's spread added to the response."""
+    rng = np.random.default_rng(seed)
+    return Measurement(time=record.time, response=record.response + rng.normal(
+        0, 0.02 * np.std(record.response), record.n_samples), inputs=record.inputs,
+        time_name="t", response_name="x")
+
+
 def _model(interpolation, **changes):
     return Model.single(S, mass=M, state={"x": K, "x_dot": C}, forcing={"u": 1.0},
                  input_interpolation=interpolation, **changes)
@@ -81,9 +89,7 @@ def test_a_coarse_model_fails_the_check_and_a_fine_one_passes():
     # the exact data: the residual is the integrator's error alone, so any step fails 1 %
     assert not coarse.converged and coarse.ratio > 0.5
     assert np.max(np.abs(reference - record.response)) < 1e-9 * np.ptp(record.response)
-    noisy = Measurement(time=record.time, response=record.response + np.random.default_rng(0)
-                        .normal(0, 0.02 * np.std(record.response), record.n_samples),
-                        inputs=record.inputs, time_name="t", response_name="x")
+    noisy = _noisy(record)
     fine, _ = check_model(_model("hold", initial_conditions=(0.01, -0.2), substeps=8), noisy,
                           tolerance=0.01)
     assert fine.converged and fine.ratio < 0.01
@@ -93,9 +99,7 @@ def test_the_doubling_estimate_measures_rk4s_error_as_the_reference_does():
     """Richardson: 16/15 of RK4's change from h to h/2 is its error at h, to leading order,
     so the estimate's ratio is the Dopri8 check's where RK4 is in its h⁴ regime."""
     record = _held_record()
-    noisy = Measurement(time=record.time, response=record.response + np.random.default_rng(0)
-                        .normal(0, 0.02 * np.std(record.response), record.n_samples),
-                        inputs=record.inputs, time_name="t", response_name="x")
+    noisy = _noisy(record)
     for steps in (2, 4):
         model = _model("linear", initial_conditions=(0.01, -0.2), substeps=steps)
         exact, _ = check_model(model, noisy, tolerance=0.01)
@@ -110,9 +114,7 @@ def test_the_step_count_is_measured_where_the_fourth_order_law_does_not_hold_yet
     """A sharp smoothed sign (tanh(200·x')): the h⁴ law from the check at one step asks for
     2 steps, which still fail; the measured count passes with half the tolerance."""
     record = _held_record()
-    noisy = Measurement(time=record.time, response=record.response + np.random.default_rng(0)
-                        .normal(0, 0.02 * np.std(record.response), record.n_samples),
-                        inputs=record.inputs, time_name="t", response_name="x")
+    noisy = _noisy(record)
     model = Model.single(S, mass=M, state={"x": K, "x_dot": C, "tanh(200*x_dot)": 20.0},
                          forcing={"u": 1.0}, input_interpolation="hold",
                          initial_conditions=(0.01, -0.2))
@@ -185,9 +187,7 @@ def test_the_fit_ladder_refits_until_the_check_passes_and_stops_on_a_failed_fit(
     fit that fails (``None``) leaves the last model and its checks; ``unsolved_ends`` stops
     at a check whose reference solve failed, which otherwise climbs to the cap."""
     record = _held_record()
-    noisy = Measurement(time=record.time, response=record.response + np.random.default_rng(0)
-                        .normal(0, 0.02 * np.std(record.response), record.n_samples),
-                        inputs=record.inputs, time_name="t", response_name="x")
+    noisy = _noisy(record)
     asked = []
 
     def fit_at(steps, previous):
@@ -247,9 +247,7 @@ def test_a_reference_started_in_the_background_is_the_checks_own_and_the_ladder_
     from gpjax import _aot
 
     record = _held_record()
-    noisy = Measurement(time=record.time, response=record.response + np.random.default_rng(1)
-                        .normal(0, 0.02 * np.std(record.response), record.n_samples),
-                        inputs=record.inputs, time_name="t", response_name="x")
+    noisy = _noisy(record, seed=1)
     # a structure no other test solves: its executable is compiled (or loaded) here
     model = Model.single(S, mass=M, state={"x": K, "x_dot": C, "x**3": 1.0},
                          forcing={"u": 1.0}, input_interpolation="hold",
