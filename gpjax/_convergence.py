@@ -296,7 +296,7 @@ def check_model(model, measurement: Measurement, *, tolerance: float,
             measurement, initial_conditions=y0, solver="rk4")
         reference = finer + (finer - rk4) / 15.0  # RK4: error(h) ≈ 16·error(h/2)
     elif reference is None:
-        reference = model.prepared_simulation(measurement, initial_conditions=y0)()
+        reference = model.simulate(measurement, initial_conditions=y0)
     ok = bool(np.all(np.isfinite(reference)))
     if stable is None:
         stable = stable_substeps(model, measurement, reference if ok else rk4)

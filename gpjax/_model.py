@@ -437,11 +437,8 @@ class Model:
         _check_inputs(self, measurement)
         y0 = (self.estimated_initial_states(measurement) if initial_conditions is None
               else initial_conditions)
-        solve = prepared_reference_response(
-            self, np.asarray(measurement.time, dtype=np.float64),
-            {u: np.asarray(measurement.inputs[u], dtype=np.float64) for u in self.inputs},
-            np.reshape(np.asarray(y0, dtype=np.float64), (-1, 2)),
-            scale=measurement_scale(measurement))
+        solve = prepared_reference_response(self, measurement.time, measurement.inputs, y0,
+                                            scale=measurement_scale(measurement))
         return lambda: _shaped(solve()[0])
 
     def simulate_inputs(self, time: np.ndarray, inputs: dict[str, np.ndarray],
