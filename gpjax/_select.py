@@ -107,10 +107,12 @@ worse: the same test on the two models' simulated residuals over the record. The
 error is weak where a model's sticking phases matter, and there a distant end can pass it
 while its response is far off (Coulomb + viscous, suite seed 1: the linear model's walk
 ends at k·x + K·tanh(0.53·x'), objective 0.526, which the equation-error test could not
-tell from the truth at 0.173). The guard is one-sided by design: in-sample, and with
-the measured input's noise ringing through the simulation, it favours the more complex
-model, so it can only keep the best's end, never add a term; where both tests let a
-simpler end through, it replaces the best's end. The walks share the scored and refined
+tell from the truth at 0.173). The guard is one-sided by design: in-sample it favours the
+more complex model, so it can only keep the best's end, never add a term; where both tests
+let a simpler end through, it replaces the best's end. The measured input's noise rings
+through every simulation, and a model that rings less at it fits better by that much:
+each model's share of it is taken out of its mean square before the test
+(:func:`input_noise_shares`). The walks share the scored and refined
 records, and the other walks refine only neighbours within :data:`REFINE_WITHIN` of the
 best member's objective (a neighbour of a free oscillator, say, that fits five times worse
 than the best model found competes with no end).
@@ -140,6 +142,7 @@ import numpy as np
 
 from ._coefficients import Coefficients
 from ._diagnose_acceptance import predictive_test
+from ._diagnose_noise import PROPORTIONAL_FROM, models_input_noise
 from ._diagnose_fits import blocked_cv_residual
 from ._evaluator import OK
 from ._fitness import Fitness, Record
@@ -414,18 +417,41 @@ def _simulates_better(fitness: Fitness, current: Record, simpler: Record, alpha:
     """Whether ``current``'s simulated response fits the measured one significantly better
     than ``simpler``'s at level ``alpha`` (:func:`simulates_better` on the two refined
     models' simulated residuals over the whole record; module docstring)."""
-    responses, _ = fitness.evaluator.simulate(fitness.population([simpler, current]))
+    population = fitness.population([simpler, current])
+    responses, _ = fitness.evaluator.simulate(population)
     measured = fitness.measurement.response
-    return simulates_better(responses[0] - measured, responses[1] - measured, alpha)
+    shares = input_noise_shares(fitness.evaluator, population)
+    return simulates_better(responses[0] - measured, responses[1] - measured, alpha,
+                            offset=float(shares[0] - shares[1]))
 
 
-def simulates_better(simpler: np.ndarray, current: np.ndarray, alpha: float) -> bool:
+def simulates_better(simpler: np.ndarray, current: np.ndarray, alpha: float, *,
+                     offset: float = 0.0) -> bool:
     """The selection's guard: whether the residual ``current`` (a simulated response's,
     over the whole record) has a significantly lower mean square than ``simpler`` at level
     ``alpha``, by the held-out test's Diebold–Mariano test
     (:func:`gpjax._diagnose_acceptance.predictive_test`; batch means, so a residual's
-    autocorrelation, the measured input's noise ringing through the dynamics, counts)."""
-    return predictive_test(simpler, current)["p_value"] < alpha
+    autocorrelation, the measured input's noise ringing through the dynamics, counts), the
+    difference of their input-noise shares (``offset``, :func:`input_noise_shares`) taken
+    out first."""
+    return predictive_test(simpler, current, offset=offset)["p_value"] < alpha
+
+
+def input_noise_shares(evaluator, population, scale=1.0) -> np.ndarray:
+    """(P,) each model's share of its simulated residual's mean square that is the measured
+    inputs' noise rung through it: the mean square of its response to that noise
+    (:func:`gpjax._diagnose_noise.models_input_noise`), each coordinate divided by
+    ``scale`` (its (D,) or one scale) and summed. Errors in variables: the residual of a
+    simulation driven by the measured input holds the model's response to the input's noise,
+    so a model that rings less at that noise (a needless damper on a lightly damped mode)
+    fits better by that much, not by its physics; comparing mean squares less these shares
+    removes that bias. Zeros where no input has a noise floor, or where any model's response
+    is not proportional to the noise (:data:`gpjax._diagnose_noise.PROPORTIONAL_FROM`:
+    there the share is not a linear propagation)."""
+    rms, scaling = models_input_noise(evaluator, population)
+    if not rms.size or np.any(scaling < PROPORTIONAL_FROM):
+        return np.zeros(np.shape(population.mass)[0])
+    return np.sum((rms / scale) ** 2, axis=1)
 
 
 def _replaces(record: Record, residual: np.ndarray, current: Record, base: np.ndarray,

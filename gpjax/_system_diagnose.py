@@ -39,23 +39,11 @@ import numpy as np
 from ._config import WIDE_FUNCTIONS
 from ._data import Measurement
 from ._diagnose_evidence import input_lines
-from ._diagnose_noise import input_noise_sigma, noise_floor
+from ._diagnose_noise import PROPORTIONAL_FROM, models_input_noise, noise_floor
 from ._diagnose_residual import FAR_ABOVE, describe_residual
 from ._model import Model
 from ._weak_form import smoothed_derivatives, smoothing_cutoff_hz
 
-#: Noise draws whose mean square response gives the input noise's share: one draw's RMS
-#: ranged 0.0074–0.020 over six draws on a 20 Hz Duffing record (a lightly damped response
-#: to white noise is narrowband, so a record holds few independent cycles of it); the mean
-#: of eight spreads √8 times less.
-INPUT_NOISE_DRAWS = 8
-#: Draws whose response is compared with the same draws halved: the input noise's share is
-#: counted only where that response is proportional to the noise (module docstring).
-SCALING_DRAWS = 2
-#: Below this scaling (between 1, a response the noise moves as much at half the noise,
-#: and 2, one it moves in proportion: the midpoint) the response is not a smooth function
-#: of its input here, and the share is not counted.
-PROPORTIONAL_FROM = 1.5
 
 
 def residual_statistics(model: Model, measurement: Measurement, *, alpha: float = 0.05,
@@ -125,43 +113,13 @@ def gate_ratio(floor: dict) -> float:
 def input_noise_response(model: Model, measurement: Measurement
                          ) -> tuple[np.ndarray, np.ndarray]:
     """Per coordinate (D,), the RMS of ``model``'s response to its measured inputs' noise
-    (module docstring): each input's white-noise floor
-    (:func:`gpjax._diagnose_noise.input_noise_sigma`), :data:`INPUT_NOISE_DRAWS` seeded draws
-    of it (the same record gives the same figure) each added to the inputs, the model
-    simulated by RK4 at its step count with and without them from its fitted initial states,
-    the mean square difference over the draws; and per coordinate the scaling of that
-    response with the noise: its RMS over the first :data:`SCALING_DRAWS` draws against
-    the same draws halved (2 where it is proportional, and where the noise does not move
-    it at all). Both empty where no input has a floor or a response to a noisy input
-    diverges."""
-    sigmas = {name: input_noise_sigma(values, measurement.dt) or 0.0
-              for name, values in measurement.inputs.items()}
-    if not any(sigmas.values()):
-        return np.zeros(0), np.zeros(0)
-
+    and its scaling with the noise (:func:`gpjax._diagnose_noise.models_input_noise`,
+    module docstring), simulated from its fitted initial states; both empty where no input
+    has a floor or a response to a noisy input diverges."""
     evaluator = model.evaluator(measurement)
-    population = model.population(evaluator, model.initial_states)
-    clean = np.asarray(evaluator.simulate(population)[0][0])
-
-    def square(noise: dict, scale: float) -> np.ndarray:
-        noisy = {name: values + scale * noise[name] for name, values in measurement.inputs.items()}
-        basis = evaluator.forcing_basis_as(inputs=noisy)
-        difference = np.asarray(evaluator.simulate(population, forcing_basis=basis)[0][0]) - clean
-        return np.mean(np.reshape(difference, (model.n_coordinates, -1)) ** 2, axis=1)
-
-    rng = np.random.default_rng(0)
-    draws = [{name: sigmas[name] * rng.standard_normal(values.size)
-              for name, values in measurement.inputs.items()} for _ in range(INPUT_NOISE_DRAWS)]
-    squares = np.array([square(noise, 1.0) for noise in draws])
-    halved = np.array([square(noise, 0.5) for noise in draws[:SCALING_DRAWS]])
-    if not (np.all(np.isfinite(squares)) and np.all(np.isfinite(halved))):
-        return np.zeros(0), np.zeros(0)
-    moved, moved_half = np.sum(squares[:SCALING_DRAWS], axis=0), np.sum(halved, axis=0)
-    # a response the noise does not move at all (a model without its inputs) is proportional
-    # to it, 0 = 2·0: its share is counted, as 0, not read as a chaotic response
-    scaling = np.where((moved == 0) & (moved_half == 0), 2.0,
-                       np.sqrt(moved / np.fmax(moved_half, 1e-300)))
-    return np.sqrt(np.mean(squares, axis=0)), scaling
+    rms, scaling = models_input_noise(evaluator, model.population(evaluator,
+                                                                  model.initial_states))
+    return (rms[0], scaling[0]) if rms.size else (rms, scaling)
 
 
 def input_noise_words(floor: dict) -> str:

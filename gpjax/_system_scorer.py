@@ -21,7 +21,7 @@ from ._canonical import feature_name
 from ._coefficients import Coefficients, from_system_population, to_system_population
 from ._evaluator import PENALTY, PopulationEvaluator
 from ._refine import HORIZONS, REFIT_HORIZONS, Refiner, free_width
-from ._select import simulates_better
+from ._select import input_noise_shares, simulates_better
 from ._system_couplings import (couple, coupled_least_squares, coupled_residual,
                                 fixed_columns, held_structure, tie_columns)
 from ._system_fit import equation_constants, equation_residual, held_out
@@ -91,17 +91,26 @@ class SystemScorer:
         fitted inertia by 80 %. A worsening of the simulated mean square by less than
         ``resolution`` (the run's ``convergence_tolerance``: the accuracy to which the
         fixed-step objective is claimed, :mod:`gpjax._convergence`) is not evidence
-        either."""
+        either. Both mean squares are taken less each model's share of the measured
+        input's noise (:func:`gpjax._select.input_noise_shares`): on a lightly damped
+        2-mass chain (1 % noise on the response and the input, 8,001 samples, a record
+        outside the repository) two needless relative dampers, c·d' − c₃·d'³, lowered the
+        true structure's simulated objective by 3 % (by 17.5 % with the input's noise
+        alone, by 0.03 % with the response's alone), passed this guard, and the reported
+        system missed a 20 % larger input by 5.8 % NRMS, where the true one did by 2.1 %."""
         trees = [as_trees(k, self.equations) for k in (simpler, current)]
         self.refine_best(trees, self(trees), 2, horizons=REFIT_HORIZONS)
-        responses, _ = self.evaluator.simulate(to_system_population(
-            [self.coefficients(k) for k in (simpler, current)], self.evaluator))
+        population = to_system_population([self.coefficients(k) for k in (simpler, current)],
+                                          self.evaluator)
+        responses, _ = self.evaluator.simulate(population)
         measured = self.evaluator.measurement.responses.T
-        scaled = (responses - measured) / measured.std(axis=1, keepdims=True)  # (2, D, N)
+        scale = measured.std(axis=1)
+        scaled = (responses - measured) / scale[:, None]  # (2, D, N)
         simple, full = np.sqrt(np.sum(scaled ** 2, axis=1))
-        if np.mean(simple ** 2) <= (1 + resolution) * np.mean(full ** 2):
+        shares = input_noise_shares(self.evaluator, population, scale)
+        if np.mean(simple ** 2) - shares[0] <= (1 + resolution) * (np.mean(full ** 2) - shares[1]):
             return False
-        return simulates_better(simple, full, alpha)
+        return simulates_better(simple, full, alpha, offset=float(shares[0] - shares[1]))
 
     def coefficients(self, key) -> list[Coefficients]:
         if key in self.refined:

@@ -568,6 +568,29 @@ def test_the_front_door_finds_a_stiff_torsional_pair(tmp_path):
     assert max(errors) < 0.02
 
 
+@pytest.mark.slow  # ~1 min: one gpjax fit of an 8,001-sample 2-mass record
+def test_the_front_door_adds_no_damper_for_the_measured_inputs_noise(tmp_path):
+    """A lightly damped free-end chain (``chain2_free`` with m2 = 0.7, c = 0.5, kc = 25,
+    k3 = 400; 80 s, 1 % noise on the responses and the input, seed 12): two needless
+    relative dampers, c·d' − c₃·d'³, lower the true structure's simulated objective by
+    3 %, all of it the measured input's noise rung through the lighter-damped mode
+    (:func:`gpjax._select.input_noise_shares`), and were reported; with each model's share
+    taken out of the guard the front door reports the true structure."""
+    from gpjax import cli
+
+    system = dataclasses.replace(get_system("chain2_free"), duration=80.0, constants={
+        **get_system("chain2_free").constants, "m2": 0.7, "c": 0.5, "kc": 25.0, "k3": 400.0})
+    data = generate(system, seed=12)
+    path = tmp_path / "chain.csv"
+    write_csv(data.fit, path)
+    assert cli.main(["fit", str(path), "--time", "t", "--response", "x1,x2", "--input", "u",
+                     "--out", str(tmp_path / "run"), "--seed", "12"]) == 0
+    first, second = gpjax.Model.load(tmp_path / "run" / "model.json").system
+    d, e = X1 - X2, X2 - X1
+    assert set(first.state) == {X1, V1, d, d ** 3} and set(first.forcing) == {U}
+    assert set(second.state) == {V2, e, e ** 3} and not second.forcing
+
+
 def test_the_local_search_selects_features_that_explain_an_equation_only_together():
     """``chain3_light_middle`` (2 % noise): the middle equation's own x2 and its couplings
     to both neighbours are nearly collinear, each of little use alone. Forward selection

@@ -325,3 +325,35 @@ def test_a_neighbour_in_another_term_order_is_the_same_record():
     assert structure_key(one.form(1.0), False) == structure_key(sorted_form, False)
     assert (structure_key(one.form(1.0), True)
             == structure_key(CanonicalForm(1.0, sorted_form.state, ((u, 1.0),)), True))
+
+
+def test_the_guard_takes_out_each_models_share_of_the_input_noise():
+    """Errors in variables: a simulation driven by the measured input rings at the input's
+    noise, and a model with more damping rings less. ``input_noise_shares`` measures each
+    model's share (none for a noise-free input), and the guard's offset takes the
+    difference out: a residual lower by exactly that share is no evidence."""
+    from gpjax import Model
+    from gpjax._coefficients import Coefficients, to_population
+    from gpjax._select import input_noise_shares, simulates_better
+
+    system = dataclasses.replace(get_system("duffing"), sample_rate=10.0, duration=150.0)
+    record = generate(system, seed=0, noise=0.0, input_noise=0.04).fit
+    x, v, u = sp.symbols("x x_dot u")
+    c = system.constants
+    y0 = (float(record.response_true[0, 0]), float(record.velocity_true[0, 0]))
+    models = [Coefficients(1.0, {v: damping, x: c["k"], x ** 3: c["k3"]}, {u: 1.0}, y0)
+              for damping in (c["c"], 1.05 * c["c"])]
+
+    def evaluator(measurement):
+        return Model.from_equations(("x",), "t", ("u",), models[:1], substeps=4).evaluator(
+            measurement)
+
+    noisy = evaluator(record.measurement())
+    shares = input_noise_shares(noisy, to_population(models, noisy))
+    assert shares[0] > shares[1] > 0  # the lighter damping rings more at the noise
+    quiet = evaluator(noisy.measurement.with_inputs({"u": record.input_true}))
+    assert np.all(input_noise_shares(quiet, to_population(models, quiet)) < 1e-6 * shares[0])
+    simpler = np.random.default_rng(0).standard_normal(4000)
+    current = np.sqrt(0.9) * simpler  # a mean square 10 % lower, all of it the share
+    assert simulates_better(simpler, current, 0.05)
+    assert not simulates_better(simpler, current, 0.05, offset=0.1 * np.mean(simpler ** 2))
