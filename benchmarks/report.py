@@ -780,6 +780,8 @@ TABLES = {
     "systems-rounds-scored-ab": lambda: systems_scored_ab("benchmarks/systems_rounds_ab.json"),
     "systems-rounds-wide-ab": systems_ab("benchmarks/systems_rounds_wide_ab.json"),
     "systems-selections-ab": lambda: systems_scored_ab("benchmarks/systems_selections_ab.json"),
+    "systems-guard-ab": lambda: systems_scored_ab("benchmarks/systems_guard_ab.json"),
+    "systems-guard-light-ab": lambda: systems_scored_ab("benchmarks/systems_guard_light_ab.json"),
     "systems-band-ab": lambda: systems_scored_ab("benchmarks/systems_band_ab.json"),
     "islands-compare": islands_compare,
     "islands-hard": islands_hard,
