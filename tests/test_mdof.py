@@ -409,6 +409,18 @@ def test_system_gp_finds_the_two_mass_chain(tmp_path):
     assert np.all(inside > 0.9), inside
 
 
+def _front_door_system(tmp_path, data, seed: int) -> tuple:
+    """The two equations ``gpjax fit --response x1,x2 --input u --seed SEED`` reports on
+    ``data``'s fit record (CSV under ``tmp_path``)."""
+    from gpjax import cli
+
+    path = tmp_path / "record.csv"
+    write_csv(data.fit, path)
+    assert cli.main(["fit", str(path), "--time", "t", "--response", "x1,x2", "--input", "u",
+                     "--out", str(tmp_path / "run"), "--seed", str(seed)]) == 0
+    return gpjax.Model.load(tmp_path / "run" / "model.json").system
+
+
 @pytest.mark.slow  # ~1 min: one gpjax fit of a 2-mass record with the defaults
 def test_the_front_door_finds_a_chain_driven_at_its_free_end(tmp_path):
     """``gpjax fit`` with the defaults on a topology the other chains lack: the input on
@@ -416,16 +428,11 @@ def test_the_front_door_finds_a_chain_driven_at_its_free_end(tmp_path):
     right terms in both equations (the input in equation 2 only), every constant within
     2 % in the fit's normalisation (equation 1 by its mass, 2 by its input), and the
     extrapolation record (input 20 % larger) simulated within 2 % NRMS."""
-    from gpjax import cli
     from gpjax.systems import nrms, simulate_equations
 
     data = generate("chain2_driven_free_end", seed=0)
-    path = tmp_path / "chain.csv"
-    write_csv(data.fit, path)
-    assert cli.main(["fit", str(path), "--time", "t", "--response", "x1,x2", "--input", "u",
-                     "--out", str(tmp_path / "run"), "--seed", "0"]) == 0
+    first, second = _front_door_system(tmp_path, data, 0)
     model = gpjax.Model.load(tmp_path / "run" / "model.json")
-    first, second = model.system
     c = data.system.constants
     assert set(first.state) == {X1, V1, X1 - X2, (X1 - X2) ** 3, V1 - V2} and not first.forcing
     assert set(second.state) == {X2 - X1, (X2 - X1) ** 3, V2 - V1} and set(second.forcing) == {U}
@@ -545,15 +552,10 @@ def test_the_front_door_finds_a_stiff_torsional_pair(tmp_path):
     inertia), and the extrapolation record simulated within 2 % NRMS. With the states
     smoothed to the coordinates' own bands the search put the torque in both equations
     and no shaft at all, 10× the noise floor."""
-    from gpjax import cli
     from gpjax.systems import nrms, simulate_equations
 
     data = generate("torsion2_stiff", seed=1)
-    path = tmp_path / "pair.csv"
-    write_csv(data.fit, path)
-    assert cli.main(["fit", str(path), "--time", "t", "--response", "x1,x2", "--input", "u",
-                     "--out", str(tmp_path / "run"), "--seed", "0"]) == 0
-    first, second = gpjax.Model.load(tmp_path / "run" / "model.json").system
+    first, second = _front_door_system(tmp_path, data, 0)
     d, e, c = X1 - X2, X2 - X1, data.system.constants
     assert set(first.state) == {X1, V1, d, d ** 3} and set(first.forcing) == {U}
     assert set(second.state) == {V2, e, e ** 3} and not second.forcing
@@ -576,14 +578,7 @@ def test_the_front_door_adds_no_damper_for_the_measured_inputs_noise(tmp_path):
     3 %, all of it the measured input's noise rung through the lighter-damped mode
     (:func:`gpjax._select.input_noise_shares`), and were reported; with each model's share
     taken out of the guard the front door reports the true structure."""
-    from gpjax import cli
-
-    data = generate("chain2_free_light", seed=12)
-    path = tmp_path / "chain.csv"
-    write_csv(data.fit, path)
-    assert cli.main(["fit", str(path), "--time", "t", "--response", "x1,x2", "--input", "u",
-                     "--out", str(tmp_path / "run"), "--seed", "12"]) == 0
-    first, second = gpjax.Model.load(tmp_path / "run" / "model.json").system
+    first, second = _front_door_system(tmp_path, generate("chain2_free_light", seed=12), 12)
     d, e = X1 - X2, X2 - X1
     assert set(first.state) == {X1, V1, d, d ** 3} and set(first.forcing) == {U}
     assert set(second.state) == {V2, e, e ** 3} and not second.forcing
