@@ -142,8 +142,8 @@ import numpy as np
 
 from ._coefficients import Coefficients
 from ._diagnose_acceptance import predictive_test
-from ._diagnose_noise import PROPORTIONAL_FROM, models_input_noise
 from ._diagnose_fits import blocked_cv_residual
+from ._diagnose_noise import PROPORTIONAL_FROM, models_input_noise
 from ._evaluator import OK
 from ._fitness import Fitness, Record
 from ._select_moves import move_key, neighbours

@@ -45,7 +45,6 @@ from ._model import Model
 from ._weak_form import smoothed_derivatives, smoothing_cutoff_hz
 
 
-
 def residual_statistics(model: Model, measurement: Measurement, *, alpha: float = 0.05,
                         simulated: np.ndarray | None = None) -> dict[str, dict]:
     """Per coordinate name: ``rms`` (response units), ``nrms``, ``noise`` (the noise floor's
